@@ -1,0 +1,1 @@
+"""Code that touches hardware: LIMO serial bridge, joystick gateway, MAVLink bridge."""

@@ -1,0 +1,284 @@
+"""Pydantic models of every message of the wire contract v1 (see DESIGN.md).
+
+Every message map carries ``"schema": "<Name>/1"`` and a ``header``. Unknown extra fields
+are ignored (so newer senders stay readable); fields added after v1 are optional with a
+default (so older senders stay valid).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationInfo, field_validator, model_validator
+
+from .arrays import ArraySpec
+
+Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+Quat = tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+def now_ns() -> int:
+    return time.time_ns()
+
+
+class Header(BaseModel):
+    """Wall-clock stamp (ns since the epoch), frame id and a per-publisher sequence number."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    stamp_ns: Annotated[int, Field(ge=0)] = Field(default_factory=now_ns)
+    frame_id: str = "map"
+    seq: Annotated[int, Field(ge=0)] = 0
+
+
+class Message(BaseModel):
+    """Base of every wire message. ``SCHEMA`` is the value of the ``"schema"`` key."""
+
+    model_config = ConfigDict(extra="ignore", arbitrary_types_allowed=True)
+    SCHEMA: ClassVar[str] = ""
+
+    header: Header = Field(default_factory=Header)
+
+    @classmethod
+    def __get_pydantic_json_schema__(cls, core_schema: Any, handler: Any) -> dict:
+        schema = handler(core_schema)
+        schema = handler.resolve_ref_schema(schema)
+        schema.setdefault("properties", {})
+        schema["properties"] = {"schema": {"const": cls.SCHEMA}, **schema["properties"]}
+        schema["required"] = ["schema", *[r for r in schema.get("required", []) if r != "schema"]]
+        if "header" not in schema["required"]:
+            schema["required"].append("header")
+        return schema
+
+
+# -- images and perception ---------------------------------------------------------------
+
+RGB8 = ArraySpec("|u1", (None, None, 3))
+
+
+class Image(Message):
+    """An RGB image: ``rgb8`` (uint8 HxWx3 array) or ``jpeg`` (the JPEG file's bytes)."""
+
+    SCHEMA: ClassVar[str] = "Image/1"
+
+    encoding: Literal["rgb8", "jpeg"]
+    width: Annotated[int, Field(gt=0)]
+    height: Annotated[int, Field(gt=0)]
+    data: Annotated[
+        Any,
+        Field(json_schema_extra={"anyOf": [RGB8.json_schema(), {"type": "string", "contentEncoding": "binary"}]}),
+    ]
+
+    @field_validator("data", mode="plain")
+    @classmethod
+    def _data(cls, value: Any, info: ValidationInfo) -> Any:
+        enc, w, h = info.data.get("encoding"), info.data.get("width"), info.data.get("height")
+        if enc == "jpeg":
+            if not isinstance(value, (bytes, bytearray, memoryview)) or len(value) < 4:
+                raise ValueError("jpeg data must be the bytes of a JPEG file")
+            return bytes(value)
+        arr = ArraySpec("|u1", (h, w, 3)).check(value, info)
+        return arr
+
+
+class PerceptionFrame(Message):
+    """A camera-frame pointmap with pose, per-pixel confidence and ADE20K labels."""
+
+    SCHEMA: ClassVar[str] = "PerceptionFrame/1"
+
+    T_WC: Annotated[np.ndarray, ArraySpec("<f8", (4, 4))]
+    points: Annotated[np.ndarray, ArraySpec("<f4", (None, None, 3))]
+    confidence: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
+    labels: Annotated[np.ndarray, ArraySpec("<u2", (None, None))]
+    keyframe_id: int
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PerceptionFrame:
+        hw = self.points.shape[:2]
+        if self.confidence.shape != hw:
+            raise ValueError(f"confidence shape {list(self.confidence.shape)} differs from points {list(hw)}")
+        if self.labels.shape != hw:
+            raise ValueError(f"labels shape {list(self.labels.shape)} differs from points {list(hw)}")
+        return self
+
+
+# -- maps -----------------------------------------------------------------------------------
+
+
+class EsdfGrid(Message):
+    """A signed, semantically inflated distance field on a regular grid (nz = 1: a 2-D slice).
+
+    ``distance[i, j, k]`` is the signed distance (m) at the centre of voxel (i, j, k), whose
+    position is ``origin + voxel_size * (i, j, k)``; > 0 free, < 0 inside the inflated
+    obstacle set, clipped to ``max_distance``. ``risk_group`` is the 1-based id of the
+    nearest obstacle's risk group (``groups[id - 1]``), 0 where there is none.
+    """
+
+    SCHEMA: ClassVar[str] = "EsdfGrid/1"
+
+    origin: Vec3
+    voxel_size: PosFloat
+    distance: Annotated[np.ndarray, ArraySpec("<f4", (None, None, None))]
+    risk_group: Annotated[np.ndarray, ArraySpec("|u1", (None, None, None))]
+    groups: list[str]
+    max_distance: PosFloat
+    unknown_is_occupied: bool
+
+    @model_validator(mode="after")
+    def _consistent(self) -> EsdfGrid:
+        if self.risk_group.shape != self.distance.shape:
+            raise ValueError(
+                f"risk_group shape {list(self.risk_group.shape)} differs from distance {list(self.distance.shape)}"
+            )
+        if self.risk_group.size and int(self.risk_group.max()) > len(self.groups):
+            raise ValueError(f"risk_group id {int(self.risk_group.max())} has no entry in groups")
+        return self
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(self.distance.shape)  # type: ignore[return-value]
+
+
+class DistanceQuery(Message):
+    """A batch of map-frame points whose distance, gradient and risk group are asked for."""
+
+    SCHEMA: ClassVar[str] = "DistanceQuery/1"
+
+    points: Annotated[np.ndarray, ArraySpec("<f8", (None, 3))]
+
+
+class DistanceReply(Message):
+    """Answer to a ``DistanceQuery``, row for row. ``in_map`` (optional) is False where a
+    point lies outside the map; its distance is then ``-max_distance`` if unknown space is
+    occupied, else ``max_distance``."""
+
+    SCHEMA: ClassVar[str] = "DistanceReply/1"
+
+    distance: Annotated[np.ndarray, ArraySpec("<f8", (None,))]
+    gradient: Annotated[np.ndarray, ArraySpec("<f8", (None, 3))]
+    risk_group: Annotated[np.ndarray, ArraySpec("|u1", (None,))]
+    in_map: Annotated[np.ndarray, ArraySpec("|b1", (None,))] | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> DistanceReply:
+        n = self.distance.shape[0]
+        rows = [self.gradient.shape[0], self.risk_group.shape[0]]
+        if self.in_map is not None:
+            rows.append(self.in_map.shape[0])
+        if any(r != n for r in rows):
+            raise ValueError("distance, gradient, risk_group (and in_map) must have the same number of rows")
+        return self
+
+
+# -- robot ------------------------------------------------------------------------------------
+
+
+class RobotState(Message):
+    """Pose and world-frame velocities of the robot base. Orientation is a unit quaternion xyzw."""
+
+    SCHEMA: ClassVar[str] = "RobotState/1"
+
+    position: Vec3
+    orientation: Quat
+    linear_velocity: Vec3
+    angular_velocity: Vec3
+
+    @field_validator("orientation")
+    @classmethod
+    def _unit(cls, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        norm = sum(c * c for c in q) ** 0.5
+        if abs(norm - 1.0) > 1e-2:
+            raise ValueError(f"orientation must be a unit quaternion, |q| = {norm:.4g}")
+        return q
+
+    @property
+    def yaw(self) -> float:
+        """Heading about +z (rad), for planar robots."""
+        x, y, z, w = self.orientation
+        return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+class VelocityCommand(Message):
+    """Body-frame velocity command (m/s, rad/s) and who produced it."""
+
+    SCHEMA: ClassVar[str] = "VelocityCommand/1"
+
+    linear: Vec3
+    angular: Vec3
+    source: str
+
+    @classmethod
+    def zero(cls, source: str, **kw: Any) -> VelocityCommand:
+        return cls(linear=(0.0, 0.0, 0.0), angular=(0.0, 0.0, 0.0), source=source, **kw)
+
+
+class SafetyStatus(Message):
+    """What the safety filter did on one step and why. ``fallback`` names why it braked
+    (``None`` when it did not); ``esdf_age_ms`` is -1 before any ESDF has arrived."""
+
+    SCHEMA: ClassVar[str] = "SafetyStatus/1"
+
+    h: FiniteFloat
+    risk_group: Annotated[int, Field(ge=0)]
+    intervening: bool
+    fallback: str | None
+    solve_us: NonNegFloat
+    esdf_age_ms: FiniteFloat
+
+
+class NavGoal(Message):
+    """Waypoints for the navigator (map frame), a reach tolerance, and whether to loop."""
+
+    SCHEMA: ClassVar[str] = "NavGoal/1"
+
+    waypoints: Annotated[np.ndarray, ArraySpec("<f8", (None, 3))]
+    tolerance: PosFloat
+    loop: bool
+
+    @field_validator("waypoints")
+    @classmethod
+    def _some(cls, w: np.ndarray) -> np.ndarray:
+        if w.shape[0] < 1:
+            raise ValueError("at least one waypoint is required")
+        return w
+
+
+# -- additions beyond wire contract v1 (additive) -------------------------------------------
+
+
+class NodeStatus(Message):
+    """Per-node counters on ``{prefix}/{robot}/status/{service}``: per key, messages received,
+    rejected as invalid, dropped by a latest-value queue, and published; handler timing."""
+
+    SCHEMA: ClassVar[str] = "NodeStatus/1"
+
+    service: str
+    pid: int = 0
+    uptime_s: NonNegFloat = 0.0
+    received: dict[str, int] = Field(default_factory=dict)
+    invalid: dict[str, int] = Field(default_factory=dict)
+    dropped: dict[str, int] = Field(default_factory=dict)
+    published: dict[str, int] = Field(default_factory=dict)
+    errors: int = 0
+    handler_ms_p50: NonNegFloat = 0.0
+    handler_ms_p99: NonNegFloat = 0.0
+    handler_ms_max: NonNegFloat = 0.0
+    extra: dict[str, FiniteFloat] = Field(default_factory=dict)
+
+
+MESSAGE_TYPES: tuple[type[Message], ...] = (
+    Image,
+    PerceptionFrame,
+    EsdfGrid,
+    DistanceQuery,
+    DistanceReply,
+    RobotState,
+    VelocityCommand,
+    SafetyStatus,
+    NavGoal,
+    NodeStatus,
+)

@@ -1,0 +1,3 @@
+from riskfield.cli import app
+
+app(prog_name="riskfield")

@@ -1,0 +1,1 @@
+"""Relay: validates messages on one key and republishes them on another."""

@@ -1,0 +1,298 @@
+"""The thin node every service is: decode → call the core → encode → publish.
+
+One ``Node`` owns one Zenoh session, a liveliness token ``{prefix}/{robot}/alive/{service}``,
+per-key counters published as ``NodeStatus`` on ``{prefix}/{robot}/status/{service}``, and
+a single loop thread that runs every handler and timer. Because handlers never run
+concurrently, a service's core needs no locks. Bad input never reaches a handler: it is
+counted, logged at most once per period and dropped, and the node keeps serving.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import os
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import numpy as np
+import zenoh
+from riskfield.protocol import ENCODING, DecodeError, Keys, Limits, Message, NodeStatus, decode, encode
+
+from .inbox import Inbox, QueueKind, Slot
+from .logs import RateLimitedLog, setup_logging
+from .session import open_session
+from .settings import NodeSettings
+
+M = TypeVar("M", bound=Message)
+_ENC = zenoh.Encoding(ENCODING)
+
+
+class _Sub:
+    """A subscription's slot plus how to decode and whom to call."""
+
+    def __init__(self, key: str, slot: Slot, msg_type: type[Message] | None, handler: Callable, limits: Limits):
+        self.key, self.slot, self.msg_type, self.handler, self.limits = key, slot, msg_type, handler, limits
+        self.invalid = 0
+
+
+class Node:
+    """Runtime of one service. Build it, declare subscriptions/timers, then ``run()``."""
+
+    def __init__(self, service: str, settings: NodeSettings, *, session: zenoh.Session | None = None):
+        self.service = service
+        self.settings = settings
+        self.keys = Keys(robot=settings.robot, prefix=settings.prefix)
+        self.log = setup_logging(service, settings.log_level)
+        self.ratelog = RateLimitedLog(self.log)
+        self.stats: dict[str, float] = {}  # extra numbers a service wants in its NodeStatus
+        self._own_session = session is None
+        self.session = session if session is not None else open_session(settings)
+        self._inbox = Inbox()
+        self._subs: list[_Sub] = []
+        self._declared: list[Any] = []
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._published: dict[str, int] = {}
+        self._seq: dict[str, int] = {}
+        self._timers: list[tuple[float, int, float, Callable[[], None]]] = []
+        self._tick = itertools.count()
+        self._durations: deque[float] = deque(maxlen=2000)
+        self._errors = 0
+        self._stop = threading.Event()
+        self.stop_reason = ""
+        self._t0 = time.monotonic()
+        self._closed = False
+        self._token = self.session.liveliness().declare_token(self.keys.alive(service))
+        self.every(settings.status_period_s, self._publish_status)
+
+    # -- declarations -----------------------------------------------------------------------
+    def subscribe(
+        self,
+        key: str,
+        msg_type: type[M] | None,
+        handler: Callable[[M], None] | Callable[[str, bytes], None],
+        *,
+        queue: QueueKind = "latest",
+        maxlen: int = 1000,
+        limits: Limits | None = None,
+    ) -> None:
+        """Call ``handler(msg)`` on the loop thread for each valid message on ``key``.
+
+        With ``msg_type=None`` the handler gets ``(key, payload_bytes)`` undecoded (recorders).
+        """
+        sub = _Sub(key, self._inbox.slot(key, queue, maxlen), msg_type, handler, limits or Limits())
+        self._subs.append(sub)
+
+        def on_sample(sample: zenoh.Sample, sub: _Sub = sub) -> None:
+            self._inbox.put(sub.slot, ("sample", str(sample.key_expr), sample.payload.to_bytes()))
+
+        self._declared.append(self.session.declare_subscriber(key, on_sample))
+
+    def queryable(
+        self,
+        key: str,
+        request_type: type[M],
+        handler: Callable[[M], Message],
+        *,
+        limits: Limits | None = None,
+    ) -> None:
+        """Answer queries on ``key``: the request payload is decoded as ``request_type`` and
+        ``handler`` returns the reply message; a bad request gets an error reply."""
+        sub = _Sub(key, self._inbox.slot(key, "fifo", 256), request_type, handler, limits or Limits())
+        self._subs.append(sub)
+
+        def on_query(query: zenoh.Query, sub: _Sub = sub) -> None:
+            self._inbox.put(sub.slot, ("query", query, None))
+
+        self._declared.append(self.session.declare_queryable(key, on_query))
+
+    def every(self, period_s: float, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the loop thread every ``period_s`` seconds (no catch-up bursts)."""
+        heapq.heappush(self._timers, (time.monotonic() + period_s, next(self._tick), period_s, fn))
+
+    # -- output -------------------------------------------------------------------------------
+    def publish(self, key: str, msg: Message) -> None:
+        """Stamp the header's sequence number, encode (refusing NaN/Inf) and put."""
+        seq = self._seq.get(key, 0)
+        msg.header.seq = seq
+        payload = encode(msg)
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self._publishers[key] = self.session.declare_publisher(key, encoding=_ENC)
+        pub.put(payload)
+        self._seq[key] = seq + 1
+        self._published[key] = self._published.get(key, 0) + 1
+
+    def query(self, key: str, request: Message, reply_type: type[M], timeout_s: float = 1.0) -> list[M]:
+        """Blocking query (for clients and tools, not for handlers on the loop thread)."""
+        out = []
+        for reply in self.session.get(key, payload=encode(request), encoding=_ENC, timeout=timeout_s):
+            if reply.ok is not None:
+                out.append(decode(reply.ok.payload.to_bytes(), reply_type))
+        return out
+
+    # -- loop ---------------------------------------------------------------------------------
+    def stop(self, reason: str = "stop requested") -> None:
+        if not self._stop.is_set():
+            self.stop_reason = reason
+            self._stop.set()
+            self._inbox.wake()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def run(self, duration_s: float | None = None) -> int:
+        """Serve until SIGINT/SIGTERM, ``stop()`` or ``duration_s``; close; return 0."""
+        restore = self._install_signals()
+        end = None if duration_s is None else time.monotonic() + duration_s
+        self.log.info("%s up as %s on %s (robot %s)", self.service, self.settings.mode,
+                      ", ".join(self.settings.connect or self.settings.listen), self.settings.robot)
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if end is not None and now >= end:
+                    break
+                timeout = 0.5
+                if self._timers:
+                    timeout = max(0.0, min(timeout, self._timers[0][0] - now))
+                if end is not None:
+                    timeout = max(0.0, min(timeout, end - now))
+                item = self._inbox.get(timeout)
+                if item is not None:
+                    self._dispatch(*item)
+                self._run_due_timers()
+        finally:
+            restore()
+            self.close()
+        self.log.info("%s stopped (%s)", self.service, self.stop_reason or "done")
+        return 0
+
+    def _run_due_timers(self) -> None:
+        now = time.monotonic()
+        while self._timers and self._timers[0][0] <= now:
+            due, _, period, fn = heapq.heappop(self._timers)
+            nxt = due + period
+            heapq.heappush(self._timers, (nxt if nxt > now else now + period, next(self._tick), period, fn))
+            self._call(f"timer {getattr(fn, '__name__', fn)}", fn)
+
+    def _dispatch(self, slot: Slot, item: tuple) -> None:
+        sub = next(s for s in self._subs if s.slot is slot)
+        kind, a, b = item
+        if kind == "query":
+            self._answer(sub, a)
+            return
+        key, payload = a, b
+        if sub.msg_type is None:
+            self._call(key, sub.handler, key, payload)
+            return
+        try:
+            msg = decode(payload, sub.msg_type, sub.limits)
+        except DecodeError as exc:
+            sub.invalid += 1
+            self.ratelog(logging.WARNING, f"invalid:{sub.key}", f"rejected a message on {key}: {exc}")
+            return
+        self._call(key, sub.handler, msg)
+
+    def _answer(self, sub: _Sub, query: zenoh.Query) -> None:
+        try:
+            payload = query.payload
+            if payload is None:
+                raise DecodeError("the query carries no payload")
+            request = decode(payload.to_bytes(), sub.msg_type, sub.limits)
+        except DecodeError as exc:
+            sub.invalid += 1
+            self.ratelog(logging.WARNING, f"invalid:{sub.key}", f"rejected a query on {sub.key}: {exc}")
+            query.reply_err(str(exc).encode())
+            query.drop()
+            return
+        reply = self._call(sub.key, sub.handler, request)
+        try:
+            if isinstance(reply, Message):
+                query.reply(query.key_expr, encode(reply), encoding=_ENC)
+                self._published[sub.key] = self._published.get(sub.key, 0) + 1
+            else:
+                query.reply_err(b"the service could not answer this query")
+        finally:
+            query.drop()
+
+    def _call(self, what: str, fn: Callable, *args: Any) -> Any:
+        t0 = time.perf_counter()
+        try:
+            return fn(*args)
+        except Exception as exc:  # a bug or bad data in one message must not stop the node
+            self._errors += 1
+            self.ratelog(logging.ERROR, f"error:{what}", f"handler for {what} failed: {exc!r}", exc_info=True)
+            return None
+        finally:
+            self._durations.append(time.perf_counter() - t0)
+
+    # -- status -------------------------------------------------------------------------------
+    def status(self) -> NodeStatus:
+        d = np.asarray(self._durations, dtype=float) * 1e3 if self._durations else np.zeros(1)
+        rel = lambda k: self.keys.relative(k) or k  # noqa: E731
+        return NodeStatus(
+            service=self.service,
+            pid=os.getpid(),
+            uptime_s=time.monotonic() - self._t0,
+            received={rel(s.key): s.slot.received for s in self._subs},
+            invalid={rel(s.key): s.invalid for s in self._subs},
+            dropped={rel(s.key): s.slot.dropped for s in self._subs},
+            published={rel(k): v for k, v in self._published.items()},
+            errors=self._errors,
+            handler_ms_p50=float(np.percentile(d, 50)),
+            handler_ms_p99=float(np.percentile(d, 99)),
+            handler_ms_max=float(d.max()),
+            extra={k: float(v) for k, v in self.stats.items() if np.isfinite(v)},
+        )
+
+    def _publish_status(self) -> None:
+        self.publish(self.keys.status(self.service), self.status())
+
+    # -- shutdown -----------------------------------------------------------------------------
+    def _install_signals(self) -> Callable[[], None]:
+        if threading.current_thread() is not threading.main_thread():
+            return lambda: None
+        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        for s in old:
+            signal.signal(s, lambda signum, _frame: self.stop(signal.Signals(signum).name))
+
+        def restore() -> None:
+            for s, h in old.items():
+                signal.signal(s, h)
+
+        return restore
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._inbox.close()
+        for d in self._declared:
+            try:
+                d.undeclare()
+            except Exception:
+                pass
+        for p in self._publishers.values():
+            try:
+                p.undeclare()
+            except Exception:
+                pass
+        try:
+            self._token.undeclare()
+        except Exception:
+            pass
+        if self._own_session:
+            self.session.close()
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,29 @@
+"""The embedded Zenoh router: a Python session in router mode, so no zenohd is needed."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import Field
+from pydantic_settings import NoDecode
+
+from .node import Node
+from .service import ServiceSpec
+from .settings import DEFAULT_ENDPOINT, NodeSettings
+
+
+class RouterSettings(NodeSettings):
+    SERVICE: ClassVar[str] = "router"
+
+    mode: Literal["peer", "client", "router"] = "router"
+    listen: Annotated[list[str], NoDecode] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    # Other routers to mesh with (e.g. the robot's router dialling the server's).
+    connect: Annotated[list[str], NoDecode] = Field(default_factory=list)
+
+
+def setup(node: Node, settings: RouterSettings) -> Any:
+    node.log.info("router listening on %s", ", ".join(settings.listen))
+    return None
+
+
+SERVICE = ServiceSpec("router", RouterSettings, setup)
