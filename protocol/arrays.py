@@ -148,4 +148,5 @@ class ArraySpec:
 def to_wire(arr: np.ndarray) -> dict:
     """The msgpack map of an array; the data is a view, not a copy, when already C-contiguous."""
     arr = np.ascontiguousarray(arr)
-    return {"dtype": arr.dtype.str, "shape": list(arr.shape), "data": memoryview(arr).cast("B")}
+    data = memoryview(arr).cast("B") if arr.size else b""
+    return {"dtype": arr.dtype.str, "shape": list(arr.shape), "data": data}

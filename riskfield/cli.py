@@ -15,7 +15,7 @@ from riskfield import __version__
 
 app = typer.Typer(help="Semantic-risk safety filtering from one RGB camera, as Zenoh services.",
                   no_args_is_help=True, add_completion=False)
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True, highlight=False)
 
 #: ``riskfield bench NAME``: name → "module:typer_app", imported only when asked for.
 BENCHES: dict[str, str] = {

@@ -66,8 +66,17 @@ class ZenohRouter:
 
 
 @contextlib.contextmanager
-def client_session(endpoint: str) -> Iterator[zenoh.Session]:
-    session = zenoh.open(client_config(endpoint))
+def client_session(endpoint: str, timeout_s: float = 15.0) -> Iterator[zenoh.Session]:
+    """A client session to ``endpoint``, retried while a router process is still starting."""
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            session = zenoh.open(client_config(endpoint))
+            break
+        except zenoh.ZError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.1)
     try:
         yield session
     finally:
@@ -76,7 +85,9 @@ def client_session(endpoint: str) -> Iterator[zenoh.Session]:
 
 def put(session: zenoh.Session, key: str, msg: Message | bytes) -> None:
     payload = msg if isinstance(msg, (bytes, bytearray)) else encode(msg)
-    session.put(key, bytes(payload), encoding=zenoh.Encoding(ENCODING))
+    # BLOCK: a test's burst must arrive whole (the default, DROP, sheds load under CPU pressure).
+    session.put(key, bytes(payload), encoding=zenoh.Encoding(ENCODING),
+                congestion_control=zenoh.CongestionControl.BLOCK)
 
 
 class Collector:
@@ -129,7 +140,7 @@ class ServiceProcess:
         flag = "--listen" if name == "router" else "--connect"
         self.argv = [sys.executable, "-m", "riskfield", "run", name, flag, endpoint, *args]
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
-        self._log = tempfile.NamedTemporaryFile(prefix=f"rf-{name}-", suffix=".log", delete=False)  # noqa: SIM115
+        self._log = tempfile.NamedTemporaryFile(prefix=f"rf-{name}-", suffix=".log", delete=False)
         self.proc: subprocess.Popen | None = None
 
     def __enter__(self) -> ServiceProcess:
@@ -175,3 +186,86 @@ def wait_alive(session: zenoh.Session, key: str, timeout_s: float = 20.0) -> boo
             return True
         time.sleep(0.1)
     return False
+
+
+def hostile_payloads(valid: Message, n: int = 1000, seed: int = 0) -> list[bytes]:
+    """``n`` payloads a receiver must reject, derived from one valid message: random bytes,
+    truncated msgpack, wrong or unknown schema, NaN/Inf, giant declared shapes, wrong dtypes,
+    missing fields, wrong types. Deterministic for a seed."""
+    import msgpack
+    import numpy as np
+
+    from riskfield.protocol import to_map
+
+    rng = np.random.default_rng(seed)
+    good = encode(valid)
+    base = to_map(valid)
+    arrays = [k for k, v in base.items() if isinstance(v, dict) and {"dtype", "shape", "data"} <= v.keys()]
+    scalars = [k for k, v in base.items() if k not in ("schema", "header") and k not in arrays]
+
+    def pack(m: dict) -> bytes:
+        return msgpack.packb(m, use_bin_type=True)
+
+    def mutate(kind: int) -> bytes:
+        m = dict(base)
+        if kind == 0:
+            return rng.bytes(int(rng.integers(0, 256)))
+        if kind == 1:
+            return good[: int(rng.integers(0, max(1, len(good) - 1)))]
+        if kind == 2:
+            m["schema"] = str(rng.choice(["Nope/1", "", "VelocityCommand/9", "Image/1" if valid.SCHEMA != "Image/1"
+                                          else "RobotState/1"]))
+            return pack(m)
+        if kind == 3 and arrays:
+            k = str(rng.choice(arrays))
+            a = dict(m[k])
+            a["shape"] = [(2**40)] * max(1, len(a["shape"]))
+            m[k] = a
+            return pack(m)
+        if kind == 4 and arrays:
+            k = str(rng.choice(arrays))
+            a = dict(m[k])
+            a["dtype"] = str(rng.choice(["<f8", "<i4", ">f4", "|u1", "<c16", "O"]))
+            if a["dtype"] == m[k]["dtype"]:
+                a["dtype"] = "<i8"
+            m[k] = a
+            return pack(m)
+        if kind == 5:
+            targets = [k for k in scalars if isinstance(base[k], (float, list, tuple))] or arrays
+            if not targets:
+                return pack({"schema": base["schema"], "header": {"stamp_ns": "x"}})
+            k = str(rng.choice(targets))
+            v = m[k]
+            if isinstance(v, dict):
+                arr = np.frombuffer(bytes(v["data"]), dtype=v["dtype"]).copy()
+                if arr.dtype.kind == "f" and arr.size:
+                    arr.flat[int(rng.integers(0, arr.size))] = np.nan
+                    m[k] = {**v, "data": arr.tobytes()}
+                else:
+                    m[k] = {**v, "data": b"\x00"}
+            elif isinstance(v, (list, tuple)):
+                m[k] = [float("nan")] * len(v)
+            else:
+                m[k] = float("inf")
+            return pack(m)
+        if kind == 6:
+            k = str(rng.choice([*scalars, *arrays, "header"]))
+            m.pop(k, None)
+            return pack(m)
+        if kind == 7:
+            k = str(rng.choice([*scalars, *arrays, "header"]))
+            m[k] = [  # wrong types
+                "text", {"nested": 1}, [1, 2, 3, 4, 5, 6, 7], None][int(rng.integers(0, 4))]
+            return pack(m)
+        return pack([1, 2, 3]) if kind == 8 else b""
+
+    out = []
+    for i in range(n):
+        payload = mutate(i % 10)
+        try:
+            decode(payload, type(valid))
+        except Exception:
+            out.append(payload)
+        else:
+            out.append(rng.bytes(17))  # the mutation happened to stay valid: replace by garbage
+    return out

@@ -22,6 +22,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
+
 from riskfield.protocol import ENCODING, DecodeError, Keys, Limits, Message, NodeStatus, decode, encode
 
 from .inbox import Inbox, QueueKind, Slot

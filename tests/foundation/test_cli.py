@@ -1,0 +1,70 @@
+"""The `riskfield` command line, run as users run it: a real process."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+from riskfield import __version__
+from riskfield.testing import client_session, free_port, wait_alive
+
+RF = [sys.executable, "-m", "riskfield"]
+
+
+def _run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([*RF, *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_version():
+    r = _run("--version")
+    assert r.returncode == 0 and r.stdout.strip() == f"riskfield {__version__}"
+
+
+def test_schema_export(tmp_path):
+    r = _run("schema", str(tmp_path / "schemas"))
+    assert r.returncode == 0, r.stderr
+    files = sorted(p.name for p in (tmp_path / "schemas").iterdir())
+    assert "EsdfGrid.schema.json" in files and "VelocityCommand.schema.json" in files
+    js = json.loads((tmp_path / "schemas" / "SafetyStatus.schema.json").read_text())
+    assert js["properties"]["schema"]["const"] == "SafetyStatus/1"
+
+
+def test_run_unknown_service_and_bad_config_fail_clearly(tmp_path):
+    r = _run("run", "teleporter")
+    assert r.returncode == 2 and "unknown service 'teleporter'" in r.stderr
+    r = _run("run", "relay", "--set", "schema_name=Nope/1", "--connect", f"tcp/127.0.0.1:{free_port()}",
+             "--set", "connect_timeout_s=0.5")
+    assert r.returncode in (2, 3)
+    r = _run("run", "relay", "--config", str(tmp_path / "missing.yaml"))
+    assert r.returncode == 2 and "does not exist" in r.stderr
+
+
+def test_up_starts_and_stops_a_set_of_processes(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([*RF, "up", "relay", "--listen", endpoint, "--robot", "t_up"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        with client_session(endpoint, timeout_s=30) as session:
+            assert wait_alive(session, "rf/t_up/alive/router", 30)
+            assert wait_alive(session, "rf/t_up/alive/relay", 30)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    assert "router | " in out and "relay  | " in out  # prefixed logs
+    assert "relay stopped" in out and "router stopped" in out
+
+
+def test_up_exits_non_zero_when_a_service_dies():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    t0 = time.monotonic()
+    r = subprocess.run([*RF, "up", "relay", "--listen", endpoint, "--duration", "60",
+                        "--config", "/nonexistent/riskfield.yaml"], capture_output=True, text=True, timeout=90)
+    assert r.returncode == 1
+    assert "exited with code" in r.stderr + r.stdout
+    assert time.monotonic() - t0 < 45  # it did not wait for --duration

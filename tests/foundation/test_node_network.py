@@ -1,0 +1,125 @@
+"""Nodes over a real Zenoh router on an ephemeral loopback port."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from riskfield.protocol import (
+    DecodeError,
+    DistanceQuery,
+    DistanceReply,
+    EsdfGrid,
+    NodeStatus,
+    VelocityCommand,
+    decode,
+)
+from riskfield.services.runtime import Node, NodeSettings
+from riskfield.testing import Collector, ServiceProcess, client_session, hostile_payloads, put, wait_alive, wait_until
+
+
+def _grid() -> EsdfGrid:
+    return EsdfGrid(origin=(0, 0, 0), voxel_size=0.05, distance=np.linspace(-1, 1, 60).reshape(3, 4, 5),
+                    risk_group=np.ones((3, 4, 5), np.uint8), groups=["high"], max_distance=2.0,
+                    unknown_is_occupied=False)
+
+
+def test_relay_process_survives_1000_hostile_payloads_then_serves(router_endpoint):
+    robot = "t_relay"
+    args = ["--robot", robot, "--set", "schema_name=EsdfGrid/1", "--set", "in_key=map/in",
+            "--set", "out_key=map/out", "--set", "status_period_s=0.2"]
+    with ServiceProcess("relay", router_endpoint, args) as relay, client_session(router_endpoint) as session:
+        assert wait_alive(session, f"rf/{robot}/alive/relay"), relay.output
+        out = Collector(session, f"rf/{robot}/map/out", EsdfGrid)
+        status = Collector(session, f"rf/{robot}/status/relay", NodeStatus)
+        valid = _grid()
+        for payload in hostile_payloads(valid, 1000, seed=1):
+            put(session, f"rf/{robot}/map/in", payload)
+        put(session, f"rf/{robot}/map/in", valid)
+        got = out.wait(1, timeout_s=20)
+        assert len(got) == 1  # nothing hostile came through
+        np.testing.assert_array_equal(got[0].distance, valid.distance)
+        assert wait_until(lambda: status.items and status.items[-1].received.get("map/in", 0) == 1001, 20), (
+            status.items[-1:], relay.output[-2000:])
+        last = status.items[-1]
+        assert last.invalid["map/in"] == 1000 and last.published["map/out"] == 1 and last.errors == 0
+        assert relay.alive()
+        assert relay.stop(signal.SIGTERM) == 0
+        log = relay.output
+        assert "rejected a message on rf/t_relay/map/in" in log
+        assert log.count("rejected a message") < 50  # rate-limited, not one line per payload
+        out.close()
+        status.close()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_router_process_stops_cleanly(sig, router_endpoint):
+    from riskfield.testing import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with ServiceProcess("router", endpoint) as router, client_session(endpoint) as session:
+        assert wait_alive(session, "rf/limo1/alive/router"), router.output
+        assert router.stop(sig) == 0, router.output
+
+
+class EchoSettings(NodeSettings):
+    SERVICE: ClassVar[str] = "echo"
+
+
+def test_in_process_node_queries_errors_and_liveliness(router_endpoint):
+    settings = EchoSettings(connect=[router_endpoint], robot="t_echo", status_period_s=0.2)
+    node = Node("echo", settings)
+    seen: list[VelocityCommand] = []
+
+    def on_cmd(msg: VelocityCommand) -> None:
+        if msg.source == "boom":
+            raise RuntimeError("handler bug")
+        seen.append(msg)
+
+    def on_query(q: DistanceQuery) -> DistanceReply:
+        n = q.points.shape[0]
+        return DistanceReply(distance=np.linalg.norm(q.points, axis=1), gradient=np.zeros((n, 3)),
+                             risk_group=np.zeros(n, np.uint8))
+
+    node.subscribe(node.keys.cmd_ref, VelocityCommand, on_cmd, queue="fifo")
+    node.queryable(node.keys.esdf_query, DistanceQuery, on_query)
+    thread = threading.Thread(target=node.run, daemon=True)
+    thread.start()
+    try:
+        with client_session(router_endpoint) as session:
+            assert wait_alive(session, "rf/t_echo/alive/echo")
+            put(session, "rf/t_echo/cmd/ref", VelocityCommand.zero("boom"))
+            put(session, "rf/t_echo/cmd/ref", VelocityCommand.zero("ok"))
+            assert wait_until(lambda: len(seen) == 1, 10)  # a failing handler did not stop the node
+            client = Node("client", EchoSettings(connect=[router_endpoint], robot="t_echo"), session=session)
+            replies = client.query("rf/t_echo/map/esdf/query", DistanceQuery(points=[[3, 4, 0], [0, 0, 1]]),
+                                   DistanceReply, timeout_s=5)
+            assert len(replies) == 1
+            np.testing.assert_allclose(replies[0].distance, [5, 1])
+            bad = list(session.get("rf/t_echo/map/esdf/query", payload=b"junk", timeout=5))
+            assert len(bad) == 1 and bad[0].err is not None
+            assert "not msgpack" in bad[0].err.payload.to_string()
+            client.close()
+            assert wait_until(lambda: node.status().errors == 1, 5)
+            st = node.status()
+            assert st.received["cmd/ref"] == 2 and st.invalid["map/esdf/query"] == 1
+    finally:
+        node.stop()
+        thread.join(10)
+    assert not thread.is_alive()
+    with client_session(router_endpoint) as session:
+        assert wait_until(lambda: not list(session.liveliness().get("rf/t_echo/alive/echo", timeout=0.3)), 5)
+
+
+def test_collector_decodes(router_endpoint):
+    with client_session(router_endpoint) as session:
+        c = Collector(session, "rf/t_col/x", None)
+        put(session, "rf/t_col/x", b"raw")
+        assert c.wait(1) == [b"raw"]
+        c.close()
+    with pytest.raises(DecodeError):
+        decode(b"raw")

@@ -1,0 +1,132 @@
+"""Runtime pieces without a network: settings precedence, inbox queues, log rate limiting."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import ClassVar
+
+import pytest
+
+from riskfield.services.runtime import Inbox, NodeSettings, RateLimitedLog, parse_overrides, zenoh_config
+
+
+class DemoSettings(NodeSettings):
+    SERVICE: ClassVar[str] = "demo-svc"
+    rate_hz: float = 50.0
+    name: str = "default"
+
+
+@pytest.fixture
+def clean_env(monkeypatch):
+    for var in ("RISKFIELD_CONFIG", "RISKFIELD_CONNECT", "RISKFIELD_ROBOT", "RISKFIELD_RATE_HZ", "RISKFIELD_MODE",
+                "RISKFIELD_LISTEN", "RISKFIELD_PREFIX", "RISKFIELD_NAME"):
+        monkeypatch.delenv(var, raising=False)
+    return monkeypatch
+
+
+def test_defaults(clean_env):
+    s = DemoSettings()
+    assert s.connect == ["tcp/127.0.0.1:7447"] and s.mode == "client" and s.robot == "limo1" and s.prefix == "rf"
+    assert s.rate_hz == 50.0 and not s.multicast_scouting
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".toml"])
+def test_precedence_defaults_file_env_cli(clean_env, tmp_path, suffix):
+    path = tmp_path / f"cfg{suffix}"
+    if suffix == ".yaml":
+        path.write_text("robot: fromfile\nname: fromfile\nrate_hz: 10\n"
+                        "demo-svc:\n  rate_hz: 20\nother:\n  rate_hz: 99\n")
+    else:
+        path.write_text('robot = "fromfile"\nname = "fromfile"\nrate_hz = 10\n[demo_svc]\nrate_hz = 20\n')
+    clean_env.setenv("RISKFIELD_CONFIG", str(path))
+    s = DemoSettings()
+    assert (s.robot, s.name, s.rate_hz) == ("fromfile", "fromfile", 20.0)  # service section beats top level
+    clean_env.setenv("RISKFIELD_ROBOT", "fromenv")
+    clean_env.setenv("RISKFIELD_CONNECT", "tcp/127.0.0.1:1, tcp/127.0.0.1:2")
+    s = DemoSettings()
+    assert s.robot == "fromenv" and s.name == "fromfile"
+    assert s.connect == ["tcp/127.0.0.1:1", "tcp/127.0.0.1:2"]
+    s = DemoSettings(**parse_overrides(["robot=fromcli", "rate_hz=33"]))
+    assert (s.robot, s.rate_hz, s.name) == ("fromcli", 33.0, "fromfile")
+
+
+def test_bad_config_is_a_clear_error(clean_env, tmp_path):
+    bad = tmp_path / "cfg.ini"
+    bad.write_text("x=1")
+    with pytest.raises(ValueError, match=r"use \.yaml"):
+        DemoSettings(config=bad)
+    with pytest.raises(FileNotFoundError):
+        DemoSettings(config=tmp_path / "missing.yaml")
+    with pytest.raises(ValueError):
+        DemoSettings(rate_hz="fast")
+    with pytest.raises(ValueError, match="key=value"):
+        parse_overrides(["novalue"])
+
+
+def test_overrides_parse_yaml_values():
+    assert parse_overrides(["a=1", "b.c=[1, 2]", "d=true", "e=text", "f-g=0.5"]) == {
+        "a": 1, "b": {"c": [1, 2]}, "d": True, "e": "text", "f_g": 0.5}
+
+
+def test_zenoh_config_has_no_multicast_and_no_self_dial(clean_env):
+    s = DemoSettings(mode="router", listen=["tcp/127.0.0.1:9"], connect=["tcp/127.0.0.1:9", "tcp/127.0.0.1:10"])
+    cfg = zenoh_config(s)
+    assert cfg.get_json("scouting/multicast/enabled") == "false"
+    connect = cfg.get_json("connect/endpoints")
+    assert "127.0.0.1:10" in connect and "127.0.0.1:9" not in connect
+    s = DemoSettings(user="op", password="pw", tls_root_ca="/ca.pem", tls_cert="/c.pem", tls_key="/k.pem",
+                     tls_mtls=True)
+    cfg = zenoh_config(s)
+    assert cfg.get_json("transport/auth/usrpwd/user") == '"op"'
+    assert cfg.get_json("transport/link/tls/connect_certificate") == '"/c.pem"'
+    assert cfg.get_json("transport/link/tls/enable_mtls") == "true"
+
+
+def test_latest_slot_keeps_only_the_newest():
+    inbox = Inbox()
+    slot = inbox.slot("s", "latest")
+    for i in range(5):
+        inbox.put(slot, i)
+    assert inbox.get(0) == (slot, 4)
+    assert inbox.get(0) is None
+    assert slot.received == 5 and slot.dropped == 4
+
+
+def test_fifo_slot_keeps_order_and_counts_overflow():
+    inbox = Inbox()
+    slot = inbox.slot("f", "fifo", maxlen=3)
+    for i in range(5):
+        inbox.put(slot, i)
+    assert [inbox.get(0)[1] for _ in range(3)] == [2, 3, 4]
+    assert slot.dropped == 2
+
+
+def test_slots_are_served_round_robin():
+    inbox = Inbox()
+    a, b = inbox.slot("a", "fifo"), inbox.slot("b", "fifo")
+    for i in range(3):
+        inbox.put(a, f"a{i}")
+    inbox.put(b, "b0")
+    order = [inbox.get(0)[1] for _ in range(4)]
+    assert order.index("b0") == 1
+
+
+def test_get_wakes_when_an_item_arrives():
+    inbox = Inbox()
+    slot = inbox.slot("s", "latest")
+    threading.Timer(0.05, inbox.put, args=(slot, "x")).start()
+    assert inbox.get(5.0) == (slot, "x")
+
+
+def test_rate_limited_log_suppresses_and_counts(caplog):
+    log = RateLimitedLog(logging.getLogger("rl"), period_s=60)
+    with caplog.at_level(logging.WARNING):
+        results = [log(logging.WARNING, "topic", f"bad {i}") for i in range(100)]
+        log(logging.WARNING, "other", "different topic")
+    assert results.count(True) == 1
+    assert len(caplog.records) == 2
+    log._last["topic"] -= 120
+    with caplog.at_level(logging.WARNING):
+        log(logging.WARNING, "topic", "again")
+    assert "99 more like it suppressed" in caplog.records[-1].getMessage()
