@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -37,14 +37,14 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def main(
-    version: Annotated[Optional[bool], typer.Option("--version", callback=_version, is_eager=True,  # noqa: UP045
+    version: Annotated[bool | None, typer.Option("--version", callback=_version, is_eager=True,
                                                     help="Print the version and exit.")] = None,
 ) -> None:
     """riskfield command line."""
 
 
-Connect = Annotated[Optional[list[str]], typer.Option("--connect", "-e", help="Zenoh endpoint to connect to (repeatable).")]  # noqa: UP045,E501
-Listen = Annotated[Optional[list[str]], typer.Option("--listen", "-l", help="Zenoh endpoint to listen on (repeatable).")]  # noqa: UP045,E501
+Connect = Annotated[list[str] | None, typer.Option("--connect", "-e", help="Zenoh endpoint to dial (repeatable).")]
+Listen = Annotated[list[str] | None, typer.Option("--listen", "-l", help="Zenoh endpoint to listen on (repeatable).")]
 
 
 def _overrides(connect, listen, mode, robot, prefix, config, log_level, sets) -> dict:
@@ -63,13 +63,13 @@ def run(
     service: Annotated[str, typer.Argument(help="router, mapping, safety-filter, ... (see `riskfield services`)")],
     connect: Connect = None,
     listen: Listen = None,
-    mode: Annotated[Optional[str], typer.Option(help="peer, client or router.")] = None,  # noqa: UP045
-    robot: Annotated[Optional[str], typer.Option(help="Robot id (key prefix part).")] = None,  # noqa: UP045
-    prefix: Annotated[Optional[str], typer.Option(help="Key prefix, default rf.")] = None,  # noqa: UP045
-    config: Annotated[Optional[Path], typer.Option("--config", "-c", help="YAML or TOML config file.")] = None,  # noqa: UP045
-    log_level: Annotated[Optional[str], typer.Option(help="DEBUG, INFO, WARNING.")] = None,  # noqa: UP045
-    set_: Annotated[Optional[list[str]], typer.Option("--set", "-s", help="Setting as key=value (repeatable).")] = None,  # noqa: UP045
-    duration: Annotated[Optional[float], typer.Option(help="Stop after this many seconds.")] = None,  # noqa: UP045
+    mode: Annotated[str | None, typer.Option(help="peer, client or router.")] = None,
+    robot: Annotated[str | None, typer.Option(help="Robot id (key prefix part).")] = None,
+    prefix: Annotated[str | None, typer.Option(help="Key prefix, default rf.")] = None,
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="YAML or TOML config file.")] = None,
+    log_level: Annotated[str | None, typer.Option(help="DEBUG, INFO, WARNING.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-s", help="Setting as key=value (repeatable).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
 ) -> None:
     """Start one node in this process; Ctrl-C or SIGTERM stops it cleanly (exit code 0)."""
     from pydantic import ValidationError
@@ -93,13 +93,13 @@ def run(
 
 @app.command()
 def up(
-    services: Annotated[Optional[list[str]], typer.Argument(help="Services to start beside the router.")] = None,  # noqa: UP045
+    services: Annotated[list[str] | None, typer.Argument(help="Services to start beside the router.")] = None,
     listen: Annotated[str, typer.Option(help="Endpoint of the embedded router.")] = "tcp/127.0.0.1:7447",
     router: Annotated[bool, typer.Option(help="Start the embedded router.")] = True,
-    robot: Annotated[Optional[str], typer.Option()] = None,  # noqa: UP045
-    prefix: Annotated[Optional[str], typer.Option()] = None,  # noqa: UP045
-    config: Annotated[Optional[Path], typer.Option("--config", "-c")] = None,  # noqa: UP045
-    duration: Annotated[Optional[float], typer.Option(help="Stop everything after this many seconds.")] = None,  # noqa: UP045
+    robot: Annotated[str | None, typer.Option()] = None,
+    prefix: Annotated[str | None, typer.Option()] = None,
+    config: Annotated[Path | None, typer.Option("--config", "-c")] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop everything after this many seconds.")] = None,
 ) -> None:
     """Start the router and services as separate processes; logs are prefixed by service."""
     from riskfield.launcher import Launcher
@@ -121,6 +121,44 @@ def up(
         launcher.add(name, ["--connect", listen, *common])
     launcher.start()
     raise typer.Exit(launcher.wait(duration))
+
+
+def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
+    from riskfield.services.runtime import ServiceUnavailable, run_service
+
+    try:
+        code = run_service(service, {k: v for k, v in overrides.items() if v is not None}, duration_s=duration)
+    except (ServiceUnavailable, FileNotFoundError, ValueError, ConnectionError) as exc:
+        console.print(f"[red]{exc}[/red]")
+        raise typer.Exit(2) from None
+    raise typer.Exit(code)
+
+
+@app.command()
+def record(
+    out: Annotated[Path, typer.Option(help="Folder for recording.mcap and summary.json.")] = Path("out/record"),
+    keys: Annotated[str | None, typer.Option(help="Key expression (default: every key of the robot).")] = None,
+    connect: Connect = None,
+    robot: Annotated[str | None, typer.Option()] = None,
+    prefix: Annotated[str | None, typer.Option()] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+) -> None:
+    """Record every key to MCAP (schema = the message's JSON Schema, encoding msgpack)."""
+    _run_tool("record", dict(out=out, keys=keys, connect=connect, robot=robot, prefix=prefix), duration)
+
+
+@app.command()
+def replay(
+    file: Annotated[Path, typer.Argument(help="A recording.mcap made by `riskfield record`.")],
+    speed: Annotated[float, typer.Option(help="Time scale: 2 replays twice as fast.")] = 1.0,
+    loop: Annotated[bool, typer.Option(help="Start again at the end.")] = False,
+    remap_from: Annotated[str | None, typer.Option(help="Key root to rewrite, e.g. rf/limo1.")] = None,
+    remap_to: Annotated[str | None, typer.Option(help="New key root, e.g. rf/replay1.")] = None,
+    connect: Connect = None,
+) -> None:
+    """Publish a recording back with its original timing."""
+    _run_tool("replay", dict(file=file, speed=speed, loop=loop, remap_from=remap_from, remap_to=remap_to,
+                             connect=connect), None)
 
 
 @app.command()

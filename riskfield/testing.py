@@ -96,6 +96,7 @@ class Collector:
     def __init__(self, session: zenoh.Session, key: str, msg_type: type[Message] | None = None):
         self.items: list[Any] = []
         self.keys: list[str] = []
+        self.times: list[float] = []  # time.monotonic() at arrival
         self._lock = threading.Lock()
 
         def on_sample(sample: zenoh.Sample) -> None:
@@ -104,6 +105,7 @@ class Collector:
             with self._lock:
                 self.items.append(item)
                 self.keys.append(str(sample.key_expr))
+                self.times.append(time.monotonic())
 
         self._sub = session.declare_subscriber(key, on_sample)
 
@@ -117,6 +119,7 @@ class Collector:
         with self._lock:
             self.items.clear()
             self.keys.clear()
+            self.times.clear()
 
     def close(self) -> None:
         self._sub.undeclare()

@@ -129,6 +129,15 @@ class Node:
         self._seq[key] = seq + 1
         self._published[key] = self._published.get(key, 0) + 1
 
+    def publish_raw(self, key: str, payload: bytes, encoding: str = ENCODING) -> None:
+        """Put bytes as they are (replays, foreign encodings such as ROS 2 CDR)."""
+        pub = self._publishers.get(key)
+        if pub is None:
+            enc = _ENC if encoding == ENCODING else zenoh.Encoding(encoding)
+            pub = self._publishers[key] = self.session.declare_publisher(key, encoding=enc)
+        pub.put(payload)
+        self._published[key] = self._published.get(key, 0) + 1
+
     def query(self, key: str, request: Message, reply_type: type[M], timeout_s: float = 1.0) -> list[M]:
         """Blocking query (for clients and tools, not for handlers on the loop thread)."""
         out = []

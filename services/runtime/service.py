@@ -27,6 +27,9 @@ SERVICES: dict[str, str] = {
     "limo": "riskfield.edge.limo.node:SERVICE",
     "joystick": "riskfield.edge.joystick.node:SERVICE",
     "mavlink": "riskfield.edge.mavlink.node:SERVICE",
+    "record": "riskfield.services.recorder.node:RECORD",
+    "replay": "riskfield.services.recorder.node:REPLAY",
+    "ros2-bridge": "riskfield.services.ros2_bridge.node:SERVICE",
 }
 
 #: The pip extra each service needs beyond the base install.
@@ -38,6 +41,8 @@ EXTRAS: dict[str, str] = {
     "limo": "robot",
     "joystick": "robot",
     "mavlink": "robot",
+    "record": "tools",
+    "replay": "tools",
 }
 
 
