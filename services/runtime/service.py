@@ -30,6 +30,7 @@ SERVICES: dict[str, str] = {
     "record": "riskfield.services.recorder.node:RECORD",
     "replay": "riskfield.services.recorder.node:REPLAY",
     "ros2-bridge": "riskfield.services.ros2_bridge.node:SERVICE",
+    "viewer": "riskfield.services.viewer.node:SERVICE",
 }
 
 #: The pip extra each service needs beyond the base install.
@@ -43,6 +44,7 @@ EXTRAS: dict[str, str] = {
     "mavlink": "robot",
     "record": "tools",
     "replay": "tools",
+    "viewer": "viz",
 }
 
 

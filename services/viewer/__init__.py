@@ -1,0 +1,1 @@
+"""Live view: the ESDF slice, the pointmap, the robot and its commands, in Rerun."""
