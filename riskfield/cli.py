@@ -19,7 +19,7 @@ console = Console(stderr=True, soft_wrap=True, highlight=False)
 
 #: ``riskfield bench NAME``: name → "module:typer_app", imported only when asked for.
 BENCHES: dict[str, str] = {
-    "codec": "riskfield.protocol_bench:app",
+    "codec": "riskfield.bench_codec:app",
     "filter": "riskfield.services.safety_filter.bench:app",
     "mapping": "riskfield.services.mapping.bench:app",
     "latency": "riskfield.edge.latency_bench:app",

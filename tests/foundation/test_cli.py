@@ -68,3 +68,13 @@ def test_up_exits_non_zero_when_a_service_dies():
     assert r.returncode == 1
     assert "exited with code" in r.stderr + r.stdout
     assert time.monotonic() - t0 < 45  # it did not wait for --duration
+
+
+def test_bench_codec_writes_a_summary(tmp_path):
+    r = _run("bench", "codec", "--repeat", "3", "--out", str(tmp_path), timeout=120)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    row = summary["decode PerceptionFrame 512x384"]
+    assert row["n"] == 3 and 0 < row["median_ms"] < 1000
+    assert any(k.startswith("zenoh round trip") for k in summary)
+    assert _run("bench", "nope").returncode == 2

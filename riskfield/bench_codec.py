@@ -1,0 +1,110 @@
+"""``riskfield bench codec``: what the wire costs — encode/decode of the big messages, and a
+Zenoh round trip between two processes through the embedded router on loopback."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from riskfield.protocol import EsdfGrid, PerceptionFrame, VelocityCommand, decode, encode
+
+app = typer.Typer(add_completion=False)
+
+ECHO = """
+import sys, zenoh, json
+cfg = zenoh.Config()
+cfg.insert_json5("mode", '"client"'); cfg.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+cfg.insert_json5("scouting/multicast/enabled", "false")
+with zenoh.open(cfg) as s:
+    pub = s.declare_publisher("bench/pong")
+    sub = s.declare_subscriber("bench/ping", lambda smp: pub.put(smp.payload))
+    print("ready", flush=True)
+    sys.stdin.read()
+"""
+
+
+def _frame(h: int, w: int) -> PerceptionFrame:
+    rng = np.random.default_rng(0)
+    return PerceptionFrame(T_WC=np.eye(4), points=rng.random((h, w, 3), dtype=np.float32),
+                           confidence=rng.random((h, w), dtype=np.float32),
+                           labels=rng.integers(0, 150, (h, w)).astype(np.uint16), keyframe_id=1)
+
+
+def _grid(n: int) -> EsdfGrid:
+    return EsdfGrid(origin=(0, 0, 0), voxel_size=0.05, distance=np.ones((n, n, n), np.float32),
+                    risk_group=np.zeros((n, n, n), np.uint8), groups=["high", "mid", "low"], max_distance=2.0,
+                    unknown_is_occupied=False)
+
+
+def _times(fn, repeat: int) -> np.ndarray:
+    out = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t0)
+    return np.array(out) * 1e3
+
+
+def _round_trips(payload: bytes, repeat: int) -> np.ndarray:
+    import threading
+
+    import zenoh
+
+    from riskfield.testing import ZenohRouter, client_session
+
+    with ZenohRouter() as router:
+        echo = subprocess.Popen([sys.executable, "-c", ECHO, router.endpoint], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True)
+        try:
+            assert echo.stdout is not None and echo.stdout.readline().strip() == "ready"
+            with client_session(router.endpoint) as s:
+                got = threading.Event()
+                sub = s.declare_subscriber("bench/pong", lambda _smp: got.set())
+                pub = s.declare_publisher("bench/ping", congestion_control=zenoh.CongestionControl.BLOCK)
+                time.sleep(0.3)
+                out = []
+                for _ in range(repeat + 5):
+                    got.clear()
+                    t0 = time.perf_counter()
+                    pub.put(payload)
+                    if not got.wait(5):
+                        raise TimeoutError("no echo")
+                    out.append(time.perf_counter() - t0)
+                sub.undeclare()
+        finally:
+            echo.communicate(timeout=10)
+    return np.array(out[5:]) * 1e3
+
+
+@app.command()
+def codec(
+    repeat: Annotated[int, typer.Option(help="Repetitions per row.")] = 50,
+    out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench/codec"),
+) -> None:
+    """Encode/decode medians and p99 (ms), and the loopback round trip through a router."""
+    rows: list[tuple[str, np.ndarray]] = []
+    for name, msg in (("VelocityCommand", VelocityCommand.zero("bench")), ("PerceptionFrame 512x384", _frame(384, 512)),
+                      ("EsdfGrid 101^3", _grid(101))):
+        payload, kind = encode(msg), type(msg)
+        rows.append((f"encode {name} ({len(payload) / 1e6:.2f} MB)", _times(lambda m=msg: encode(m), repeat)))
+        rows.append((f"decode {name}", _times(lambda p=payload, t=kind: decode(p, t), repeat)))
+    for size in (64, 1_000_000):
+        rows.append((f"zenoh round trip, {size} B, 2 processes", _round_trips(b"x" * size, repeat)))
+    table = Table("operation", "median ms", "p99 ms", title="riskfield bench codec")
+    summary = {}
+    for name, t in rows:
+        med, p99 = float(np.median(t)), float(np.percentile(t, 99))
+        table.add_row(name, f"{med:.3f}", f"{p99:.3f}")
+        summary[name] = {"median_ms": med, "p99_ms": p99, "n": len(t)}
+    Console().print(table)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
