@@ -31,6 +31,7 @@ SERVICES: dict[str, str] = {
     "replay": "riskfield.services.recorder.node:REPLAY",
     "ros2-bridge": "riskfield.services.ros2_bridge.node:SERVICE",
     "viewer": "riskfield.services.viewer.node:SERVICE",
+    "operator": "riskfield.services.operator.node:SERVICE",
 }
 
 #: The pip extra each service needs beyond the base install.

@@ -1,0 +1,52 @@
+"""Operator node: a ScriptedOperator publishing ``cmd/ref`` (source ``operator``) from ``state``."""
+
+from __future__ import annotations
+
+import time
+from typing import ClassVar
+
+from pydantic import Field
+
+from riskfield.protocol import RobotState, VelocityCommand
+
+from ..runtime.node import Node
+from ..runtime.service import ServiceSpec
+from ..runtime.settings import NodeSettings
+from .operator import OperatorConfig, ScriptedOperator, Target
+
+
+class OperatorSettings(NodeSettings):
+    SERVICE: ClassVar[str] = "operator"
+
+    targets: list[tuple[str, float, float]] = Field(default_factory=list)  # [name, x, y] in visiting order
+    seed: int = 0
+    rate_hz: float = Field(default=20.0, gt=0)
+    push_s: float = Field(default=7.0, gt=0)
+    state_timeout_s: float = Field(default=0.5, gt=0)
+
+
+def setup(node: Node, s: OperatorSettings) -> None:
+    op = ScriptedOperator([Target(*t) for t in s.targets], OperatorConfig(push_s=s.push_s), seed=s.seed)
+    last: dict[str, object] = {}
+
+    def on_state(st: RobotState) -> None:
+        last["state"], last["at"] = st, time.monotonic()
+
+    def tick() -> None:
+        st = last.get("state")
+        now = time.monotonic()
+        if not isinstance(st, RobotState) or now - float(last["at"]) > s.state_timeout_s:
+            node.publish(node.keys.cmd_ref, VelocityCommand.zero("operator"))
+            return
+        v, w, phase = op.command(now, st.position[0], st.position[1], st.yaw)
+        node.stats["target_index"] = op.index
+        node.publish(node.keys.cmd_ref, VelocityCommand(linear=(v, 0.0, 0.0), angular=(0.0, 0.0, w), source="operator"))
+        if phase == "done" and not last.get("done"):
+            last["done"] = True
+            node.log.info("operator finished all %d targets", len(op.targets))
+
+    node.subscribe(node.keys.state, RobotState, on_state)
+    node.every(1.0 / s.rate_hz, tick)
+
+
+SERVICE = ServiceSpec("operator", OperatorSettings, setup)
