@@ -41,7 +41,7 @@ def test_operator_approaches_each_target_then_finishes():
         d = [math.hypot(tgt.x - r[1], tgt.y - r[2]) for r in rows]
         assert d[-1] < 0.7 and d[-1] < d[0] - 1.0  # it got close to this target
     backoffs = [r for r in log if r[6] == "backoff"]
-    assert backoffs and all(r[4] < 0 for r in backoffs)
+    assert all(r[4] <= 0 for r in backoffs) and sum(r[4] < 0 for r in backoffs) > 10
     assert all(abs(r[5]) <= 1.2 + 0.7 for r in log)  # stick limits plus noise
 
 
