@@ -32,6 +32,7 @@ TOPICS: dict[str, type[Message]] = {
     "safety/status": SafetyStatus,
     "nav/goal": NavGoal,
     "config/risk": RiskConfig,
+    "sim/truth": PerceptionFrame,  # simulation only: perfect pointmap and labels, stamped like the image
 }
 
 
@@ -70,6 +71,8 @@ class Keys:
     safety_status = property(lambda self: self.key("safety/status"))
     nav_goal = property(lambda self: self.key("nav/goal"))
     risk_config = property(lambda self: self.key("config/risk"))
+    sim_truth = property(lambda self: self.key("sim/truth"))
+    sim_spawn = property(lambda self: self.key("sim/spawn"))
 
     def alive(self, service: str) -> str:
         return self.key(f"alive/{_check(service, 'service', False)}")

@@ -26,6 +26,8 @@ BENCHES: dict[str, str] = {
     "safety": "riskfield.services.navigator.bench_safety:app",
     "teleop": "riskfield.services.navigator.bench_teleop:app",
     "navigation": "riskfield.services.navigator.bench_navigation:app",
+    "sim": "riskfield.services.simulator.bench:app",
+    "perception": "riskfield.services.perception.bench:app",
 }
 
 

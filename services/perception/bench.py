@@ -1,0 +1,77 @@
+"""``riskfield bench perception``: cost of the sim backend per frame (degradation, matching,
+eq. (2) and vote fusion) and of the fusion rules alone, at 512×384."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from riskfield.protocol import PerceptionFrame
+
+from .fusion import fuse_pointmap, vote_fuse
+from .sim_backend import SimBackend, SimBackendConfig
+
+app = typer.Typer(add_completion=False)
+
+
+def _stats(ts: list[float]) -> dict[str, float]:
+    a = np.asarray(ts)
+    return {"median_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max()),
+            "n": len(ts)}
+
+
+@app.command()
+def perception(out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-perception"),
+               n: Annotated[int, typer.Option(help="Frames per measurement.")] = 60) -> None:
+    """Sim backend per frame (both publish modes) and the fusion rules, on a driving sequence."""
+    from riskfield.services.simulator.world import World  # the simulator provides the ground truth
+
+    world = World("navigation")
+    truths = []
+    for i in range(n):
+        world.command(np.array([0.4, 0, 0]), np.array([0, 0, 0.3]))
+        world.advance(0.1)
+        r = world.render()
+        truths.append(PerceptionFrame(T_WC=r.T_WC, points=r.points, confidence=r.valid.astype(np.float32),
+                                      labels=r.labels, keyframe_id=i))
+    results: dict[str, dict[str, float]] = {}
+    extra: dict[str, float] = {}
+    for mode in ("keyframe", "frame"):
+        b = SimBackend(SimBackendConfig(publish=mode))
+        ts = []
+        for i, t in enumerate(truths):
+            t0 = time.perf_counter()
+            b.process(None, t, i)
+            ts.append((time.perf_counter() - t0) * 1e3)
+        results[f"sim backend per frame ({mode})"] = _stats(ts)
+        extra[f"keyframes_{mode}"] = b.n_keyframes
+    rng = np.random.default_rng(0)
+    N = 512 * 384
+    X, C = rng.normal(size=(N, 3)).astype(np.float32), np.ones(N, np.float32)
+    L, W = rng.integers(0, 150, N).astype(np.uint16), np.ones(N, np.float32)
+    mask, q = rng.random(N) < 0.8, rng.uniform(1, 3, N)
+    for name, fn in (("eq. (2) pointmap fusion, 512x384", lambda: fuse_pointmap(X, C, X, C, mask)),
+                     ("vote fusion, 512x384", lambda: vote_fuse(L, W, L[::-1].copy(), q, mask))):
+        ts = []
+        for _ in range(n):
+            t0 = time.perf_counter()
+            fn()
+            ts.append((time.perf_counter() - t0) * 1e3)
+        results[name] = _stats(ts)
+    table = Table("operation", "median ms", "p99 ms", "max ms", "n", title="riskfield bench perception")
+    for k, v in results.items():
+        table.add_row(k, f"{v['median_ms']:.2f}", f"{v['p99_ms']:.2f}", f"{v['max_ms']:.2f}", str(int(v["n"])))
+    Console().print(table)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps({"bench": "perception", "results": results, **extra}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    app()

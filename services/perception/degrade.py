@@ -1,0 +1,209 @@
+"""How a foundation model's output differs from ground truth, as a seeded random model.
+
+Applied to a perfect frame (camera-frame pointmap, labels, pose) it produces what MASt3R-SLAM
+plus EfficientViT would plausibly give:
+
+* **depth noise growing with range** — each point moves along its pixel ray by
+  ``n ~ N(0, σ(z))`` with ``σ(z) = a + b·z²`` (stereo-like quadratic growth), inflated at grazing
+  incidence by ``1/max(cos θ, 0.2)``;
+* **confidence from range and incidence** — ``C = 1 + c_gain·cos θ·exp(−z / z_scale)``: like
+  MASt3R's ``1 + exp(·)`` confidences it is ≥ 1 on valid pixels, largest for near surfaces seen
+  head-on; 0 where nothing was seen;
+* **label noise at boundaries** — pixels within ``boundary_px`` of a label edge take the label of
+  a random neighbour with probability ``p_boundary``;
+* **occasional wrong labels** — per frame, each object class present is, with probability
+  ``p_confuse``, relabelled as a plausible confusion (dog → cat-like ``animal`` stays, box →
+  cabinet, chair → armchair, …) over a random window of its pixels, plus sparse salt noise
+  ``p_salt``;
+* **optional pose drift** — a random walk on translation and yaw applied to ``T_WC``.
+
+θ is the angle between the viewing ray and the surface normal, estimated from the pointmap
+itself (cross product of neighbouring points), as a real pipeline would have to.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from riskfield.protocol import ade20k
+
+_I = ade20k.INDEX
+#: Plausible confusions of a segmentation network: class → classes it is mistaken for.
+CONFUSIONS: dict[int, tuple[int, ...]] = {
+    _I["animal"]: (_I["cushion"], _I["plaything"], _I["person"]),
+    _I["person"]: (_I["curtain"], _I["apparel"], _I["animal"]),
+    _I["ball"]: (_I["plaything"], _I["vase"], _I["pot"]),
+    _I["box"]: (_I["cabinet"], _I["chest of drawers"], _I["base"]),
+    _I["chair"]: (_I["armchair"], _I["swivel chair"], _I["stool"]),
+    _I["table"]: (_I["desk"], _I["coffee table"], _I["counter"]),
+    _I["sofa"]: (_I["armchair"], _I["bed"], _I["cushion"]),
+    _I["cabinet"]: (_I["wardrobe"], _I["chest of drawers"], _I["shelf"]),
+    _I["bed"]: (_I["sofa"], _I["blanket"], _I["pillow"]),
+}
+#: Structure that is never relabelled wholesale (a network rarely confuses whole walls).
+STRUCTURE = {_I["wall"], _I["floor"], _I["ceiling"]}
+
+
+@dataclass(frozen=True)
+class DegradationConfig:
+    noise_a: float = 0.005  # m
+    noise_b: float = 0.004  # 1/m
+    c_gain: float = 9.0
+    z_scale: float = 4.0  # m
+    boundary_px: int = 2
+    p_boundary: float = 0.3
+    p_confuse: float = 0.05
+    p_salt: float = 0.001
+    drift_t: float = 0.0  # m per frame (σ of the translation random walk)
+    drift_yaw: float = 0.0  # rad per frame
+
+    def __post_init__(self) -> None:
+        for name, v in self.__dict__.items():
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"degradation {name} must be finite and non-negative")
+        for name in ("p_boundary", "p_confuse", "p_salt"):
+            if getattr(self, name) > 1:
+                raise ValueError(f"degradation {name} is a probability")
+
+    @classmethod
+    def perfect(cls) -> DegradationConfig:
+        """No degradation at all (ground truth through the same code path)."""
+        return cls(0.0, 0.0, 0.0, 4.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def sigma(self, z: np.ndarray) -> np.ndarray:
+        return self.noise_a + self.noise_b * z * z
+
+
+def normals_from_pointmap(points: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit surface normals (H, W, 3) facing the camera, from neighbouring points, and where
+    they are defined (the pixel and its horizontal and vertical neighbours valid)."""
+    p = np.asarray(points, np.float32)
+    # Central differences inside, one-sided at the image border (edge-padded copies).
+    pp = np.pad(p, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    vp = np.pad(valid, 1, mode="edge")
+    dx = pp[1:-1, 2:] - pp[1:-1, :-2]
+    dy = pp[2:, 1:-1] - pp[:-2, 1:-1]
+    ok = valid & vp[1:-1, 2:] & vp[1:-1, :-2] & vp[2:, 1:-1] & vp[:-2, 1:-1]
+    n = np.empty_like(p)
+    n[..., 0] = dx[..., 1] * dy[..., 2] - dx[..., 2] * dy[..., 1]
+    n[..., 1] = dx[..., 2] * dy[..., 0] - dx[..., 0] * dy[..., 2]
+    n[..., 2] = dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0]
+    norm = np.sqrt(n[..., 0] ** 2 + n[..., 1] ** 2 + n[..., 2] ** 2)
+    ok &= norm > 1e-12
+    # Divide by ±norm: unit length, and flipped to face the camera (n·p < 0).
+    facing = n[..., 0] * p[..., 0] + n[..., 1] * p[..., 1] + n[..., 2] * p[..., 2]
+    n /= np.where(ok, np.where(facing > 0, -norm, norm), np.float32(1.0))[..., None]
+    return n, ok
+
+
+def cos_incidence(points: np.ndarray, normals: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """|cos| of the angle between each pixel's viewing ray and the surface normal (1 where the
+    normal is unknown, so unknown geometry is not penalised twice)."""
+    p = np.asarray(points, np.float32)
+    r = np.sqrt(p[..., 0] ** 2 + p[..., 1] ** 2 + p[..., 2] ** 2)
+    dot = normals[..., 0] * p[..., 0] + normals[..., 1] * p[..., 1] + normals[..., 2] * p[..., 2]
+    c = np.abs(dot) / np.where(r > 0, r, np.float32(1.0))
+    return np.where(ok, np.clip(c, 0.0, 1.0), 1.0)
+
+
+def boundary_mask(labels: np.ndarray, width: int) -> np.ndarray:
+    """Pixels within ``width`` pixels (Chebyshev) of a different label."""
+    edge = np.zeros(labels.shape, bool)
+    if width <= 0:
+        return edge
+    d = labels[:, 1:] != labels[:, :-1]
+    edge[:, 1:] |= d
+    edge[:, :-1] |= d
+    d = labels[1:] != labels[:-1]
+    edge[1:] |= d
+    edge[:-1] |= d
+    out = edge.copy()
+    for _ in range(width - 1):  # grow by one pixel per pass
+        grown = out.copy()
+        grown[:, 1:] |= out[:, :-1]
+        grown[:, :-1] |= out[:, 1:]
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        out = grown
+    return out
+
+
+@dataclass
+class Observation:
+    """One degraded frame: pointmap (H, W, 3) camera frame, confidence (H, W), labels (H, W),
+    published pose (with drift), valid mask."""
+
+    points: np.ndarray
+    confidence: np.ndarray
+    labels: np.ndarray
+    T_WC: np.ndarray
+    valid: np.ndarray
+
+
+class Degrader:
+    def __init__(self, config: DegradationConfig | None = None, seed: int = 0):
+        self.config = config or DegradationConfig()
+        self.rng = np.random.default_rng(seed)
+        self.drift = np.eye(4)
+
+    def observe(self, points: np.ndarray, labels: np.ndarray, T_WC: np.ndarray, valid: np.ndarray) -> Observation:
+        cfg = self.config
+        valid = valid & (points[..., 2] > 0)
+        z = np.where(valid, points[..., 2], 0.0).astype(np.float64)
+        normals, n_ok = normals_from_pointmap(points, valid)
+        cos = cos_incidence(points, normals, n_ok)
+        sigma = cfg.sigma(z) / np.maximum(cos, 0.2)
+        noise = self.rng.standard_normal(z.shape) * sigma
+        scale = np.where(valid, (z + noise) / np.where(z > 0, z, 1.0), 0.0)
+        scale = np.maximum(scale, 0.05)  # a point never crosses behind the camera
+        noisy = (points * scale[..., None]).astype(np.float32)
+        noisy[~valid] = 0.0
+        conf = np.where(valid, 1.0 + cfg.c_gain * cos * np.exp(-z / cfg.z_scale), 0.0).astype(np.float32)
+        return Observation(noisy, conf, self.degrade_labels(labels, valid), self._drifted(T_WC), valid)
+
+    def degrade_labels(self, labels: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+        cfg, rng = self.config, self.rng
+        out = labels.copy()
+        h, w = labels.shape
+        if cfg.p_boundary > 0 and cfg.boundary_px > 0:
+            edge = boundary_mask(labels, cfg.boundary_px)
+            pick = edge & (rng.random(labels.shape) < cfg.p_boundary)
+            vv, uu = np.nonzero(pick)
+            r = cfg.boundary_px
+            dv = rng.integers(-r, r + 1, vv.size)
+            du = rng.integers(-r, r + 1, uu.size)
+            out[vv, uu] = labels[np.clip(vv + dv, 0, h - 1), np.clip(uu + du, 0, w - 1)]
+        if cfg.p_confuse > 0:
+            for lab in np.unique(labels):
+                lab = int(lab)
+                if lab in STRUCTURE or lab >= ade20k.NUM_CLASSES or rng.random() >= cfg.p_confuse:
+                    continue
+                wrong = int(rng.choice(CONFUSIONS.get(lab, (_I["box"],))))
+                vs, us = np.nonzero(labels == lab)
+                k = int(rng.integers(vs.size))
+                v0, u0 = int(vs[k]), int(us[k])  # the window is centred on the object
+                hh, ww = rng.integers(h // 8, h // 2 + 1), rng.integers(w // 8, w // 2 + 1)
+                window = np.zeros(labels.shape, bool)
+                window[max(0, v0 - hh // 2):v0 + hh // 2, max(0, u0 - ww // 2):u0 + ww // 2] = True
+                out[window & (labels == lab)] = wrong
+        if cfg.p_salt > 0:
+            salt = rng.random(labels.shape) < cfg.p_salt
+            out[salt] = rng.integers(0, ade20k.NUM_CLASSES, int(salt.sum()))
+        # Noise never invents "nothing seen" on a seen pixel, nor labels where nothing was seen.
+        out = np.where(out >= ade20k.NUM_CLASSES, labels, out)
+        if valid is not None:
+            out = np.where(valid, out, labels)
+        return out.astype(np.uint16)
+
+    def _drifted(self, T_WC: np.ndarray) -> np.ndarray:
+        cfg = self.config
+        if cfg.drift_t > 0 or cfg.drift_yaw > 0:
+            step = np.eye(4)
+            a = self.rng.normal(0.0, cfg.drift_yaw) if cfg.drift_yaw > 0 else 0.0
+            step[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+            if cfg.drift_t > 0:
+                step[:3, 3] = self.rng.normal(0.0, cfg.drift_t, 3) * np.array([1.0, 1.0, 0.2])
+            self.drift = self.drift @ step
+        return self.drift @ T_WC

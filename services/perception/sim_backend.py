@@ -1,0 +1,187 @@
+"""The ``sim`` perception backend: the simulator's ground truth, degraded like a foundation model
+(``degrade``), then fused into keyframes with the paper's rules (``fusion``) exactly as the
+MASt3R-SLAM front end would — only the pixel matches come from geometry instead of a network.
+
+Per frame:
+
+1. degrade the perfect pointmap, labels and pose (noise, confidence, label errors, drift);
+2. match every keyframe pixel ξ to the current frame: project its **true** world point into the
+   current camera and accept the pixel it lands on if the true depth there agrees (not occluded)
+   — this is ``idx_f2k``/``valid_match_k`` of MASt3R-SLAM; the match quality
+   ``Qk = sqrt(C_k · C_t[idx_f2k])`` mirrors its ``sqrt(Qff[idx_f2k] · Qkf)``;
+3. start a new keyframe when too few keyframe pixels are matched (overlap) or the camera moved or
+   turned too far; otherwise fuse: the frame's noisy points, moved into the keyframe frame, into
+   the keyframe pointmap by eq. (2), and its labels through ``idx_f2k`` by the vote rule
+   (eq. 7–8), both over trusted matches (``valid_match_k & Qk > Q_conf``);
+4. publish the fused keyframe (``publish = "keyframe"``: pose of the keyframe, its id) or the
+   current frame with the keyframe's fused labels carried back onto matched pixels
+   (``publish = "frame"``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from riskfield.protocol import Image, PerceptionFrame
+from riskfield.protocol.messages import Header
+
+from .backend import Labeller, image_rgb
+from .degrade import DegradationConfig, Degrader, Observation
+from .fusion import Q_CONF, KeyframeFusion, scatter_to_frame
+from .geometry import inverse as _inv
+from .geometry import transform_points
+
+
+@dataclass(frozen=True)
+class SimBackendConfig:
+    degradation: DegradationConfig = field(default_factory=DegradationConfig)
+    publish: str = "keyframe"  # or "frame"
+    kf_min_overlap: float = 0.6  # fraction of the keyframe's valid pixels still matched
+    kf_max_translation: float = 1.0  # m
+    kf_max_rotation_deg: float = 30.0
+    Q_conf: float = Q_CONF
+    depth_tol_abs: float = 0.03  # m: occlusion test of a reprojected keyframe point
+    depth_tol_rel: float = 0.03  # of the depth
+    seed: int = 0
+    frame_id: str = "map"
+
+    def __post_init__(self) -> None:
+        if self.publish not in ("keyframe", "frame"):
+            raise ValueError(f"publish {self.publish!r}: use keyframe or frame")
+        if not 0 <= self.kf_min_overlap <= 1:
+            raise ValueError("kf_min_overlap is a fraction")
+
+
+@dataclass
+class _Keyframe:
+    fusion: KeyframeFusion
+    T_WK_true: np.ndarray
+    T_WK: np.ndarray  # as published (with drift)
+    world_true: np.ndarray  # (N, 3) true world point of each keyframe pixel
+    valid: np.ndarray  # (N,)
+    C0: np.ndarray  # (N,) confidence of the keyframe's own observation
+
+
+@dataclass
+class Matches:
+    idx_f2k: np.ndarray
+    valid_match_k: np.ndarray
+    Qk: np.ndarray
+    overlap: float
+
+
+class SimBackend:
+    needs_truth = True
+
+    def __init__(self, config: SimBackendConfig | None = None, labeller: Labeller | None = None):
+        self.config = config or SimBackendConfig()
+        self.degrader = Degrader(self.config.degradation, self.config.seed)
+        self.labeller = labeller
+        self.keyframe: _Keyframe | None = None
+        self.n_keyframes = 0
+        self.frames = 0
+        self.last_matches: Matches | None = None
+        self.last_observation: Observation | None = None
+
+    # -- the steps ------------------------------------------------------------------------------
+    def match(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray, T_WC_true: np.ndarray,
+              C_t: np.ndarray) -> Matches:
+        """Keyframe pixel → current pixel by reprojecting true keyframe points (see module doc)."""
+        h, w = truth_valid.shape
+        pc = transform_points(_inv(T_WC_true), kf.world_true)
+        z = pc[:, 2]
+        front = kf.valid & (z > 1e-6)
+        zs = np.where(front, z, 1.0)
+        u = np.rint(self._fx * pc[:, 0] / zs + self._cx).astype(np.int64)
+        v = np.rint(self._fy * pc[:, 1] / zs + self._cy).astype(np.int64)
+        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        idx = np.where(inside, v * w + u, 0)
+        z_here = truth_points.reshape(-1, 3)[idx, 2]
+        seen = inside & truth_valid.reshape(-1)[idx]
+        tol = self.config.depth_tol_abs + self.config.depth_tol_rel * z
+        valid = seen & (np.abs(z_here - z) < tol)
+        Qk = np.where(valid, np.sqrt(kf.C0 * C_t.reshape(-1)[idx]), 0.0)
+        overlap = float(valid.sum()) / max(1, int(kf.valid.sum()))
+        return Matches(idx, valid, Qk, overlap)
+
+    def _intrinsics(self, points: np.ndarray, valid: np.ndarray) -> None:
+        # The truth carries no K: recover it from the pointmap (x/z is affine in u, y/z in v).
+        h, w = valid.shape
+        if getattr(self, "_k_shape", None) == (h, w):
+            return
+        vv, uu = np.nonzero(valid)
+        vv, uu = vv[::7], uu[::7]  # plenty of pixels for a 2-parameter line fit
+        if vv.size < 3:
+            raise ValueError("a frame with fewer than 3 valid pixels")
+        p = points[vv, uu].astype(np.float64)
+        xz, yz = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+        a = np.polyfit(uu, xz, 1) if np.ptp(uu) > 0 else np.array([1.0, 0.0])
+        b = np.polyfit(vv, yz, 1) if np.ptp(vv) > 0 else np.array([1.0, 0.0])
+        self._fx, self._cx = 1.0 / a[0], -a[1] / a[0]
+        self._fy, self._cy = 1.0 / b[0], -b[1] / b[0]
+        self._k_shape = (h, w)
+
+    def _new_keyframe(self, obs: Observation, truth_points: np.ndarray, T_WC_true: np.ndarray) -> _Keyframe:
+        h, w = obs.valid.shape
+        world = transform_points(T_WC_true, truth_points.reshape(-1, 3))
+        fusion = KeyframeFusion(self.n_keyframes, h, w, obs.points, obs.confidence, obs.labels,
+                                label_weight=np.where(obs.valid.reshape(-1), obs.confidence.reshape(-1), 0.0))
+        self.n_keyframes += 1
+        return _Keyframe(fusion, T_WC_true.copy(), obs.T_WC.copy(), world, obs.valid.reshape(-1).copy(),
+                         obs.confidence.reshape(-1).astype(np.float64))
+
+    def _needs_keyframe(self, kf: _Keyframe, m: Matches, T_WC_true: np.ndarray) -> bool:
+        rel = _inv(kf.T_WK_true) @ T_WC_true
+        angle = np.degrees(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        return (m.overlap < self.config.kf_min_overlap or np.linalg.norm(rel[:3, 3]) > self.config.kf_max_translation
+                or angle > self.config.kf_max_rotation_deg)
+
+    # -- the interface --------------------------------------------------------------------------
+    def process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
+        if truth is None:
+            return []
+        points = np.asarray(truth.points)
+        valid = (np.asarray(truth.confidence) > 0) & (points[..., 2] > 0)
+        T_WC_true = np.asarray(truth.T_WC, np.float64)
+        self._intrinsics(points, valid)
+        obs = self.degrader.observe(points, np.asarray(truth.labels), T_WC_true, valid)
+        if self.labeller is not None and image is not None:
+            labels = self.labeller(image_rgb(image))
+            if labels.shape != valid.shape:
+                raise ValueError(f"labeller returned {labels.shape}, the frame is {valid.shape}")
+            obs.labels = np.where(valid, labels, obs.labels).astype(np.uint16)
+        self.last_observation = obs
+        self.frames += 1
+        kf = self.keyframe
+        m = None
+        if kf is not None and kf.fusion.height == valid.shape[0] and kf.fusion.width == valid.shape[1]:
+            m = self.match(kf, points, valid, T_WC_true, obs.confidence)
+            if self._needs_keyframe(kf, m, T_WC_true):
+                m = None
+        if m is None:
+            kf = self.keyframe = self._new_keyframe(obs, points, T_WC_true)
+            self.last_matches = None
+        else:
+            assert kf is not None
+            T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate
+            X_in_k = transform_points(T_KC, obs.points.reshape(-1, 3)[m.idx_f2k], np.float32)
+            kf.fusion.fuse(X_in_k, obs.confidence.reshape(-1)[m.idx_f2k], obs.labels, m.idx_f2k, m.valid_match_k,
+                           m.Qk, self.config.Q_conf)
+            self.last_matches = m
+        return [self._message(kf, obs, m, stamp_ns)]
+
+    def _message(self, kf: _Keyframe, obs: Observation, m: Matches | None, stamp_ns: int) -> PerceptionFrame:
+        f = kf.fusion
+        header = Header(stamp_ns=stamp_ns, frame_id=self.config.frame_id)
+        if self.config.publish == "keyframe":
+            return PerceptionFrame(header=header, T_WC=kf.T_WK, points=f.X.reshape(f.height, f.width, 3),
+                                   confidence=f.C.reshape(f.height, f.width),
+                                   labels=f.labels.reshape(f.height, f.width), keyframe_id=f.id)
+        labels = obs.labels
+        if m is not None:
+            trusted = m.valid_match_k & (m.Qk > self.config.Q_conf)
+            labels = scatter_to_frame(f.labels, m.idx_f2k, trusted, obs.labels)
+        return PerceptionFrame(header=header, T_WC=obs.T_WC, points=obs.points, confidence=obs.confidence,
+                               labels=labels, keyframe_id=f.id)

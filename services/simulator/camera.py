@@ -1,0 +1,188 @@
+"""The simulated forward RGB camera: a pinhole model, its mounting on the robot, and a renderer
+that ray-casts the scene into RGB, depth, a camera-frame pointmap and ground-truth labels.
+
+Conventions (OpenCV): camera x right, y down, z forward; pixel (u, v) has its centre at integer
+coordinates, so the ray of pixel (u, v) is ``((u − cx)/fx, (v − cy)/fy, 1)``. Casting that
+unnormalised direction makes the returned hit distance equal to the **depth** z, and the
+pointmap is ``depth · ray``.
+
+The default image is 512×384 — what MASt3R-SLAM works at (a 640×480 frame resized and cropped)
+— with a 90° horizontal field of view, mounted 0.15 m forward of and 0.1 m above the robot's base
+frame, looking along the robot's heading.
+
+RGB is the class colour times Lambert shading by the surface normal (a head-light term, so every
+visible surface is lit, plus a sky-light term from above): enough texture for a segmentation
+network to separate classes and for a human to read the image.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from riskfield.protocol import ade20k
+
+from .scene import NO_LABEL, Snapshot
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    width: int = 512
+    height: int = 384
+    fx: float = 256.0
+    fy: float = 256.0
+    cx: float = 255.5
+    cy: float = 191.5
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0 or self.fx <= 0 or self.fy <= 0:
+            raise ValueError("camera width, height, fx and fy must be positive")
+        if not all(math.isfinite(v) for v in (self.fx, self.fy, self.cx, self.cy)):
+            raise ValueError("camera intrinsics must be finite")
+
+    @classmethod
+    def from_fov(cls, width: int = 512, height: int = 384, hfov_deg: float = 90.0) -> PinholeCamera:
+        """Square pixels, principal point at the image centre, horizontal field of view."""
+        if not 1.0 < hfov_deg < 179.0:
+            raise ValueError("hfov_deg must be between 1 and 179")
+        f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+        return cls(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def rays(self) -> np.ndarray:
+        """(H, W, 3) float32 camera-frame ray of each pixel, with z = 1."""
+        u = (np.arange(self.width, dtype=np.float64) - self.cx) / self.fx
+        v = (np.arange(self.height, dtype=np.float64) - self.cy) / self.fy
+        uu, vv = np.meshgrid(u, v)
+        return np.stack([uu, vv, np.ones_like(uu)], axis=-1).astype(np.float32)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (…, 2) of camera-frame points and whether each is in front (z > 0)."""
+        z = points[..., 2]
+        front = z > 1e-9
+        zs = np.where(front, z, 1.0)
+        uv = np.stack([self.fx * points[..., 0] / zs + self.cx, self.fy * points[..., 1] / zs + self.cy], axis=-1)
+        return uv, front
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+#: Body (x forward, y left, z up) ← camera (x right, y down, z forward), looking straight ahead.
+R_BODY_CAMERA = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """Where the camera sits on the robot: offset in the body frame and a downward pitch."""
+
+    x: float = 0.15
+    y: float = 0.0
+    z: float = 0.1
+    pitch_deg: float = 0.0  # > 0 tilts the optical axis towards the floor
+
+    def T_body_camera(self) -> np.ndarray:
+        """4x4 camera → body."""
+        T = np.eye(4)
+        # Pitching down turns the optical axis (+z) towards +y (down) of the camera: −pitch about x.
+        T[:3, :3] = R_BODY_CAMERA @ _rot_x(-math.radians(self.pitch_deg))
+        T[:3, 3] = (self.x, self.y, self.z)
+        return T
+
+
+def _palette() -> np.ndarray:
+    # Distinct, deterministic colours: golden-ratio hue steps, three saturation levels.
+    out = np.zeros((ade20k.NUM_CLASSES + 1, 3), np.float32)
+    for i in range(ade20k.NUM_CLASSES):
+        h = (i * 0.6180339887) % 1.0
+        s = 0.45 + 0.25 * (i % 3)
+        out[i] = colorsys.hsv_to_rgb(h, s, 0.95)
+    out[-1] = (0.0, 0.0, 0.0)  # nothing hit: black
+    return out
+
+
+#: Class index → RGB in [0, 1]; index ``NUM_CLASSES`` (and any unknown label) is black.
+PALETTE = _palette()
+
+
+#: Any uint16 label → RGB in [0, 1] (black for labels outside ADE20K, e.g. "nothing hit").
+_LUT = np.zeros((65536, 3), np.float32)
+_LUT[: ade20k.NUM_CLASSES] = PALETTE[: ade20k.NUM_CLASSES]
+
+
+def class_colour(label: np.ndarray) -> np.ndarray:
+    return _LUT[np.asarray(label, np.uint16)]
+
+
+@dataclass
+class Render:
+    """One rendered frame. ``points`` is the camera-frame pointmap (zeros where nothing was
+    hit), ``depth`` its z (0 where nothing), ``labels`` ADE20K indices (``NO_LABEL`` where
+    nothing), ``normals`` world-frame surface normals, ``object`` the scene object index (-1)."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    points: np.ndarray
+    labels: np.ndarray
+    normals: np.ndarray
+    object: np.ndarray
+    T_WC: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.depth > 0
+
+
+def _rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    # Not ``v @ R.T``: a BLAS gemm with a 3-wide inner dimension stalls on a busy machine.
+    out = np.empty_like(v)
+    for i in range(3):
+        out[..., i] = R[i, 0] * v[..., 0] + R[i, 1] * v[..., 1] + R[i, 2] * v[..., 2]
+    return out
+
+
+@dataclass
+class Renderer:
+    camera: PinholeCamera = field(default_factory=PinholeCamera)
+    ambient: float = 0.25
+    max_depth: float = 50.0
+
+    def __post_init__(self) -> None:
+        self._rays = self.camera.rays()
+        self._inv_len = (1.0 / np.linalg.norm(self._rays, axis=-1)).astype(np.float32)
+
+    def render(self, snapshot: Snapshot, T_WC: np.ndarray) -> Render:
+        """Cast one ray per pixel from the camera pose ``T_WC`` (4x4 camera → world)."""
+        T_WC = np.asarray(T_WC, np.float64)
+        R = T_WC[:3, :3].astype(np.float32)
+        dirs = _rotate(R, self._rays)
+        hits = snapshot.cast(T_WC[:3, 3].astype(np.float32), dirs)
+        ok = hits.t <= self.max_depth  # inf (no hit) fails this too
+        depth = np.where(ok, hits.t, np.float32(0.0))
+        points = self._rays * depth[..., None]
+        labels = np.where(ok, hits.label, NO_LABEL)
+        normals = hits.normal  # zero where nothing was hit
+        normals[~ok] = 0.0  # and beyond max_depth
+        # Lambert: head-light |n·view| (both faces lit) plus light from above.
+        n_dot_d = normals[..., 0] * dirs[..., 0] + normals[..., 1] * dirs[..., 1] + normals[..., 2] * dirs[..., 2]
+        lambert = np.abs(n_dot_d) * self._inv_len
+        sky = np.clip(normals[..., 2], 0.0, 1.0)
+        shade = (255.0 * self.ambient) + (255.0 * (1.0 - self.ambient)) * np.minimum(0.8 * lambert + 0.2 * sky, 1.0)
+        rgb = (class_colour(labels) * shade[..., None] + 0.5).astype(np.uint8)  # black where nothing was hit
+        return Render(
+            rgb=rgb,
+            depth=depth,
+            points=points,
+            labels=labels,
+            normals=normals,
+            object=np.where(ok, hits.object, -1).astype(np.int32),
+            T_WC=T_WC,
+        )

@@ -1,0 +1,140 @@
+"""The simulator node: consumes ``cmd/safe``, publishes ``state`` and ``camera/image``.
+
+Simulation-only keys (additive; nothing outside simulation depends on them):
+
+* ``{prefix}/{robot}/sim/truth`` — ``PerceptionFrame/1`` with the perfect camera-frame
+  pointmap, the true ``T_WC``, confidence 1 (0 where a ray hit nothing) and ground-truth ADE20K
+  labels, published right after each image **with the same header stamp**, so the perception
+  ``sim`` backend pairs image and truth by ``stamp_ns`` across processes.
+* ``{prefix}/{robot}/sim/spawn`` — add an object while running (the unseen obstacle): a msgpack
+  or JSON map in the scenario file's object format, e.g. ``{"class": "box", "position": [1, 0]}``.
+
+Time: the world advances by the wall-clock time elapsed since the previous physics tick (in
+``physics_hz`` sub-steps), so it runs in real time whatever the timer jitter; a stall longer
+than ``max_step_s`` is not caught up (simulated time then lags wall time, reported in status).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from typing import ClassVar
+
+import msgpack
+import numpy as np
+from pydantic import Field, ValidationError
+
+from riskfield.protocol import Image, PerceptionFrame, RobotState, VelocityCommand
+from riskfield.protocol.messages import Header
+
+from ..runtime.node import Node
+from ..runtime.service import ServiceSpec
+from ..runtime.settings import NodeSettings
+from .robots import ROBOT_TYPES
+from .scenario import ObjectSpec, load_scenario
+from .world import World
+
+TRUTH_KEY = "sim/truth"
+SPAWN_KEY = "sim/spawn"
+
+
+class SimulatorSettings(NodeSettings):
+    SERVICE: ClassVar[str] = "simulator"
+
+    scenario: str = Field("navigation", description="built-in name, random:SEED, or a scenario YAML path")
+    robot_type: str | None = Field(None, description=f"override the scenario's robot: {', '.join(ROBOT_TYPES)}")
+    physics_hz: float = Field(200.0, gt=0, le=5000)
+    state_hz: float = Field(50.0, gt=0, le=1000)
+    camera_hz: float = Field(10.0, ge=0, le=120, description="0 disables the camera")
+    watchdog_s: float = Field(0.2, gt=0)
+    publish_truth: bool = True
+    max_step_s: float = Field(0.25, gt=0)
+    map_frame: str = "map"
+    camera_frame: str = "camera"
+
+
+class Simulator:
+    """Glue between the node and the pure ``World``: wall time → simulated time, messages."""
+
+    def __init__(self, node: Node, s: SimulatorSettings):
+        scenario = load_scenario(s.scenario)
+        if s.robot_type is not None:
+            scenario = scenario.model_copy(update={"robot": scenario.robot.model_copy(update={"type": s.robot_type})})
+            load_scenario(scenario.model_dump(by_alias=True))  # validates the override
+        self.world = World(scenario, physics_dt=1.0 / s.physics_hz, watchdog_s=s.watchdog_s)
+        self.node, self.s = node, s
+        self._last = time.monotonic()
+        self._t0 = self._last
+        self.frames = 0
+        self.spawn_invalid = 0
+        node.log.info("scenario %s: %d objects, robot %s, camera %dx%d", scenario.name,
+                      len(self.world.scene.objects), scenario.robot.type, self.world.camera.width,
+                      self.world.camera.height)
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        self.world.advance(min(now - self._last, self.s.max_step_s))
+        self._last = now
+        self.node.stats["sim_time_s"] = self.world.t
+        self.node.stats["sim_lag_s"] = (now - self._t0) - self.world.t
+        self.node.stats["watchdog_trips"] = self.world.watchdog_trips
+
+    def on_command(self, msg: VelocityCommand) -> None:
+        self.tick()  # the command takes effect from now, not from the last physics tick
+        self.world.command(np.asarray(msg.linear), np.asarray(msg.angular))
+
+    def on_spawn(self, key: str, payload: bytes) -> None:
+        try:
+            try:
+                data = msgpack.unpackb(payload, raw=False)
+            except Exception:
+                data = json.loads(payload.decode("utf-8"))
+            if not isinstance(data, dict):
+                raise ValueError("the payload must be a map")
+            name = self.world.add_object(ObjectSpec.model_validate(data))
+        except (ValueError, ValidationError, UnicodeDecodeError, KeyError, OSError) as exc:
+            self.spawn_invalid += 1
+            self.node.stats["spawn_invalid"] = self.spawn_invalid
+            self.node.ratelog(logging.WARNING, "invalid:spawn", f"rejected a spawn request on {key}: {exc}")
+            return
+        self.node.log.info("spawned %s at t = %.2f s", name, self.world.t)
+
+    def publish_state(self) -> None:
+        self.tick()
+        st = self.world.state()
+        self.node.publish(self.node.keys.state, RobotState(
+            header=Header(frame_id=self.s.map_frame), position=tuple(st.position), orientation=tuple(st.orientation),
+            linear_velocity=tuple(st.linear_velocity), angular_velocity=tuple(st.angular_velocity)))
+
+    def publish_camera(self) -> None:
+        self.tick()
+        t0 = time.perf_counter()
+        frame = self.world.render()
+        self.node.stats["render_ms"] = (time.perf_counter() - t0) * 1e3
+        stamp = time.time_ns()
+        cam = self.world.camera
+        self.node.publish(self.node.keys.camera_image, Image(
+            header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), encoding="rgb8",
+            width=cam.width, height=cam.height, data=frame.rgb))
+        if self.s.publish_truth:
+            self.node.publish(self.node.keys.key(TRUTH_KEY), PerceptionFrame(
+                header=Header(stamp_ns=stamp, frame_id=self.s.map_frame), T_WC=frame.T_WC, points=frame.points,
+                confidence=frame.valid.astype(np.float32), labels=frame.labels, keyframe_id=self.frames))
+        self.frames += 1
+        p = self.world.state().position
+        self.node.stats["gt_clearance_m"] = float(self.world.clearance(np.array([[p[0], p[1], p[2] + 0.1]]))[0])
+
+
+def setup(node: Node, s: SimulatorSettings) -> Simulator:
+    sim = Simulator(node, s)
+    node.subscribe(node.keys.cmd_safe, VelocityCommand, sim.on_command, queue="latest")
+    node.subscribe(node.keys.key(SPAWN_KEY), None, sim.on_spawn, queue="fifo", maxlen=64)
+    node.every(1.0 / s.physics_hz, sim.tick)
+    node.every(1.0 / s.state_hz, sim.publish_state)
+    if s.camera_hz > 0:
+        node.every(1.0 / s.camera_hz, sim.publish_camera)
+    return sim
+
+
+SERVICE = ServiceSpec("simulator", SimulatorSettings, setup)

@@ -1,0 +1,114 @@
+"""The perception node over a real Zenoh router, in its own process: fed by a real simulator
+process, and by a test client sending images/truth it pairs by stamp, hostile payloads included."""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+
+from riskfield.protocol import Image, NodeStatus, PerceptionFrame
+from riskfield.protocol.messages import Header
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    client_session,
+    hostile_payloads,
+    put,
+    wait_alive,
+    wait_until,
+)
+
+SCENARIO = str(Path(__file__).parents[1] / "simulator" / "data" / "two_boxes.yaml")
+
+
+def test_perception_with_the_simulator_publishes_fused_keyframes(router_endpoint):
+    robot = "t_per_sim"
+    common = ["--robot", robot]
+    with ServiceProcess("simulator", router_endpoint, [*common, "--set", f"scenario={SCENARIO}"]) as sim, \
+            ServiceProcess("perception", router_endpoint, [*common, "--set", "status_period_s=0.3"]) as per, \
+            client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/perception"), per.output
+        frames = Collector(s, f"rf/{robot}/perception/frame", PerceptionFrame)
+        images = Collector(s, f"rf/{robot}/camera/image", Image)
+        got = frames.wait(5, 30)
+        f = got[-1]
+        assert f.points.shape == (96, 128, 3) and f.keyframe_id == 0
+        assert f.confidence.min() >= 1.0 and f.confidence.max() > 2.0  # fused over several frames
+        assert {i.header.stamp_ns for i in images.items} >= {g.header.stamp_ns for g in got}  # image stamps kept
+        assert per.stop(signal.SIGTERM) == 0 and sim.stop() == 0
+        frames.close()
+        images.close()
+
+
+def _pair(stamp: int, h: int = 24, w: int = 32) -> tuple[Image, PerceptionFrame]:
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float32)
+    z = np.full((h, w), 2.0, np.float32)
+    pts = np.stack([(uu - (w - 1) / 2) / 20 * z, (vv - (h - 1) / 2) / 20 * z, z], -1)
+    labels = np.zeros((h, w), np.uint16)
+    labels[:, w // 2:] = 126
+    header = Header(stamp_ns=stamp, frame_id="camera")
+    img = Image(header=header, encoding="rgb8", width=w, height=h, data=np.zeros((h, w, 3), np.uint8))
+    truth = PerceptionFrame(header=Header(stamp_ns=stamp), T_WC=np.eye(4), points=pts, confidence=np.ones((h, w)),
+                            labels=labels, keyframe_id=0)
+    return img, truth
+
+
+def test_perception_pairs_by_stamp_and_survives_hostile_input(router_endpoint):
+    robot = "t_per_fuzz"
+    args = ["--robot", robot, "--set", "status_period_s=0.3", "--set", "pair_timeout_s=0.3"]
+    with ServiceProcess("perception", router_endpoint, args) as per, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/perception"), per.output
+        frames = Collector(s, f"rf/{robot}/perception/frame", PerceptionFrame)
+        status = Collector(s, f"rf/{robot}/status/perception", NodeStatus)
+        img, truth = _pair(1000)
+        # Hostile payloads on both subscribed keys, sent slowly enough that most are decoded.
+        bad_img, bad_truth = hostile_payloads(img, 150, seed=5), hostile_payloads(truth, 150, seed=6)
+        for a, b in zip(bad_img, bad_truth, strict=True):
+            put(s, f"rf/{robot}/camera/image", a)
+            put(s, f"rf/{robot}/sim/truth", b)
+            time.sleep(0.002)
+        # Valid but inconsistent: a truth whose size differs from its image is rejected, not a crash.
+        img2, _ = _pair(2000)
+        _, truth2 = _pair(2000, 12, 16)
+        put(s, f"rf/{robot}/sim/truth", truth2)
+        put(s, f"rf/{robot}/camera/image", img2)
+        time.sleep(0.3)  # camera/image is a latest-value queue: let img2 be taken before the next one
+        # An image whose truth never comes is dropped after the timeout.
+        put(s, f"rf/{robot}/camera/image", _pair(3000)[0])
+        time.sleep(0.6)
+        # Still serving: truth first, then the image, paired by stamp.
+        put(s, f"rf/{robot}/sim/truth", truth)
+        put(s, f"rf/{robot}/camera/image", img)
+        out = frames.wait(1, 15)
+        assert len(out) == 1 and out[0].header.stamp_ns == 1000 and out[0].points.shape == (24, 32, 3)
+        assert np.isfinite(out[0].points).all()
+        # Image first, then its truth.
+        img4, truth4 = _pair(4000)
+        put(s, f"rf/{robot}/camera/image", img4)
+        time.sleep(0.05)
+        put(s, f"rf/{robot}/sim/truth", truth4)
+        assert frames.wait(2, 15)[-1].header.stamp_ns == 4000
+
+        def settled() -> bool:
+            st = status.items[-1] if status.items else None
+            return bool(st and st.extra.get("frames_rejected") == 1 and st.extra.get("unpaired_images", 0) >= 1
+                        and st.invalid.get("camera/image", 0) > 50 and st.invalid.get("sim/truth", 0) > 50)
+
+        assert wait_until(settled, 15), status.items[-1] if status.items else per.output
+        assert status.items[-1].errors == 0 and per.alive()
+        assert per.stop() == 0
+        assert "could not process a frame" in per.output
+        frames.close()
+        status.close()
+
+
+def test_mast3r_backend_refuses_to_start_with_a_clear_message(router_endpoint):
+    args = ["--robot", "t_per_gpu", "--set", "geometry=mast3r", "--set", "labels=efficientvit"]
+    with ServiceProcess("perception", router_endpoint, args) as per:
+        assert wait_until(lambda: not per.alive(), 60)
+        assert per.proc is not None and per.proc.returncode == 2
+        out = per.output
+        assert "perception backend unavailable" in out and "checkpoint" in out

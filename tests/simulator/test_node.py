@@ -1,0 +1,102 @@
+"""The simulator node over a real Zenoh router, in its own process."""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+
+from riskfield.protocol import Image, NodeStatus, PerceptionFrame, RobotState, VelocityCommand, ade20k
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    client_session,
+    hostile_payloads,
+    put,
+    wait_alive,
+    wait_until,
+)
+
+SCENARIO = str(Path(__file__).parent / "data" / "two_boxes.yaml")
+
+
+def _args(robot: str) -> list[str]:
+    return ["--robot", robot, "--set", f"scenario={SCENARIO}", "--set", "status_period_s=0.3",
+            "--set", "camera_hz=10", "--set", "state_hz=50"]
+
+
+def test_simulator_publishes_state_image_truth_and_obeys_commands(router_endpoint):
+    robot = "t_sim_cmd"
+    with ServiceProcess("simulator", router_endpoint, _args(robot)) as sim, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/simulator"), sim.output
+        states = Collector(s, f"rf/{robot}/state", RobotState)
+        images = Collector(s, f"rf/{robot}/camera/image", Image)
+        truths = Collector(s, f"rf/{robot}/sim/truth", PerceptionFrame)
+        images.wait(3, 20)
+        truths.wait(3, 20)
+        img = images.items[-2]
+        truth = next(t for t in truths.items if t.header.stamp_ns == img.header.stamp_ns)
+        assert img.width == 128 and img.height == 96 and img.data.shape == (96, 128, 3)
+        assert truth.points.shape == (96, 128, 3) and np.all(truth.confidence == 1.0)
+        assert np.all(truth.points[..., 2] > 0) and set(np.unique(truth.labels)) <= set(range(ade20k.NUM_CLASSES))
+        start = states.wait(1, 10)[-1].position
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            put(s, f"rf/{robot}/cmd/safe", VelocityCommand(linear=(0.4, 0, 0), angular=(0, 0, 0), source="test"))
+            time.sleep(0.05)
+        moving = states.items[-1]
+        assert moving.linear_velocity[0] > 0.3 and moving.position[0] > start[0] + 0.3
+        # Watchdog: no command for 0.2 s → the robot brakes to a stop.
+        assert wait_until(lambda: abs(states.items[-1].linear_velocity[0]) < 1e-9, 5)
+        assert sim.stop(signal.SIGTERM) == 0, sim.output
+        for c in (states, images, truths):
+            c.close()
+
+
+def test_simulator_survives_hostile_input_and_spawns_objects(router_endpoint):
+    robot = "t_sim_fuzz"
+    with ServiceProcess("simulator", router_endpoint, _args(robot)) as sim, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/simulator"), sim.output
+        status = Collector(s, f"rf/{robot}/status/simulator", NodeStatus)
+        states = Collector(s, f"rf/{robot}/state", RobotState)
+        truths = Collector(s, f"rf/{robot}/sim/truth", PerceptionFrame)
+        valid = VelocityCommand(linear=(0.3, 0, 0), angular=(0, 0, 0.2), source="fuzz")
+        hostile = hostile_payloads(valid, 300, seed=3)
+        for p in hostile:
+            put(s, f"rf/{robot}/cmd/safe", p)
+        rng = np.random.default_rng(0)
+        bad_spawns = [rng.bytes(int(n)) for n in rng.integers(0, 64, 20)] + [
+            msgpack.packb({"class": "unicorn"}), msgpack.packb({"class": "box", "position": [float("nan"), 0]}),
+            msgpack.packb([1, 2, 3]), b'{"class": "box", "size": [0, 1, 1]}']
+        for p in bad_spawns:
+            put(s, f"rf/{robot}/sim/spawn", p)
+        # cmd/safe is a latest-value queue: whatever was not overwritten was decoded and rejected.
+        def all_seen() -> bool:
+            st = status.items[-1] if status.items else None
+            return bool(st and st.received.get("cmd/safe") == len(hostile)
+                        and st.invalid["cmd/safe"] == len(hostile) - st.dropped["cmd/safe"] > 0)
+
+        assert wait_until(all_seen, 20), status.items[-1] if status.items else sim.output
+        assert wait_until(lambda: status.items[-1].extra.get("spawn_invalid", 0) == len(bad_spawns), 20), \
+            status.items[-1]
+        # Still serving: a valid command moves it, a valid spawn appears in the ground truth.
+        x0 = states.wait(1, 10)[-1].position[0]
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            put(s, f"rf/{robot}/cmd/safe", valid)
+            time.sleep(0.05)
+        assert states.items[-1].position != (x0, 0.0, 0.0)
+        assert all(np.isfinite(st.position).all() for st in states.items)
+        truths.clear()
+        put(s, f"rf/{robot}/sim/spawn", msgpack.packb({"class": "person", "name": "intruder",
+                                                       "position": [-1.0, 0.0]}))
+        assert wait_until(lambda: any((t.labels == ade20k.index("person")).any() for t in list(truths.items)), 10)
+        assert status.items[-1].errors == 0
+        assert sim.alive()
+        assert sim.stop() == 0
+        assert "rejected a spawn request" in sim.output and "spawned intruder" in sim.output
+        for c in (status, states, truths):
+            c.close()
