@@ -34,8 +34,12 @@ class Child:
 
 
 class Launcher:
-    def __init__(self, console: Console | None = None, env: dict[str, str] | None = None):
+    def __init__(self, console: Console | None = None, env: dict[str, str] | None = None,
+                 log_path: str | os.PathLike | None = None, echo: bool = True):
         self.console = console or Console(stderr=True, highlight=False, soft_wrap=True)
+        self.echo = echo
+        self._log = open(log_path, "a", buffering=1) if log_path else None  # closed in stop()
+        self._log_lock = threading.Lock()
         self.children: list[Child] = []
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self._stopping = threading.Event()
@@ -50,9 +54,13 @@ class Launcher:
         width = max(len(c.name) for c in self.children)
         for raw in child.proc.stdout:
             line = raw.decode(errors="replace").rstrip("\n")
-            text = Text(f"{child.name:<{width}} | ", style=child.colour)
-            text.append(line)
-            self.console.print(text)
+            if self._log is not None:
+                with self._log_lock:
+                    self._log.write(f"{child.name:<{width}} | {line}\n")
+            if self.echo:
+                text = Text(f"{child.name:<{width}} | ", style=child.colour)
+                text.append(line)
+                self.console.print(text)
 
     def start(self) -> None:
         for child in self.children:
@@ -81,6 +89,30 @@ class Launcher:
         for child in self.children:
             if child.reader:
                 child.reader.join(timeout=2)
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def dead(self) -> list[Child]:
+        """Children that have exited."""
+        return [c for c in self.children if c.proc is not None and c.proc.poll() is not None]
+
+    def child(self, label: str) -> Child:
+        return next(c for c in self.children if c.name == label)
+
+    def stop_one(self, label: str, timeout_s: float = 10.0) -> int | None:
+        """Stop one child (SIGINT, then SIGKILL after ``timeout_s``); its exit code."""
+        c = self.child(label)
+        if c.proc is None:
+            return None
+        if c.proc.poll() is None:
+            c.proc.send_signal(signal.SIGINT)
+            try:
+                c.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                c.proc.kill()
+                c.proc.wait()
+        return c.proc.returncode
 
     def wait(self, duration_s: float | None = None) -> int:
         """Block until a signal, ``duration_s``, or a child's death; stop all; exit code."""
