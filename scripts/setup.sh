@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Everything a fresh machine needs: system libraries (open3d wants libgomp1 and libusb;
-# fault-injection tests want iproute2), then a virtualenv in .venv with riskfield and its
+# fault-injection tests want iproute2; deployment tests want openssl and docker-compose to
+# validate the compose file), then a virtualenv in .venv with riskfield and its
 # extras. Re-running is cheap: each step is skipped when already done.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PACKAGES=(libgomp1 libusb-1.0-0 libgl1 iproute2)
+APT_PACKAGES=(libgomp1 libusb-1.0-0 libgl1 iproute2 openssl docker-compose)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if [ ${#missing[@]} -gt 0 ]; then

@@ -8,6 +8,8 @@ return an object with ``close()`` (called after the loop ends).
 from __future__ import annotations
 
 import importlib
+import signal
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -81,16 +83,34 @@ def build_settings(spec: ServiceSpec, overrides: dict[str, Any] | None = None) -
     return spec.settings(**{k: v for k, v in (overrides or {}).items() if v is not None})
 
 
+def _catch_stop_signals(flag: threading.Event) -> Callable[[], None]:
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    old = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig in old:
+        signal.signal(sig, lambda *_: flag.set())
+    return lambda: [signal.signal(sig, h) for sig, h in old.items()] and None
+
+
 def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_s: float | None = None) -> int:
     """Start one service in this process and serve until a signal; the exit code."""
     spec = load_service(name)
     settings = build_settings(spec, overrides)
-    node = Node(spec.name, settings)
+    # A stop asked for while the session is still opening (a router being dialled) is honoured
+    # as soon as the node exists, with the same clean exit as later on.
+    early = threading.Event()
+    restore = _catch_stop_signals(early)
+    try:
+        node = Node(spec.name, settings)
+    finally:
+        restore()
     try:
         handle = spec.setup(node, settings)
     except BaseException:
         node.close()
         raise
+    if early.is_set():
+        node.stop("signal during start-up")
     try:
         return node.run(duration_s)
     finally:

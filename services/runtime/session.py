@@ -38,9 +38,12 @@ def zenoh_config(s: NodeSettings) -> zenoh.Config:
         put("transport/link/tls/connect_private_key", str(s.tls_key))
     if s.tls_mtls:
         put("transport/link/tls/enable_mtls", True)
-    if s.user is not None and s.password is not None:
+    password = s.password
+    if password is None and s.password_file is not None:
+        password = s.password_file.read_text().strip()
+    if s.user is not None and password is not None:
         put("transport/auth/usrpwd/user", s.user)
-        put("transport/auth/usrpwd/password", s.password)
+        put("transport/auth/usrpwd/password", password)
     return cfg
 
 

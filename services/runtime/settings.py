@@ -101,6 +101,7 @@ class NodeSettings(BaseSettings):
     tls_mtls: bool = False
     user: str | None = None
     password: str | None = None
+    password_file: Path | None = Field(default=None, description="file holding the password (Docker/systemd secrets)")
     zenoh_config: Path | None = Field(default=None, description="a full zenoh JSON5 config used as the base")
     connect_timeout_s: float = Field(default=30.0, gt=0)
     log_level: str = "INFO"

@@ -1,0 +1,42 @@
+# syntax=docker/dockerfile:1.7
+# riskfield robot image: the safety filter and the hardware bridges (LIMO serial, joystick,
+# MAVLink) with the `robot` extra only — numpy, scipy, osqp, pyserial, pymavlink, evdev.
+# No open3d, no torch, no numba: it fits a Jetson or a Raspberry Pi. Multi-arch:
+#
+#   docker buildx build --platform linux/arm64,linux/amd64 -f deploy/Dockerfile.robot \
+#       -t REGISTRY/riskfield-robot:TAG --push .
+#
+# Build context: the repository root (deploy/Dockerfile.robot.dockerignore keeps it small).
+
+ARG PYTHON_IMAGE=python:3.11-slim-bookworm
+
+FROM ${PYTHON_IMAGE} AS build
+# Compilers only in the build stage, for a dependency without a wheel on this platform.
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends build-essential \
+ && rm -rf /var/lib/apt/lists/*
+RUN python -m venv /opt/venv
+ENV PATH=/opt/venv/bin:$PATH PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
+WORKDIR /src
+COPY pyproject.toml setup.py README.md ./
+COPY riskfield riskfield
+COPY protocol protocol
+COPY services services
+COPY edge edge
+RUN pip install ".[robot]" \
+ && ! pip show open3d torch numba 2>/dev/null | grep -q '^Name:'
+
+FROM ${PYTHON_IMAGE}
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends libusb-1.0-0 \
+ && rm -rf /var/lib/apt/lists/*
+COPY --from=build /opt/venv /opt/venv
+ENV PATH=/opt/venv/bin:$PATH PYTHONUNBUFFERED=1 RISKFIELD_MODE=client
+# dialout owns serial ports (the LIMO's /dev/ttyTHS1); input owns /dev/input/event*.
+RUN useradd --system --create-home --uid 10001 --groups dialout riskfield \
+ && (getent group input >/dev/null || groupadd --system input) \
+ && usermod -aG input riskfield
+USER riskfield
+WORKDIR /home/riskfield
+ENTRYPOINT ["riskfield"]
+CMD ["services"]

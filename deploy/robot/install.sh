@@ -1,0 +1,148 @@
+#!/usr/bin/env bash
+# Install and start riskfield on a robot computer: the robot's own Zenoh router (dialling the
+# server's), the safety filter and the hardware bridges, as systemd services.
+#
+#   sudo deploy/robot/install.sh --server tcp/10.0.0.2:7447 [options]
+#
+#   --server ENDPOINT   the server site's router (required), e.g. tcp/10.0.0.2:7447 or tls/srv:7447
+#   --robot ID          robot id, the key prefix part (default limo1)
+#   --services "A B"    nodes to run (default "safety-filter limo joystick"; e.g. "safety-filter mavlink")
+#   --listen ENDPOINT   where the robot's router serves its nodes (default tcp/127.0.0.1:7447)
+#   --secrets DIR       enable TLS + user/password: DIR holds certs/ (deploy/make-certs.sh, with
+#                       router-robot and one certificate per node) and USER.env (deploy/make-users.sh)
+#   --limo-port DEV     LIMO serial port (default /dev/ttyTHS1)
+#   --prefix DIR        installation folder (default /opt/riskfield)
+#   --root DIR          install below DIR instead of / (packaging, tests); implies --no-start
+#   --no-pip            do not create the virtualenv (it exists, or the image provides it)
+#   --no-start          install only; do not enable and start the units
+#
+# Only the `robot` extra is installed (numpy, scipy, osqp, pyserial, pymavlink, evdev): no torch,
+# no open3d. Re-running updates the installation in place. Remove with:
+#   systemctl disable --now riskfield-router 'riskfield@*'; rm -r /opt/riskfield /etc/riskfield \
+#     /etc/systemd/system/riskfield-router.service /etc/systemd/system/riskfield@.service
+set -euo pipefail
+
+HERE="$(cd "$(dirname "$0")" && pwd)"
+REPO="$(cd "$HERE/../.." && pwd)"
+SERVER=""
+ROBOT=limo1
+SERVICES="safety-filter limo joystick"
+LISTEN=tcp/127.0.0.1:7447
+SECRETS=""
+LIMO_PORT=/dev/ttyTHS1
+PREFIX=/opt/riskfield
+ROOT=""
+PIP=1
+START=1
+
+die() { echo "install: $*" >&2; exit 2; }
+while [ $# -gt 0 ]; do
+  case $1 in
+    --server) SERVER=${2:?}; shift 2 ;;
+    --robot) ROBOT=${2:?}; shift 2 ;;
+    --services) SERVICES=${2:?}; shift 2 ;;
+    --listen) LISTEN=${2:?}; shift 2 ;;
+    --secrets) SECRETS="$(cd "${2:?}" && pwd)"; shift 2 ;;
+    --limo-port) LIMO_PORT=${2:?}; shift 2 ;;
+    --prefix) PREFIX=${2:?}; shift 2 ;;
+    --root) ROOT="$(mkdir -p "${2:?}" && cd "$2" && pwd)"; START=0; shift 2 ;;
+    --no-pip) PIP=0; shift ;;
+    --no-start) START=0; shift ;;
+    -h|--help) sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) die "unknown option $1 (see --help)" ;;
+  esac
+done
+[ -n "$SERVER" ] || die "--server ENDPOINT is required (the server site's Zenoh router)"
+[[ $SERVER =~ ^(tcp|tls|quic|udp)/.+:[0-9]+$ ]] || die "--server $SERVER: expected e.g. tcp/10.0.0.2:7447"
+[[ $ROBOT =~ ^[A-Za-z0-9_.~+=@:-]+$ ]] || die "--robot $ROBOT: letters, digits and -_.~+=@:"
+for s in $SERVICES; do
+  case $s in
+    safety-filter|limo|joystick|mavlink|relay) ;;
+    *) die "--services: $s does not run on the robot computer (safety-filter, limo, joystick, mavlink)" ;;
+  esac
+done
+if [ -n "$SECRETS" ]; then
+  [[ $SERVER == tls/* ]] || die "--secrets needs a tls/ server endpoint"
+  LISTEN=${LISTEN/#tcp\//tls/}
+fi
+
+SYS_ETC=/etc/riskfield  # paths written into files are those of the running system
+ETC="$ROOT$SYS_ETC"
+UNITS="$ROOT/etc/systemd/system"
+DEST="$ROOT$PREFIX"
+if [ "$(id -u)" -ne 0 ] && [ -z "$ROOT" ]; then
+  die "run as root (sudo), or use --root DIR to stage an installation"
+fi
+
+# -- the software -------------------------------------------------------------------------
+mkdir -p "$DEST" "$ETC" "$UNITS"
+if [ "$PIP" = 1 ]; then
+  python3 -c 'import sys; assert sys.version_info >= (3, 11), sys.version' \
+    || die "Python 3.11 or newer is needed (python3 is $(python3 --version 2>&1))"
+  [ -x "$DEST/venv/bin/python" ] || python3 -m venv "$DEST/venv"
+  "$DEST/venv/bin/python" -m pip install -q --upgrade pip
+  "$DEST/venv/bin/python" -m pip install -q "$REPO[robot]"
+fi
+
+# -- settings -------------------------------------------------------------------------------
+# Shared by the nodes: they dial the robot's router on this computer.
+{
+  echo "# riskfield nodes on this robot computer (deploy/robot/install.sh)."
+  echo "RISKFIELD_MODE=client"
+  echo "RISKFIELD_CONNECT=${LISTEN/0.0.0.0/127.0.0.1}"
+  echo "RISKFIELD_ROBOT=$ROBOT"
+  echo "RISKFIELD_CONNECT_TIMEOUT_S=60"
+  echo "RISKFIELD_LIMO_PORT=$LIMO_PORT"
+  echo "RISKFIELD_MAVLINK_URL=udpin:0.0.0.0:14550"
+} >"$ETC/robot.env"
+# The router: serves the nodes here and dials the server's router.
+{
+  echo "# The robot site's Zenoh router (deploy/robot/install.sh)."
+  echo "RISKFIELD_MODE=router"
+  echo "RISKFIELD_LISTEN=$LISTEN"
+  echo "RISKFIELD_CONNECT=$SERVER"
+  echo "RISKFIELD_ROBOT=$ROBOT"
+} >"$ETC/router.env"
+
+if [ -n "$SECRETS" ]; then
+  install -d -m 750 "$ETC/tls"
+  install -m 644 "$SECRETS/certs/ca.pem" "$ETC/tls/ca.pem"
+  install -m 644 "$SECRETS/certs/router-robot.pem" "$ETC/tls/router.pem"
+  install -m 600 "$SECRETS/certs/router-robot.key" "$ETC/tls/router.key"
+  install -m 600 "$SECRETS/users.txt" "$ETC/users.txt"
+  cp "$REPO/deploy/zenoh/router-secure.json5" "$ETC/router.json5"
+  {
+    echo "RISKFIELD_ZENOH_CONFIG=$SYS_ETC/router.json5"
+    cat "$SECRETS/router.env"
+  } >>"$ETC/router.env"
+  for s in $SERVICES; do
+    install -m 644 "$SECRETS/certs/$s.pem" "$ETC/tls/$s.pem"
+    install -m 600 "$SECRETS/certs/$s.key" "$ETC/tls/$s.key"
+    {
+      echo "# $s's identity: its certificate and its user (= its role in the access control)."
+      echo "RISKFIELD_TLS_ROOT_CA=$SYS_ETC/tls/ca.pem"
+      echo "RISKFIELD_TLS_CERT=$SYS_ETC/tls/$s.pem"
+      echo "RISKFIELD_TLS_KEY=$SYS_ETC/tls/$s.key"
+      echo "RISKFIELD_TLS_MTLS=true"
+      cat "$SECRETS/$s.env"
+    } >"$ETC/$s.env"
+  done
+fi
+chmod 600 "$ETC"/*.env
+
+# -- units ----------------------------------------------------------------------------------
+for unit in riskfield-router.service riskfield@.service; do
+  sed -e "s#@PREFIX@#$PREFIX#g" -e "s#@ETC@#$SYS_ETC#g" "$HERE/$unit" >"$UNITS/$unit"
+done
+
+echo "install: units in $UNITS, settings in $ETC (robot $ROBOT, server $SERVER, nodes: $SERVICES)"
+if [ "$START" = 1 ]; then
+  id riskfield >/dev/null 2>&1 || useradd --system --home-dir "$PREFIX" --shell /usr/sbin/nologin riskfield
+  for g in dialout input; do getent group "$g" >/dev/null || groupadd --system "$g"; done
+  chown -R riskfield "$ETC"
+  systemctl daemon-reload
+  units=(riskfield-router.service)
+  for s in $SERVICES; do units+=("riskfield@$s.service"); done
+  systemctl enable --now "${units[@]}"
+  systemctl --no-pager --lines=0 status "${units[@]}" || true
+fi

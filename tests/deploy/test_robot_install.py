@@ -1,0 +1,247 @@
+"""deploy/robot/install.sh staged into a tmp root, then its systemd units executed the way
+systemd would (EnvironmentFile lines, then ExecStart with %i) against a router elsewhere."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pytest
+import typer
+import zenoh
+
+from riskfield import cli
+from riskfield.protocol import Keys, VelocityCommand
+from riskfield.services.runtime import SERVICES
+from riskfield.services.runtime.session import zenoh_config
+from riskfield.services.runtime.settings import NodeSettings
+from riskfield.testing import Collector, ServiceProcess, client_session, free_port, put, wait_alive, wait_until
+
+if TYPE_CHECKING:
+    from conftest import Secrets
+
+REPO = Path(__file__).resolve().parents[2]
+INSTALL = REPO / "deploy" / "robot" / "install.sh"
+
+
+def install(root: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    proc = subprocess.run(["bash", str(INSTALL), "--root", str(root), "--no-pip", *args], capture_output=True,
+                          text=True, timeout=60)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def unit_directives(path: Path) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for line in path.read_text().splitlines():
+        if "=" in line and not line.startswith(("#", "[")):
+            key, value = line.split("=", 1)
+            out.setdefault(key, []).append(value)
+    return out
+
+
+class Unit:
+    """A staged unit run as systemd runs it; /etc/riskfield in file contents maps to the stage."""
+
+    def __init__(self, root: Path, unit: str, instance: str = ""):
+        self.root = root
+        self.directives = unit_directives(root / "etc/systemd/system" / unit)
+        self.instance = instance
+        self.proc: subprocess.Popen | None = None
+        self.log = tempfile.NamedTemporaryFile(prefix="rf-unit-", suffix=".log", delete=False)
+
+    def _staged(self, text: str) -> str:
+        return text.replace("/etc/riskfield", str(self.root / "etc/riskfield")).replace("%i", self.instance)
+
+    def environment(self) -> dict[str, str]:
+        env: dict[str, str] = {}
+        for spec in self.directives["EnvironmentFile"]:
+            optional = spec.startswith("-")
+            path = Path(self._staged(spec.lstrip("-")))
+            if not path.exists():
+                assert optional, f"{path} is required by the unit"
+                continue
+            for line in path.read_text().splitlines():
+                if line and not line.startswith("#"):
+                    key, value = line.split("=", 1)
+                    env[key] = self._staged(value)
+        return env
+
+    def argv(self) -> list[str]:
+        exec_start = self._staged(self.directives["ExecStart"][0]).split()
+        assert exec_start[0] == "/opt/riskfield/venv/bin/riskfield"
+        return [sys.executable, "-m", "riskfield", *exec_start[1:]]
+
+    def __enter__(self) -> Unit:
+        base = {k: v for k, v in os.environ.items() if not k.startswith("RISKFIELD_")}
+        self.proc = subprocess.Popen(self.argv(), env={**base, "PYTHONUNBUFFERED": "1", **self.environment()},
+                                     stdout=self.log, stderr=subprocess.STDOUT)
+        return self
+
+    @property
+    def output(self) -> str:
+        return Path(self.log.name).read_text(errors="replace")
+
+    def stop(self) -> int:
+        """What `systemctl stop` does: SIGTERM, then wait (the node exits 0)."""
+        assert self.proc is not None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+        self.log.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self.log.name)
+
+
+# -- the staged files ---------------------------------------------------------------------------
+
+
+def test_install_stages_units_and_settings(tmp_path: Path) -> None:
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--robot", "limo9")
+    units = tmp_path / "etc/systemd/system"
+    assert sorted(p.name for p in units.iterdir()) == ["riskfield-router.service", "riskfield@.service"]
+    router = unit_directives(units / "riskfield-router.service")
+    node = unit_directives(units / "riskfield@.service")
+    assert router["ExecStart"] == ["/opt/riskfield/venv/bin/riskfield run router"]
+    assert node["ExecStart"] == ["/opt/riskfield/venv/bin/riskfield run %i"]
+    assert node["Restart"] == ["always"] and "riskfield-router.service" in node["After"][0]
+    assert "dialout" in node["SupplementaryGroups"][0] and "input" in node["SupplementaryGroups"][0]
+    env = Unit(tmp_path, "riskfield@.service", "safety-filter").environment()
+    assert env["RISKFIELD_CONNECT"] == "tcp/127.0.0.1:7447" and env["RISKFIELD_ROBOT"] == "limo9"
+    renv = Unit(tmp_path, "riskfield-router.service").environment()
+    assert renv["RISKFIELD_MODE"] == "router" and renv["RISKFIELD_CONNECT"] == "tcp/10.0.0.2:7447"
+    assert renv["RISKFIELD_LISTEN"] == env["RISKFIELD_CONNECT"]
+    for f in (tmp_path / "etc/riskfield").glob("*.env"):
+        assert f.stat().st_mode & 0o077 == 0, f  # settings may hold passwords
+
+
+@pytest.mark.parametrize("services", ["safety-filter limo joystick", "safety-filter mavlink"])
+def test_unit_commands_parse_with_the_real_cli(tmp_path: Path, services: str) -> None:
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--services", services)
+    run = typer.main.get_command(cli.app).commands["run"]
+    for name in ["router", *services.split()]:
+        unit = Unit(tmp_path, "riskfield-router.service") if name == "router" else Unit(
+            tmp_path, "riskfield@.service", name)
+        ctx = run.make_context("run", unit.argv()[4:])
+        assert ctx.params["service"] == name and name in SERVICES
+
+
+def test_systemd_accepts_the_units(tmp_path: Path) -> None:
+    if shutil.which("systemd-analyze") is None:
+        pytest.skip("systemd-analyze is not installed")
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447")
+    proc = subprocess.run(["systemd-analyze", "verify", "--root", str(tmp_path),
+                           "riskfield-router.service", "riskfield@safety-filter.service"],
+                          capture_output=True, text=True, timeout=60)
+    assert "Unknown" not in proc.stderr and "Invalid" not in proc.stderr, proc.stderr
+
+
+def test_install_refuses_bad_arguments(tmp_path: Path) -> None:
+    assert install(tmp_path, check=False).returncode == 2  # no --server
+    assert install(tmp_path, "--server", "10.0.0.2", check=False).returncode == 2
+    assert install(tmp_path, "--server", "tcp/h:7447", "--services", "simulator", check=False).returncode == 2
+    assert install(tmp_path, "--server", "tcp/h:7447", "--robot", "a/b", check=False).returncode == 2
+    proc = install(tmp_path, "--server", "tcp/h:7447", "--secrets", str(tmp_path), check=False)
+    assert proc.returncode == 2 and "tls/" in proc.stderr
+
+
+# -- running against a router elsewhere ----------------------------------------------------------
+
+
+@contextlib.contextmanager
+def staged_robot(tmp_path: Path, server: str, robot: str, *extra: str) -> Iterator[Path]:
+    listen = f"{'tls' if '--secrets' in extra else 'tcp'}/127.0.0.1:{free_port()}"
+    install(tmp_path, "--server", server, "--robot", robot, "--services", "relay", "--listen", listen, *extra)
+    yield tmp_path
+
+
+def test_installed_units_bring_the_robot_up_against_a_router_elsewhere(tmp_path: Path, router_endpoint: str) -> None:
+    """The robot's router starts even while the server's router is unreachable, its nodes work
+    locally, and the server sees them once the link exists. (`relay` stands in for a bridge.)"""
+    robot = "t_robot_install"
+    keys = Keys(robot=robot)
+    down = f"tcp/127.0.0.1:{free_port()}"  # nothing listens here yet: the "server" comes later
+    with staged_robot(tmp_path, down, robot) as root:
+        with Unit(root, "riskfield-router.service") as r, Unit(root, "riskfield@.service", "relay") as relay:
+            local = Unit(root, "riskfield@.service", "relay").environment()["RISKFIELD_CONNECT"]
+            assert wait_until(lambda: " up as router" in r.output, 20), r.output
+            with client_session(local) as s:
+                assert wait_alive(s, keys.alive("relay"), timeout_s=20), relay.output
+            # The server comes up where the robot's router was told to dial: it links by itself.
+            with ServiceProcess("router", down, ["--robot", robot]) as server:
+                with client_session(down) as s:
+                    assert wait_alive(s, keys.alive("relay"), timeout_s=30), (r.output, server.output)
+                    out = Collector(s, keys.key("relay/out"), VelocityCommand)
+                    cmd = VelocityCommand(linear=(0.2, 0, 0), angular=(0, 0, 0), source="server")
+                    assert wait_until(lambda: (put(s, keys.key("relay/in"), cmd), bool(out.items))[1], 15)
+                    out.close()
+            assert r.stop() == 0 and relay.stop() == 0, (r.output, relay.output)
+
+
+def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets: Secrets) -> None:
+    """--secrets: the robot's router dials the server's over mutual TLS as user `router`; its
+    node authenticates with its own certificate and user."""
+    robot = "t_robot_install_tls"
+    keys = Keys(robot=robot)
+    # The deployment's secrets as make-certs.sh / make-users.sh lay them out.
+    deploy = tmp_path / "secrets"
+    (deploy / "certs").mkdir(parents=True)
+    for name in ("ca", "router-robot", "relay"):
+        src = secrets.tls / f"{name}.pem"
+        if name == "relay":  # a node certificate for the stand-in, signed by the same CA
+            subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(secrets.tls), "relay"],
+                           check=True, capture_output=True, timeout=60)
+        shutil.copy(src, deploy / "certs" / f"{name}.pem")
+        if name != "ca":
+            shutil.copy(secrets.tls / f"{name}.key", deploy / "certs" / f"{name}.key")
+    users = {u: secrets.passwords[u] for u in ("router", "limo")}
+    (deploy / "users.txt").write_text("".join(f"{u}:{p}\n" for u, p in secrets.passwords.items()))
+    (deploy / "router.env").write_text(f"RISKFIELD_USER=router\nRISKFIELD_PASSWORD={users['router']}\n")
+    (deploy / "relay.env").write_text(f"RISKFIELD_USER=limo\nRISKFIELD_PASSWORD={users['limo']}\n")
+    server_cfg = secrets.router_config("server", tmp_path / "server")
+    server = f"tls/localhost:{free_port()}"
+    with ServiceProcess("router", server, ["--set", f"zenoh_config={server_cfg}", "--robot", robot]) as srv:
+        with staged_robot(tmp_path / "root", server, robot, "--secrets", str(deploy)) as root:
+            staged_cfg = root / "etc/riskfield/router.json5"
+            staged_cfg.write_text(staged_cfg.read_text().replace("/etc/riskfield", str(root / "etc/riskfield")))
+            env = Unit(root, "riskfield@.service", "relay").environment()
+            assert env["RISKFIELD_TLS_MTLS"] == "true" and env["RISKFIELD_CONNECT"].startswith("tls/")
+            with Unit(root, "riskfield-router.service") as r, Unit(root, "riskfield@.service", "relay") as relay:
+                # An external planner's view from the server site (a role-less user may subscribe).
+                watcher = NodeSettings(connect=[server], tls_root_ca=secrets.tls / "ca.pem",
+                                       tls_cert=secrets.tls / "planner.pem", tls_key=secrets.tls / "planner.key",
+                                       tls_mtls=True, user="planner", password=secrets.passwords["planner"])
+                session = None
+                deadline = time.monotonic() + 20
+                while session is None and time.monotonic() < deadline:
+                    with contextlib.suppress(zenoh.ZError):
+                        session = zenoh.open(zenoh_config(watcher))
+                    time.sleep(0.2)
+                assert session is not None, srv.output
+                try:
+                    assert wait_alive(session, keys.alive("relay"), timeout_s=30), (r.output, relay.output)
+                finally:
+                    session.close()
+                # Its node loop runs (a router dialling another returns from open once linked),
+                # so a stop is the clean one systemd does.
+                assert wait_until(lambda: " up as router" in r.output, 20), r.output
+                assert r.stop() == 0 and relay.stop() == 0, (r.output, relay.output)
+    assert srv.proc is not None and srv.proc.returncode == 0, srv.output
