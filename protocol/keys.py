@@ -25,6 +25,7 @@ TOPICS: dict[str, type[Message]] = {
     "camera/image": Image,
     "perception/frame": PerceptionFrame,
     "map/esdf": EsdfGrid,
+    "map/esdf3d": EsdfGrid,  # the 3-D grid when map/esdf carries the ground robot's 2-D slice
     "map/esdf/query": DistanceQuery,
     "state": RobotState,
     "cmd/ref": VelocityCommand,
@@ -65,6 +66,7 @@ class Keys:
     perception_frame = property(lambda self: self.key("perception/frame"))
     esdf = property(lambda self: self.key("map/esdf"))
     esdf_query = property(lambda self: self.key("map/esdf/query"))
+    esdf3d = property(lambda self: self.key("map/esdf3d"))
     state = property(lambda self: self.key("state"))
     cmd_ref = property(lambda self: self.key("cmd/ref"))
     cmd_safe = property(lambda self: self.key("cmd/safe"))

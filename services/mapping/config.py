@@ -1,0 +1,101 @@
+"""The mapping core's configuration: one object the ``Mapper`` is built from.
+
+Defaults follow the authors' release: a rolling local volume of radius 2.5 m at 5 cm voxels
+(101³ voxels) that follows the robot. Distances are metres, weights are sums of per-pixel
+confidences (the pointmap's confidence is the observation weight).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class MapperConfig(BaseModel):
+    """Everything that shapes the map. Group names, labels and margins come from the
+    ``RiskConfig`` instead (hot-reloadable), not from here."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    # -- volume ---------------------------------------------------------------------------
+    voxel_size: Annotated[float, Field(gt=0.005, le=2.0)] = 0.05
+    half_extent: tuple[Pos, Pos, Pos] = (2.5, 2.5, 2.5)
+    """Half size (m) of the rolling volume along x, y, z; 2.5 m at 5 cm gives 101 voxels an axis."""
+    centre_offset: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    """Volume centre relative to the robot (e.g. raise it for a ground robot)."""
+    recentre_distance: NonNeg = 0.25
+    """The volume shifts (keeping the overlap) once the robot is this far from its centre."""
+    max_voxels: Annotated[int, Field(gt=0)] = 16_000_000
+
+    # -- TSDF integration --------------------------------------------------------------------
+    truncation: Pos = 0.15
+    """TSDF truncation distance (m); the band updated around each observed surface point."""
+    max_weight: Pos = 50.0
+    """Cap of a voxel's accumulated weight, so the map can still follow moving people and pets."""
+    min_confidence: NonNeg = 0.1
+    """Pixels whose confidence is below this are skipped."""
+    min_depth: NonNeg = 0.05
+    max_depth: Pos = 6.0
+    """Points farther than this (m, along the ray) only carve free space up to it."""
+    pixel_stride: Annotated[int, Field(ge=1, le=64)] = 2
+    """Integrate every n-th pixel in each image direction (a 5 cm voxel at 2.5 m spans ~8 px)."""
+    integration: Literal["merged", "ray"] = "merged"
+    """``merged``: one ray per voxel the frame's points fall in (fast); ``ray``: one per pixel."""
+    carve: bool = True
+    """Also update free space from the camera to the surface band (clears moved obstacles)."""
+    carve_stride: Annotated[int, Field(ge=1, le=64)] = 4
+    """``ray`` integration only: every n-th pixel carves."""
+    carve_weight: Annotated[float, Field(gt=0, le=100.0)] = 1.0
+    """Weight of a free-space observation relative to its pixel's confidence."""
+    max_pixels: Annotated[int, Field(gt=0)] = 4_000_000
+    """Frames with more pixels than this are rejected as absurd."""
+
+    # -- occupancy ----------------------------------------------------------------------------
+    min_weight: NonNeg = 0.5
+    """Surface support needs at least this TSDF weight."""
+    surface_band_vox: Annotated[float, Field(gt=0, le=3.0)] = 0.75
+    """A voxel supports the surface when |tsdf| ≤ this × voxel_size; labels are voted in the same band."""
+    unknown_is_occupied: bool = False
+    """Treat never-observed voxels as obstacles (of ``unknown_group``)."""
+    unknown_group: str | None = None
+    """Risk group of unknown voxels; ``None`` → the risk config's default group, else its last group."""
+
+    # -- ESDF ---------------------------------------------------------------------------------
+    max_distance: Annotated[float, Field(gt=0, le=100.0)] = 2.0
+    """Distances are clipped to [-max_distance, max_distance]."""
+    inflation: Literal["exact", "dilate"] = "exact"
+    """``exact``: distance = min over groups of (d_group − margin_group), margins exact in metres.
+    ``dilate``: the paper-faithful variant, occupancy dilated by whole voxels, then the ESDF."""
+    output: Literal["2d", "3d", "both"] = "2d"
+    """``2d``: the ground-robot slice on ``map/esdf``; ``3d``: the 3-D grid on ``map/esdf``;
+    ``both``: the slice on ``map/esdf`` and the 3-D grid on ``map/esdf3d``."""
+    band: tuple[Finite, Finite] = (0.10, 0.60)
+    """Height band (m, relative to the robot base z) the 2-D slice covers."""
+    threads: Annotated[int, Field(ge=1, le=64)] = 2
+
+    @model_validator(mode="after")
+    def _consistent(self) -> MapperConfig:
+        if self.band[0] > self.band[1]:
+            raise ValueError(f"band {list(self.band)}: the lower height must not exceed the upper")
+        if self.min_depth >= self.max_depth:
+            raise ValueError("min_depth must be below max_depth")
+        n = 1
+        for h in self.half_extent:
+            n *= 2 * round(h / self.voxel_size) + 1
+        if n > self.max_voxels:
+            raise ValueError(f"the volume has {n} voxels, over max_voxels = {self.max_voxels}")
+        return self
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Voxels per axis: an odd count so the robot sits on a voxel centre."""
+        return tuple(2 * round(h / self.voxel_size) + 1 for h in self.half_extent)  # type: ignore[return-value]
+
+    @property
+    def surface_band(self) -> float:
+        return self.surface_band_vox * self.voxel_size

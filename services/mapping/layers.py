@@ -1,0 +1,49 @@
+"""Per-voxel layers of the map, all on the same ``Volume`` grid (C order, index (i, j, k)).
+
+* ``TsdfLayer``: truncated signed distance (m, + in front of the surface) and its weight
+  (sum of observation confidences, capped). Weight 0 means never observed (unknown).
+* ``SemanticLayer``: the fused ADE20K label and its vote weight (the paper's eq. 7–8 state).
+  ``NO_LABEL`` marks a voxel that never received a vote.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .volume import shift_array
+
+NO_LABEL = 65535
+"""Label of a voxel without votes; beyond ADE20K's 150 classes, mapped by the risk LUT like any label."""
+
+
+class TsdfLayer:
+    def __init__(self, shape: tuple[int, int, int], truncation: float):
+        self.truncation = float(truncation)
+        self.tsdf = np.full(shape, self.truncation, dtype=np.float32)
+        self.weight = np.zeros(shape, dtype=np.float32)
+
+    def shift(self, delta: np.ndarray) -> None:
+        shift_array(self.tsdf, delta, self.truncation)
+        shift_array(self.weight, delta, 0.0)
+
+    def clear(self) -> None:
+        self.tsdf.fill(self.truncation)
+        self.weight.fill(0.0)
+
+    @property
+    def observed(self) -> np.ndarray:
+        return self.weight > 0
+
+
+class SemanticLayer:
+    def __init__(self, shape: tuple[int, int, int]):
+        self.label = np.full(shape, NO_LABEL, dtype=np.uint16)
+        self.vote = np.zeros(shape, dtype=np.float32)
+
+    def shift(self, delta: np.ndarray) -> None:
+        shift_array(self.label, delta, NO_LABEL)
+        shift_array(self.vote, delta, 0.0)
+
+    def clear(self) -> None:
+        self.label.fill(NO_LABEL)
+        self.vote.fill(0.0)

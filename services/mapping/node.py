@@ -1,0 +1,151 @@
+"""The mapping node: the thin Zenoh wrapper around ``Mapper``.
+
+Subscribes
+    ``{prefix}/{robot}/perception/frame``  PerceptionFrame, latest value → ``Mapper.integrate``
+    ``{prefix}/{robot}/state``             RobotState, latest value → the volume follows the robot
+    ``{prefix}/{robot}/config/risk``       RiskConfig → margins and obstacle labels of the next ESDF
+Publishes, at most ``esdf_rate_hz`` and only after new data (frame, recentring, risk config);
+right after a frame when the rate allows, else as soon as it does
+    ``{prefix}/{robot}/map/esdf``          EsdfGrid: the 2-D slice (``output`` 2d or both) or the 3-D grid (3d)
+    ``{prefix}/{robot}/map/esdf3d``        EsdfGrid: the 3-D grid when ``output = both`` (additive key)
+Serves
+    ``{prefix}/{robot}/map/esdf/query``    DistanceQuery → DistanceReply (with ``in_map``), from the
+                                           grid published on ``map/esdf``
+
+The ESDF header carries the stamp of the newest integrated frame, so its age seen by the
+safety filter includes perception latency. A rejected frame (non-rigid pose, absurd size)
+is counted (``rejected_frames``) and logged at most once per period; the node keeps serving.
+A risk config file (``risk_config_file``) is loaded at start and re-read when it changes.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from riskfield.protocol import DistanceQuery, DistanceReply, Header, Limits, PerceptionFrame, RiskConfig, RobotState
+
+from ..runtime.node import Node
+from ..runtime.service import ServiceSpec
+from ..runtime.settings import read_config_file
+from .mapper import FrameRejected, Mapper
+from .settings import MappingSettings
+
+MAX_QUERY_POINTS = 1_000_000
+
+
+def load_risk_file(path: Path) -> RiskConfig:
+    """A RiskConfig from a YAML/TOML/JSON file (top level, or under a ``risk`` key)."""
+    data = read_config_file(path)
+    if isinstance(data.get("risk"), dict):
+        data = data["risk"]
+    return RiskConfig.model_validate(data)
+
+
+class MappingNode:
+    """Decode → Mapper → encode → publish. Everything runs on the node's single loop thread."""
+
+    def __init__(self, node: Node, settings: MappingSettings):
+        self.node, self.s = node, settings
+        risk = None
+        self._risk_mtime: float | None = None
+        if settings.risk_config_file is not None:
+            risk = load_risk_file(settings.risk_config_file)
+            self._risk_mtime = settings.risk_config_file.stat().st_mtime
+        self.mapper = Mapper(settings.mapper_config(), risk)
+        self.mapper.warm_up()
+        self.esdf3d_key = node.keys.key(settings.esdf3d_key)
+        self.rejected = 0
+        self.updates = 0
+        self._period = 1.0 / settings.esdf_rate_hz
+        self._last_publish = -float("inf")
+        k = node.keys
+        frame_limits = Limits(max_array_bytes=12 * settings.max_pixels)
+        node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="latest", limits=frame_limits)
+        node.subscribe(k.state, RobotState, self.on_state, queue="latest")
+        node.subscribe(k.risk_config, RiskConfig, self.on_risk_config, queue="latest")
+        node.queryable(k.esdf_query, DistanceQuery, self.on_query,
+                       limits=Limits(max_array_bytes=24 * MAX_QUERY_POINTS))
+        # Frames publish at once when the rate allows; the timer catches what the rate deferred.
+        node.every(self._period / 2, self.publish_esdf)
+        if settings.risk_config_file is not None:
+            node.every(settings.risk_poll_s, self.poll_risk_file)
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def on_frame(self, frame: PerceptionFrame) -> None:
+        try:
+            result = self.mapper.integrate_frame(frame)
+        except FrameRejected as exc:
+            self.rejected += 1
+            self.node.stats["rejected_frames"] = self.rejected
+            self.node.ratelog(logging.WARNING, "frame", f"rejected a perception frame: {exc}")
+            return
+        st = self.node.stats
+        st["frames"] = self.mapper.frames
+        st["integrate_ms"] = result.ms
+        st["rays"] = result.rays
+        st["shifts"] = self.mapper.shifts
+        self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
+
+    def on_state(self, state: RobotState) -> None:
+        self.mapper.set_robot_position(np.asarray(state.position))
+
+    def on_risk_config(self, risk: RiskConfig) -> None:
+        try:
+            self.mapper.set_risk_config(risk)
+        except ValueError as exc:
+            self.node.ratelog(logging.WARNING, "risk", f"rejected a risk config: {exc}")
+            return
+        self.node.log.info("risk config updated: groups %s", risk.group_names)
+
+    def poll_risk_file(self) -> None:
+        path = self.s.risk_config_file
+        assert path is not None
+        try:
+            mtime = path.stat().st_mtime
+            if mtime == self._risk_mtime:
+                return
+            self._risk_mtime = mtime
+            self.mapper.set_risk_config(load_risk_file(path))
+        except Exception as exc:  # a half-written or invalid file must not stop the map
+            self.node.ratelog(logging.WARNING, "risk-file", f"could not reload {path}: {exc}")
+            return
+        self.node.log.info("risk config reloaded from %s", path)
+
+    # -- outputs --------------------------------------------------------------------------------
+    def publish_esdf(self) -> None:
+        """Rebuild and publish if there is new data and the last publication is 1/esdf_rate_hz old."""
+        if not self.mapper.dirty or self.mapper.frames == 0:
+            return
+        now = time.monotonic()
+        if now - self._last_publish < self._period * 0.95:
+            return
+        self._last_publish = now
+        update = self.mapper.update_esdf()
+        if update is None:
+            return
+        self.node.publish(self.node.keys.esdf, update.primary)
+        if update.slice2d is not None and update.grid3d is not None:
+            self.node.publish(self.esdf3d_key, update.grid3d)
+        self.updates += 1
+        st = self.node.stats
+        st["esdf_updates"] = self.updates
+        for name, ms in update.timings_ms.items():
+            st[f"{name}_ms"] = ms
+
+    def on_query(self, query: DistanceQuery) -> DistanceReply:
+        if query.points.shape[0] > MAX_QUERY_POINTS:
+            raise ValueError(f"a query of {query.points.shape[0]} points is over {MAX_QUERY_POINTS}")
+        ans = self.mapper.query(query.points)
+        return DistanceReply(header=Header(frame_id=self.mapper.frame_id), distance=ans.distance, gradient=ans.gradient,
+                             risk_group=ans.risk_group, in_map=ans.in_map)
+
+
+def setup(node: Node, settings: MappingSettings) -> MappingNode:
+    return MappingNode(node, settings)
+
+
+SERVICE = ServiceSpec("mapping", MappingSettings, setup)

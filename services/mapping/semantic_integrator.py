@@ -1,0 +1,96 @@
+"""Per-pixel labels → per-voxel semantic labels with the paper's vote rule (eq. 7–8).
+
+Each voxel keeps a label ℓ and a vote weight w. An observation of label y with
+confidence q updates them as
+
+    w ← w + q   if y = ℓ,
+    w ← w − q   otherwise, and if then w < 0:  ℓ ← y,  w ← −w.
+
+The label is replaced only when the weight goes negative, exactly as the paper states;
+after a replacement the weight keeps the surplus of evidence for the new label (−w ≥ 0),
+so one disagreeing observation never outweighs a long history. A voxel without votes holds
+``NO_LABEL`` with w = 0, so its first observation replaces it (w = −q < 0 → ℓ = y, w = q).
+
+The voxels voted for are those along each pixel's ray whose centre lies within the surface
+band |r − t_c| ≤ ``surface_band`` — the same band the occupancy extracts, so every voxel
+that supports the surface has been labelled by the pixels that observed it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .config import MapperConfig
+from .layers import SemanticLayer
+from .raycast import ray_voxels
+from .volume import Volume
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vote(label: int, weight: float, observed: int, q: float) -> tuple[int, float]:
+    """One application of the vote rule; returns the new (label, weight)."""
+    if observed == label:
+        return label, weight + q
+    weight -= q
+    if weight < 0.0:
+        return observed, -weight
+    return label, weight
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _integrate(points: np.ndarray, conf: np.ndarray, labels: np.ndarray, R: np.ndarray, o_world: np.ndarray,
+               origin: np.ndarray, vs: float, lab: np.ndarray, votes: np.ndarray, band: float, q_min: float,
+               r_min: float, r_max: float, stride: int) -> int:
+    h, w = conf.shape
+    shape = np.array(lab.shape, dtype=np.int64)
+    buf = np.empty((shape.sum() + 4, 3), dtype=np.int64)
+    o = (o_world - origin) / vs
+    dw = np.empty(3)
+    di = np.empty(3)
+    n_votes = 0
+    for v in range(0, h, stride):
+        for u in range(0, w, stride):
+            q = conf[v, u]
+            if not q >= q_min or q <= 0.0:
+                continue
+            px = points[v, u, 0]
+            py = points[v, u, 1]
+            pz = points[v, u, 2]
+            r = np.sqrt(px * px + py * py + pz * pz)
+            if not r >= r_min or r > r_max:
+                continue
+            for a in range(3):
+                dw[a] = (R[a, 0] * px + R[a, 1] * py + R[a, 2] * pz) / r
+                di[a] = dw[a] / vs
+            y = labels[v, u]
+            n = ray_voxels(o, di, r - band - 0.87 * vs, r + band + 0.87 * vs, shape, buf)
+            for m in range(n):
+                i, j, k = buf[m, 0], buf[m, 1], buf[m, 2]
+                tc = (i - o[0]) * vs * dw[0] + (j - o[1]) * vs * dw[1] + (k - o[2]) * vs * dw[2]
+                if abs(r - tc) > band:
+                    continue
+                nl, nw = vote(lab[i, j, k], votes[i, j, k], y, q)
+                lab[i, j, k] = nl
+                votes[i, j, k] = nw
+                n_votes += 1
+    return n_votes
+
+
+class SemanticIntegrator:
+    """Fuses per-pixel ADE20K labels into a ``SemanticLayer`` (see the module docstring)."""
+
+    def __init__(self, config: MapperConfig):
+        self.config = config
+
+    def integrate(self, volume: Volume, layer: SemanticLayer, points: np.ndarray, confidence: np.ndarray,
+                  labels: np.ndarray, T_WC: np.ndarray) -> int:
+        """Vote one frame's labels into the voxels near each observed surface point; the vote count."""
+        c = self.config
+        T = np.asarray(T_WC, dtype=np.float64)
+        return int(_integrate(
+            np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32),
+            np.asarray(labels, dtype=np.uint16), np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+            volume.origin.astype(np.float64), volume.voxel_size, layer.label, layer.vote, c.surface_band,
+            c.min_confidence, c.min_depth, c.max_depth, c.pixel_stride,
+        ))

@@ -1,0 +1,249 @@
+"""The mapping node in its own process over a real Zenoh router: publishes, answers, survives bad input."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import yaml
+import zenoh
+
+from riskfield.protocol import (
+    ENCODING,
+    DistanceQuery,
+    DistanceReply,
+    EsdfGrid,
+    Keys,
+    NodeStatus,
+    PerceptionFrame,
+    RiskConfig,
+    RobotState,
+    VelocityCommand,
+    decode,
+    encode,
+    to_map,
+)
+from riskfield.services.mapping.synthetic import Box, Camera, Plane, orbit, render
+from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+
+CAM = Camera(160, 120, 125.0, 125.0)
+
+
+def room() -> list:
+    from riskfield.protocol import ade20k
+
+    return [Plane((1, 0, 0), 1.5, ade20k.index("wall")), Plane((0, 0, 1), 0.0, ade20k.index("floor")),
+            Box((0.8, -0.7, 0.0), (1.0, -0.4, 1.2), ade20k.index("person"))]
+
+
+def frames(n: int = 4) -> list[PerceptionFrame]:
+    out = []
+    for i, T in enumerate(orbit([1.2, 0.0, 0.3], n=n, radius=0.2, height=0.3)):
+        pts, conf, lab = render(room(), T, CAM)
+        out.append(PerceptionFrame(T_WC=T, points=pts, confidence=conf, labels=lab, keyframe_id=i))
+    return out
+
+
+def state() -> RobotState:
+    return RobotState(position=(0, 0, 0), orientation=(0, 0, 0, 1), linear_velocity=(0, 0, 0),
+                      angular_velocity=(0, 0, 0))
+
+
+def query(session: zenoh.Session, key: str, payload: bytes, timeout: float = 5.0) -> list[zenoh.Reply]:
+    return list(session.get(key, payload=payload, encoding=zenoh.Encoding(ENCODING), timeout=timeout))
+
+
+def ask(session: zenoh.Session, keys: Keys, points: np.ndarray) -> DistanceReply:
+    replies = query(session, keys.esdf_query, encode(DistanceQuery(points=points)))
+    oks = [r.ok for r in replies if r.ok is not None]
+    assert oks, f"no reply ({[r.err.payload.to_bytes() for r in replies if r.err is not None]})"
+    return decode(oks[0].payload.to_bytes(), DistanceReply)
+
+
+def ready(session: zenoh.Session, keys: Keys, timeout_s: float = 30.0) -> bool:
+    """Liveliness comes up before the node has warmed its kernels and declared its queryable."""
+    payload = encode(DistanceQuery(points=np.zeros((1, 3))))
+    return wait_until(lambda: any(r.ok is not None for r in query(session, keys.esdf_query, payload, 0.5)),
+                      timeout_s, 0.1)
+
+
+def feed(session: zenoh.Session, keys: Keys, msgs: list[PerceptionFrame]) -> None:
+    put(session, keys.state, state())
+    for f in msgs:
+        put(session, keys.perception_frame, f)
+        time.sleep(0.15)  # the frame queue keeps only the newest; give each its turn
+
+
+IN_FRONT = np.array([[0.5, -0.55, 0.3], [0.6, -0.55, 0.3]])
+
+
+def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: str) -> None:
+    keys = Keys("t_map_pub")
+    args = ["--robot", keys.robot, "--set", "output=both", "--set", "esdf_rate_hz=20"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        grids, grids3d = Collector(s, keys.esdf, EsdfGrid), Collector(s, keys.key("map/esdf3d"), EsdfGrid)
+        # before any frame: nothing published, queries say "outside the map"
+        early = ask(s, keys, IN_FRONT)
+        assert early.in_map is not None and not early.in_map.any()
+        assert np.all(early.distance == 2.0)
+        assert not grids.items
+        feed(s, keys, frames())
+        g = grids.wait(1)[-1]
+        g3 = grids3d.wait(1)[-1]
+        assert g.shape == (101, 101, 1) and g3.shape == (101, 101, 101)
+        assert g.groups == ["high", "mid", "low"] and g.max_distance == 2.0 and not g.unknown_is_occupied
+        assert np.isfinite(g.distance).all() and (g.distance < 0).any() and (g.risk_group == 1).any()
+        assert g.header.stamp_ns > 0
+        reply = ask(s, keys, IN_FRONT)
+        true = 0.8 - IN_FRONT[:, 0] - 0.15
+        assert reply.in_map is not None and reply.in_map.all()
+        assert np.all(reply.risk_group == 1)
+        assert np.all(np.abs(reply.distance - true) <= 0.075)
+        assert np.all(reply.gradient[:, 0] < -0.5)
+        # no new data: no new grids (the filter must see the map age)
+        n = len(grids.items)
+        time.sleep(0.4)
+        assert len(grids.items) == n
+        grids.close()
+        grids3d.close()
+        assert proc.stop() == 0
+
+
+def frame_map(f: PerceptionFrame) -> dict:
+    return to_map(f)
+
+
+def bad_payloads() -> dict[str, list[bytes]]:
+    """Malformed input for every key the node listens on."""
+    good = frames(1)[0]
+    m = frame_map(good)
+    truncated = encode(good)[: len(encode(good)) // 2]
+    nan_pose = dict(m, T_WC=dict(m["T_WC"], data=np.full((4, 4), np.nan).tobytes()))
+    f64_points = dict(m, points={"dtype": "<f8", "shape": list(good.points.shape),
+                                 "data": good.points.astype("<f8").tobytes()})
+    giant = dict(m, points={"dtype": "<f4", "shape": [100000, 100000, 3], "data": b"\0" * 12})
+    mismatch = dict(m, confidence=dict(m["confidence"], shape=[60, 160], data=good.confidence[:60].tobytes()))
+    scaled = good.T_WC.copy()
+    scaled[:3, :3] *= 1.5  # valid message, but not a rigid pose: rejected by the core
+    big_frame = {"dtype": "<f4", "shape": [2100, 2100, 3], "data": b"\0" * (2100 * 2100 * 12)}
+    vc = encode(VelocityCommand.zero("fuzz"))
+    st = to_map(state())
+    risk = to_map(RiskConfig())
+    rng = np.random.default_rng(1)
+    junk = [bytes(rng.integers(0, 256, n, dtype=np.uint8)) for n in (0, 1, 7, 300)]
+    return {
+        "frame": [*junk, truncated, vc, msgpack.packb(nan_pose), msgpack.packb(f64_points), msgpack.packb(giant),
+                  msgpack.packb(mismatch), encode(good.model_copy(update={"T_WC": scaled})),
+                  msgpack.packb(dict(m, points=big_frame)), msgpack.packb([1, 2, 3])],
+        "state": [*junk, vc, msgpack.packb(dict(st, position=[float("nan"), 0.0, 0.0])),
+                  msgpack.packb(dict(st, orientation=[0, 0, 0, 2.0])), msgpack.packb(dict(st, position="x"))],
+        "risk": [*junk, vc, msgpack.packb(dict(risk, groups=[])), msgpack.packb(dict(risk, default_group="nope"))],
+        "query": [*junk, vc, msgpack.packb({"schema": "DistanceQuery/1", "header": {},
+                                            "points": {"dtype": "<f8", "shape": [2, 3],
+                                                       "data": np.array([[np.nan] * 3] * 2).tobytes()}}),
+                  msgpack.packb({"schema": "DistanceQuery/1", "header": {},
+                                 "points": {"dtype": "<f4", "shape": [1, 3], "data": b"\0" * 12}}),
+                  msgpack.packb({"schema": "DistanceQuery/1", "header": {},
+                                 "points": {"dtype": "<f8", "shape": [10**8, 3], "data": b""}})],
+    }
+
+
+def test_node_rejects_bad_input_on_every_key_and_keeps_serving(router_endpoint: str) -> None:
+    keys = Keys("t_map_fuzz")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=20", "--set", "status_period_s=0.3"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        status = Collector(s, keys.status("mapping"), NodeStatus)
+        bad = bad_payloads()
+        for key, name in ((keys.perception_frame, "frame"), (keys.state, "state"), (keys.risk_config, "risk")):
+            for payload in bad[name]:
+                put(s, key, payload)
+                time.sleep(0.08)
+        for payload in bad["query"]:
+            replies = query(s, keys.esdf_query, payload)
+            assert replies and all(r.ok is None for r in replies), "a bad query must get an error reply"
+        time.sleep(0.3)
+        assert proc.alive(), proc.output
+        assert not grids.items, "no map may come out of bad frames"
+        # it still serves: a valid frame makes a valid map, a valid query gets an answer
+        feed(s, keys, frames(2))
+        g = grids.wait(1)[-1]
+        assert np.isfinite(g.distance).all() and (g.distance < 0).any()
+        reply = ask(s, keys, IN_FRONT)
+        assert reply.in_map is not None and reply.in_map.all() and np.all(reply.risk_group == 1)
+
+        def counted() -> bool:
+            # every bad payload arrived and was rejected (or overwritten by the next in the latest-value queue)
+            if not status.items:
+                return False
+            st = status.items[-1]
+            ok = True
+            for key, name in (("perception/frame", "frame"), ("state", "state"), ("config/risk", "risk")):
+                handled = st.invalid.get(key, 0) + st.dropped.get(key, 0)
+                if key == "perception/frame":
+                    handled += int(st.extra.get("rejected_frames", 0))
+                ok &= st.received.get(key, 0) >= len(bad[name]) and handled >= len(bad[name]) - 1
+                ok &= st.invalid.get(key, 0) >= 3
+            return ok and st.invalid.get("map/esdf/query", 0) == len(bad["query"])
+
+        assert wait_until(counted, 5.0), repr(status.items[-1]) if status.items else "no status"
+        assert status.items[-1].errors == 0, proc.output
+        assert "rejected a message on" in proc.output
+        assert "rejected a perception frame: T_WC rotation is not orthonormal" in proc.output
+        grids.close()
+        status.close()
+        assert proc.stop() == 0
+
+
+def test_risk_config_hot_reload_from_key_and_file(router_endpoint: str, tmp_path: Path) -> None:
+    keys = Keys("t_map_risk")
+    risk_file = tmp_path / "risk.yaml"
+    cfg = RiskConfig()
+    risk_file.write_text(yaml.safe_dump(cfg.model_dump(exclude={"header"})))
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=20", "--set", f"risk_config_file={risk_file}",
+            "--set", "risk_poll_s=0.2"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        feed(s, keys, frames(3))
+        grids.wait(1)
+        time.sleep(0.2)
+        d0 = ask(s, keys, IN_FRONT).distance
+        # over the key: the high-risk margin grows by 0.25 m
+        wider = RiskConfig()
+        wider.groups[0].margin = 0.40
+        n = len(grids.items)
+        put(s, keys.risk_config, wider)
+        grids.wait(n + 1)
+        d1 = ask(s, keys, IN_FRONT).distance
+        assert np.allclose(d0 - d1, 0.25, atol=1e-5)
+        # through the file: margin 0.05
+        narrow = RiskConfig()
+        narrow.groups[0].margin = 0.05
+        n = len(grids.items)
+        time.sleep(0.05)
+        risk_file.write_text(yaml.safe_dump(narrow.model_dump(exclude={"header"})))
+        grids.wait(n + 1)
+        d2 = ask(s, keys, IN_FRONT).distance
+        assert np.allclose(d0 - d2, -0.10, atol=1e-5)
+        # a broken file is reported and ignored
+        risk_file.write_text("groups: [")
+        time.sleep(0.6)
+        assert np.allclose(ask(s, keys, IN_FRONT).distance, d2, atol=1e-6)
+        assert "could not reload" in proc.output
+        grids.close()
+        assert proc.stop() == 0
+
+
+@pytest.mark.parametrize("value", ["band=[1,0]", "voxel_size=-1", "output=4d"])
+def test_bad_settings_fail_fast_with_a_clear_message(router_endpoint: str, value: str) -> None:
+    with ServiceProcess("mapping", router_endpoint, ["--robot", "t_map_bad", "--set", value]) as proc:
+        assert proc.proc is not None
+        proc.proc.wait(30)
+        assert proc.proc.returncode == 2
+        assert "invalid configuration for mapping" in proc.output
