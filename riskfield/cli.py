@@ -164,6 +164,35 @@ def replay(
 
 
 @app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Report folder: summary.json, plots, recording.mcap, logs.")] = Path(
+        "out/demo"),
+    live: Annotated[bool, typer.Option(help="Open a live Rerun view (web viewer when headless).")] = False,
+    seed: Annotated[int, typer.Option(help="Seed of the scripted operator.")] = 0,
+    budget: Annotated[float, typer.Option(help="Seconds allowed for both experiments after start-up.")] = 100.0,
+    verbose: Annotated[bool, typer.Option(help="Echo every service's log lines.")] = False,
+    report_only: Annotated[bool, typer.Option(help="Only rebuild the report from a finished run in --out.")] = False,
+) -> None:
+    """The whole stack on this machine: teleop towards a ball and a dog, then a navigation loop
+    with an unseen obstacle; ends with a summary table and a report folder."""
+    import json
+
+    from riskfield.demo.run import Demo, DemoConfig, make_report
+
+    cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose)
+    if report_only:
+        phases = out / "phases.json"
+        if not phases.is_file():
+            console.print(f"[red]{phases} does not exist: run the demo first[/red]")
+            raise typer.Exit(2)
+        cfg.phases = json.loads(phases.read_text())
+        summary = make_report(cfg, console)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        raise typer.Exit(0)
+    raise typer.Exit(Demo(cfg, console).run())
+
+
+@app.command()
 def schema(outdir: Annotated[Path, typer.Argument(help="Folder for <Name>.schema.json files.")]) -> None:
     """Export a JSON Schema per message of the wire contract."""
     from riskfield.protocol.schema import export

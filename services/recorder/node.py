@@ -35,12 +35,14 @@ class Recording:
         self._per_key: Counter[str] = Counter()
         self._out = s.out
         self._t0 = time.time()
+        self._node = node
         self.expr = s.keys or f"{node.keys.root}/**"
         node.subscribe(self.expr, None, self._on_payload, queue="fifo", maxlen=s.max_queue)
         node.log.info("recording %s into %s", self.expr, self.path)
 
     def _on_payload(self, key: str, payload: bytes) -> None:
-        if self._rec.add(key, payload, time.time_ns()):
+        # arrival time, not handling time: a burst handled at once keeps its real spacing
+        if self._rec.add(key, payload, self._node.arrival_ns or time.time_ns()):
             self._per_key[key] += 1
 
     def close(self) -> None:

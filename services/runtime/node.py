@@ -52,6 +52,7 @@ class Node:
         self.log = setup_logging(service, settings.log_level)
         self.ratelog = RateLimitedLog(self.log)
         self.stats: dict[str, float] = {}  # extra numbers a service wants in its NodeStatus
+        self.arrival_ns = 0  # wall-clock arrival time of the message being handled
         self._own_session = session is None
         self.session = session if session is not None else open_session(settings)
         self._inbox = Inbox()
@@ -90,7 +91,7 @@ class Node:
         self._subs.append(sub)
 
         def on_sample(sample: zenoh.Sample, sub: _Sub = sub) -> None:
-            self._inbox.put(sub.slot, ("sample", str(sample.key_expr), sample.payload.to_bytes()))
+            self._inbox.put(sub.slot, ("sample", str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -108,7 +109,7 @@ class Node:
         self._subs.append(sub)
 
         def on_query(query: zenoh.Query, sub: _Sub = sub) -> None:
-            self._inbox.put(sub.slot, ("query", query, None))
+            self._inbox.put(sub.slot, ("query", query, None, time.time_ns()))
 
         self._declared.append(self.session.declare_queryable(key, on_query))
 
@@ -193,7 +194,7 @@ class Node:
 
     def _dispatch(self, slot: Slot, item: tuple) -> None:
         sub = next(s for s in self._subs if s.slot is slot)
-        kind, a, b = item
+        kind, a, b, self.arrival_ns = item
         if kind == "query":
             self._answer(sub, a)
             return
