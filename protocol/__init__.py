@@ -18,6 +18,7 @@ from .messages import (
     EsdfGrid,
     Header,
     Image,
+    LimoDiagnostics,
     Message,
     NavGoal,
     NodeStatus,
@@ -31,6 +32,7 @@ from .risk import RiskConfig, RiskGroup
 __all__ = [
     "DEFAULT_LIMITS", "ENCODING", "MESSAGE_TYPES", "REGISTRY", "TOPICS",
     "DecodeError", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
-    "Keys", "Limits", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig", "RiskGroup",
+    "Keys", "Limits", "LimoDiagnostics", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig",
+    "RiskGroup",
     "RobotState", "SafetyStatus", "VelocityCommand", "ade20k", "decode", "encode", "to_map",
 ]

@@ -9,6 +9,7 @@ from .messages import (
     DistanceQuery,
     EsdfGrid,
     Image,
+    LimoDiagnostics,
     Message,
     NavGoal,
     PerceptionFrame,
@@ -33,7 +34,8 @@ TOPICS: dict[str, type[Message]] = {
     "safety/status": SafetyStatus,
     "nav/goal": NavGoal,
     "config/risk": RiskConfig,
-    "sim/truth": PerceptionFrame,  # simulation only: perfect pointmap and labels, stamped like the image
+    "sim/truth": PerceptionFrame,
+    "limo/diagnostics": LimoDiagnostics,  # simulation only: perfect pointmap and labels, stamped like the image
 }
 
 

@@ -270,6 +270,33 @@ class NodeStatus(Message):
     extra: dict[str, FiniteFloat] = Field(default_factory=dict)
 
 
+class LimoDiagnostics(Message):
+    """Chassis and link health, published by the ``limo`` bridge on ``{prefix}/{robot}/limo/diagnostics``.
+
+    ``vehicle_state``, ``control_mode`` and ``motion_mode`` are as reported by the chassis
+    (``-1`` before its first system-state frame); ``feedback_age_ms`` is -1 before any feedback."""
+
+    SCHEMA: ClassVar[str] = "LimoDiagnostics/1"
+
+    port: str
+    connected: bool
+    battery_v: FiniteFloat
+    error_bits: Annotated[int, Field(ge=0)]
+    vehicle_state: int
+    control_mode: int
+    motion_mode: int
+    command_mode_confirmed: bool
+    mode_mismatch: bool
+    frames_ok: Annotated[int, Field(ge=0)]
+    frames_bad: Annotated[int, Field(ge=0)]
+    bytes_skipped: Annotated[int, Field(ge=0)]
+    reconnects: Annotated[int, Field(ge=0)]
+    watchdog_stops: Annotated[int, Field(ge=0)]
+    commands: Annotated[int, Field(ge=0)]
+    odometry_jumps: Annotated[int, Field(ge=0)] = 0
+    feedback_age_ms: FiniteFloat = -1.0
+
+
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     Image,
     PerceptionFrame,
@@ -281,4 +308,5 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     SafetyStatus,
     NavGoal,
     NodeStatus,
+    LimoDiagnostics,
 )

@@ -56,6 +56,8 @@ class Node:
         self._own_session = session is None
         self.session = session if session is not None else open_session(settings)
         self._inbox = Inbox()
+        self._calls = self._inbox.slot("calls", "fifo", 10000)
+        self._close_hooks: list[Callable[[], None]] = []
         self._subs: list[_Sub] = []
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -112,6 +114,15 @@ class Node:
             self._inbox.put(sub.slot, ("query", query, None, time.time_ns()))
 
         self._declared.append(self.session.declare_queryable(key, on_query))
+
+    def post(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the loop thread as soon as possible; safe to call from any thread
+        (device readers, serial threads), so cores still see one thread only."""
+        self._inbox.put(self._calls, ("call", fn, None, time.time_ns()))
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` at shutdown while the session is still open (a bridge's last stop command)."""
+        self._close_hooks.append(fn)
 
     def every(self, period_s: float, fn: Callable[[], None]) -> None:
         """Run ``fn`` on the loop thread every ``period_s`` seconds (no catch-up bursts)."""
@@ -193,8 +204,11 @@ class Node:
             self._call(f"timer {getattr(fn, '__name__', fn)}", fn)
 
     def _dispatch(self, slot: Slot, item: tuple) -> None:
-        sub = next(s for s in self._subs if s.slot is slot)
         kind, a, b, self.arrival_ns = item
+        if kind == "call":
+            self._call(f"posted {getattr(a, '__name__', a)}", a)
+            return
+        sub = next(s for s in self._subs if s.slot is slot)
         if kind == "query":
             self._answer(sub, a)
             return
@@ -284,6 +298,8 @@ class Node:
         if self._closed:
             return
         self._closed = True
+        for hook in self._close_hooks:
+            self._call(f"close hook {getattr(hook, '__name__', hook)}", hook)
         self._inbox.close()
         for d in self._declared:
             try:

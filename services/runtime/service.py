@@ -34,6 +34,7 @@ SERVICES: dict[str, str] = {
     "ros2-bridge": "riskfield.services.ros2_bridge.node:SERVICE",
     "viewer": "riskfield.services.viewer.node:SERVICE",
     "operator": "riskfield.services.operator.node:SERVICE",
+    "keyboard": "riskfield.edge.joystick.keyboard:SERVICE",
 }
 
 #: The pip extra each service needs beyond the base install.

@@ -123,3 +123,24 @@ def test_collector_decodes(router_endpoint):
         c.close()
     with pytest.raises(DecodeError):
         decode(b"raw")
+
+
+def test_post_runs_on_the_loop_thread_and_close_hooks_publish(router_endpoint):
+    settings = EchoSettings(connect=[router_endpoint], robot="t_post")
+    node = Node("echo", settings)
+    ran_on: list[str] = []
+    node.on_close(lambda: node.publish(node.keys.cmd_safe, VelocityCommand.zero("last words")))
+    thread = threading.Thread(target=node.run, name="loop", daemon=True)
+    with client_session(router_endpoint) as session:
+        last = Collector(session, "rf/t_post/cmd/safe", VelocityCommand)
+        thread.start()
+        poster = threading.Thread(target=lambda: [node.post(lambda: ran_on.append(threading.current_thread().name))
+                                                  for _ in range(5)])
+        poster.start()
+        poster.join()
+        assert wait_until(lambda: len(ran_on) == 5, 5)
+        assert set(ran_on) == {"loop"}
+        node.stop()
+        thread.join(10)
+        assert last.wait(1)[0].source == "last words"
+        last.close()

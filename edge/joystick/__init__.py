@@ -1,0 +1,1 @@
+"""Joystick gateway (evdev Extreme 3D Pro → cmd/ref) and keyboard teleop."""

@@ -1,0 +1,1 @@
+"""AgileX LIMO serial bridge: framing, kinematics, bridge core, serial link, chassis emulator, node."""

@@ -1,0 +1,171 @@
+"""LIMO kinematics: body velocity command → motion frame per motion mode, and wheel odometry.
+
+Command side
+------------
+A ``cmd/safe`` command is a body-frame velocity (vx forward, vy left, ωz counter-clockwise).
+The chassis executes it differently per motion mode:
+
+* **differential** (four-wheel skid steer): linear = vx, angular = ωz; vy cannot be executed.
+* **Ackermann** (bicycle model, wheelbase L): linear = vx and the central steering angle
+  δ = atan(ωz · L / vx), limited to ±``max_steering``. At (near) zero speed the chassis cannot
+  turn, so δ = 0 and ωz is dropped. The curvature actually driven is tan(δ)/L, so a command
+  whose turning radius is below the minimum is driven on the minimum radius instead.
+* **mecanum**: linear = vx, lateral = vy, angular = ωz.
+
+Limits are applied by **scaling the whole command by one factor λ ∈ [0, 1]**, never by
+clipping each axis on its own. Reason: the safety filter's barrier condition is affine in
+the input, ``a(x)·u ≥ −α h(x)``; with h ≥ 0 the zero input satisfies it, so every λu between
+the filtered u and zero still does. Clipping one axis (say ω but not v) would change the
+direction of motion and could leave the safe set. λ also keeps every wheel below its speed
+limit: for a differential or mecanum base the fastest wheel moves at |vx| + |vy| + |ωz|·r
+with r = track/2 (plus wheelbase/2 for mecanum rollers).
+
+Odometry side
+-------------
+``WheelOdometry`` dead-reckons a planar pose from the cumulative left/right wheel travel of
+the ``0x311`` frames: forward travel ds = (dl + dr)/2, rotation dθ = (dr − dl)/track, the
+midpoint rule x += ds·cos(θ + dθ/2). When the IMU yaw (``0x323``) is present it replaces the
+wheel heading (skid-steer wheels slip when turning; the IMU does not), relative to the yaw
+seen first so the map frame starts at the robot's initial pose with heading 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+from .protocol import MotionCommand
+
+
+class MotionMode(IntEnum):
+    DIFFERENTIAL = 0
+    ACKERMANN = 1
+    MECANUM = 2
+
+    @classmethod
+    def parse(cls, value: str | int) -> MotionMode:
+        if isinstance(value, str) and not value.isdigit():
+            return cls[value.strip().upper()]
+        return cls(int(value))
+
+
+@dataclass(frozen=True)
+class LimoLimits:
+    """Platform limits (SI). Defaults: the LIMO's published figures; ``max_angular`` is a
+    conservative choice, not a datasheet number."""
+
+    max_linear: float = 1.0
+    max_lateral: float = 1.0
+    max_angular: float = 2.0
+    max_wheel_speed: float = 1.0
+    max_steering: float = 0.488
+    wheelbase: float = 0.2
+    track: float = 0.172
+    min_speed_for_steering: float = 1e-3
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"limit {name} must be positive and finite, got {value}")
+
+
+def _scale(limits: list[tuple[float, float]]) -> float:
+    """Largest λ ≤ 1 with λ·|value| ≤ bound for every (value, bound)."""
+    lam = 1.0
+    for value, bound in limits:
+        if abs(value) > bound:
+            lam = min(lam, bound / abs(value))
+    return lam
+
+
+def steering_angle(vx: float, wz: float, limits: LimoLimits) -> float:
+    """Central (bicycle) steering angle that drives curvature ωz/vx, clamped to the limit.
+
+    δ = atan(ωz·L/vx) keeps its sign convention when reversing: backing up with ωz > 0 needs
+    the wheels turned right (δ < 0), which the formula gives because vx < 0."""
+    if abs(vx) < limits.min_speed_for_steering:
+        return 0.0
+    delta = math.atan(wz * limits.wheelbase / vx)
+    return max(-limits.max_steering, min(limits.max_steering, delta))
+
+
+def command_to_motion(vx: float, vy: float, wz: float, mode: MotionMode, limits: LimoLimits) -> MotionCommand:
+    """The motion frame executing body velocity (vx, vy, ωz) in ``mode``, within ``limits``.
+
+    Non-finite input yields a stop frame: a bridge must never forward NaN to motors."""
+    if not all(math.isfinite(c) for c in (vx, vy, wz)):
+        return MotionCommand()
+    r = limits.track / 2
+    if mode == MotionMode.DIFFERENTIAL:
+        lam = _scale([(vx, limits.max_linear), (wz, limits.max_angular),
+                      (abs(vx) + abs(wz) * r, limits.max_wheel_speed)])
+        return MotionCommand(linear=lam * vx, angular=lam * wz)
+    if mode == MotionMode.MECANUM:
+        r += limits.wheelbase / 2
+        lam = _scale([(vx, limits.max_linear), (vy, limits.max_lateral), (wz, limits.max_angular),
+                      (abs(vx) + abs(vy) + abs(wz) * r, limits.max_wheel_speed)])
+        return MotionCommand(linear=lam * vx, angular=lam * wz, lateral=lam * vy)
+    # Ackermann: the steering angle encodes the curvature; only the speed is scaled.
+    lam = _scale([(vx, limits.max_linear)])
+    v = lam * vx
+    delta = steering_angle(vx, wz, limits)
+    # The angular field stays 0: in Ackermann mode the chassis steers by the steering field alone.
+    return MotionCommand(linear=v, steering=delta)
+
+
+def wrap_angle(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class WheelOdometry:
+    """Planar dead reckoning from cumulative wheel travel, optionally with IMU yaw.
+
+    ``max_step`` rejects a jump no real robot makes between two 0x311 frames (a reset
+    counter, or garbage that passed the 8-bit checksum): the reference is re-taken without
+    moving the pose, and ``jumps`` counts it.
+    """
+
+    def __init__(self, track: float, max_step: float = 0.5):
+        self.track = track
+        self.max_step = max_step
+        self.x = 0.0
+        self.y = 0.0
+        self.yaw = 0.0
+        self.jumps = 0
+        self._last: tuple[float, float] | None = None
+        self._imu_offset: float | None = None
+        self._imu_yaw: float | None = None
+
+    def reset_reference(self) -> None:
+        """After a reconnect the counters may have restarted: take the next frame as reference."""
+        self._last = None
+
+    def update_imu_yaw(self, yaw: float) -> None:
+        if self._imu_offset is None:
+            self._imu_offset = yaw - self.yaw  # continue from the current heading
+        self._imu_yaw = wrap_angle(yaw - self._imu_offset)
+        self.yaw = self._imu_yaw
+
+    def update_wheels(self, left: float, right: float, lateral_step: float = 0.0) -> bool:
+        """Integrate one odometry frame; ``lateral_step`` (m, body y) is mecanum side travel
+        the wheel counters cannot see. False when the frame was only taken as reference."""
+        if self._last is None:
+            self._last = (left, right)
+            return False
+        dl, dr = left - self._last[0], right - self._last[1]
+        self._last = (left, right)
+        if abs(dl) > self.max_step or abs(dr) > self.max_step:
+            self.jumps += 1
+            return False
+        ds = 0.5 * (dl + dr)
+        if self._imu_yaw is None:
+            dyaw = (dr - dl) / self.track
+            mid = self.yaw + 0.5 * dyaw
+            self.yaw = wrap_angle(self.yaw + dyaw)
+        else:
+            mid = self.yaw  # IMU heading is absolute; the step uses the latest one
+        c, s = math.cos(mid), math.sin(mid)
+        self.x += ds * c - lateral_step * s
+        self.y += ds * s + lateral_step * c
+        return True

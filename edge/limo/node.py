@@ -1,0 +1,152 @@
+"""``riskfield run limo``: the AgileX LIMO serial bridge.
+
+Subscribes ``cmd/safe`` and writes a motion frame per command at once (no rate limiting: the
+filter's rate is the robot's rate). A timer every ``poll_s`` reads the serial line, publishes
+``state`` on each odometry step, runs the watchdog and reopens a lost port. Diagnostics go
+to ``{prefix}/{robot}/limo/diagnostics`` every ``diagnostics_period_s``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import ClassVar, Literal
+
+from pydantic import Field
+from pydantic_settings import SettingsConfigDict
+
+from riskfield.protocol import RobotState, VelocityCommand
+from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
+
+from .bridge import BridgeConfig, LimoBridge, PlanarState
+from .kinematics import LimoLimits, MotionMode
+from .messages import LimoDiagnostics
+from .serial_link import SerialLink
+
+
+class LimoSettings(NodeSettings):
+    model_config = SettingsConfigDict(populate_by_name=True)
+    SERVICE: ClassVar[str] = "limo"
+
+    port: str = Field(default="/dev/ttyTHS1", validation_alias="riskfield_limo_port",
+                      description="serial device (env RISKFIELD_LIMO_PORT)")
+    baudrate: int = Field(default=460800, gt=0)
+    motion_mode: Literal["auto", "differential", "ackermann", "mecanum"] = "auto"
+    watchdog_s: float = Field(default=0.2, gt=0)
+    stop_repeat_s: float = Field(default=0.1, gt=0)
+    enable_retry_s: float = Field(default=1.0, gt=0)
+    feedback_timeout_s: float = Field(default=0.5, gt=0)
+    poll_s: float = Field(default=0.005, gt=0)
+    reconnect_s: float = Field(default=0.5, gt=0)
+    diagnostics_period_s: float = Field(default=0.5, gt=0)
+    use_imu: bool = True
+    max_linear: float = Field(default=1.0, gt=0)
+    max_lateral: float = Field(default=1.0, gt=0)
+    max_angular: float = Field(default=2.0, gt=0)
+    max_wheel_speed: float = Field(default=1.0, gt=0)
+    max_steering: float = Field(default=0.488, gt=0)
+    wheelbase: float = Field(default=0.2, gt=0)
+    track: float = Field(default=0.172, gt=0)
+    state_frame: str = "map"
+
+    def bridge_config(self) -> BridgeConfig:
+        limits = LimoLimits(self.max_linear, self.max_lateral, self.max_angular, self.max_wheel_speed,
+                            self.max_steering, self.wheelbase, self.track)
+        mode = None if self.motion_mode == "auto" else MotionMode.parse(self.motion_mode)
+        return BridgeConfig(motion_mode=mode, limits=limits, watchdog_s=self.watchdog_s,
+                            stop_repeat_s=self.stop_repeat_s, enable_retry_s=self.enable_retry_s,
+                            feedback_timeout_s=self.feedback_timeout_s, use_imu=self.use_imu)
+
+
+def to_robot_state(s: PlanarState, frame_id: str) -> RobotState:
+    """A planar estimate as a ``RobotState``: z = 0, yaw-only quaternion, world-frame velocity."""
+    vx, vy = s.world_velocity()
+    half = 0.5 * s.yaw
+    msg = RobotState(position=(s.x, s.y, 0.0), orientation=(0.0, 0.0, math.sin(half), math.cos(half)),
+                     linear_velocity=(vx, vy, 0.0), angular_velocity=(0.0, 0.0, s.wz))
+    msg.header.frame_id = frame_id
+    return msg
+
+
+class LimoNode:
+    def __init__(self, node: Node, s: LimoSettings):
+        self.node, self.s = node, s
+        self.core = LimoBridge(s.bridge_config())
+        self.link = SerialLink(s.port, s.baudrate, s.reconnect_s)
+        self.diag_key = node.keys.key("limo/diagnostics")
+        node.subscribe(node.keys.cmd_safe, VelocityCommand, self.on_command)
+        node.every(s.poll_s, self.poll)
+        node.every(s.diagnostics_period_s, self.publish_diagnostics)
+        self.poll()
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self.link.write(data)
+        except ConnectionError as exc:
+            self._lost(str(exc))
+
+    def _lost(self, why: str) -> None:
+        self.core.on_disconnected()
+        self.node.ratelog(logging.ERROR, "link", f"LIMO serial link lost ({why}); reopening {self.s.port} "
+                          f"every {self.s.reconnect_s} s")
+
+    def on_command(self, cmd: VelocityCommand) -> None:
+        frame = self.core.on_command(cmd.linear[0], cmd.linear[1], cmd.angular[2], time.monotonic())
+        if self.link.is_open:
+            self._write(frame)
+        else:
+            self.node.ratelog(logging.WARNING, "no-link", f"cmd/safe received but {self.s.port} is not open")
+
+    def poll(self) -> None:
+        now = time.monotonic()
+        if self.link.try_open(now):
+            self.node.log.info("opened %s at %d baud", self.s.port, self.s.baudrate)
+            self._write(self.core.on_connected(now))
+        elif not self.link.is_open:
+            self.node.ratelog(logging.WARNING, "open", self.link.last_error or f"{self.s.port} is not open")
+        if self.link.is_open:
+            try:
+                data = self.link.read()
+            except ConnectionError as exc:
+                self._lost(str(exc))
+                data = b""
+            if data and self.core.on_bytes(data, now):
+                state = self.core.state(now)
+                if state is not None:
+                    self.node.publish(self.node.keys.state, to_robot_state(state, self.s.state_frame))
+        if self.link.is_open:
+            self._write(self.core.tick(now))
+
+    def publish_diagnostics(self) -> None:
+        d = self.core.diagnostics(time.monotonic())
+        self.node.publish(self.diag_key, LimoDiagnostics(
+            port=self.s.port, connected=d.connected, battery_v=d.battery_v, error_bits=d.error_bits,
+            vehicle_state=d.vehicle_state, control_mode=d.control_mode, motion_mode=d.motion_mode,
+            command_mode_confirmed=d.command_mode_confirmed, mode_mismatch=d.mode_mismatch,
+            frames_ok=d.frames_ok, frames_bad=d.frames_bad, bytes_skipped=d.bytes_skipped,
+            reconnects=d.reconnects, watchdog_stops=d.watchdog_stops, commands=d.commands,
+            odometry_jumps=d.odometry_jumps, feedback_age_ms=d.feedback_age_s * 1e3 if d.feedback_age_s >= 0 else -1.0,
+        ))
+        for name in ("frames_ok", "frames_bad", "bytes_skipped", "reconnects", "watchdog_stops", "commands"):
+            self.node.stats[name] = float(getattr(d, name))
+        self.node.stats["connected"] = float(d.connected)
+        if d.error_bits:
+            self.node.ratelog(logging.WARNING, "chassis-error", f"chassis reports error bits {d.error_bits:#06x}")
+        if d.mode_mismatch:
+            self.node.ratelog(logging.WARNING, "mode", f"chassis reports motion mode {d.motion_mode}, "
+                              f"configured {self.s.motion_mode}")
+
+    def close(self) -> None:
+        """Stop the robot before letting go of the port."""
+        if self.link.is_open:
+            self._write(self.core.shutdown())
+            time.sleep(0.01)  # let the stop frame leave the UART before the fd closes
+        self.link.close()
+
+
+def setup(node: Node, s: LimoSettings) -> LimoNode:
+    return LimoNode(node, s)
+
+
+SERVICE = ServiceSpec("limo", LimoSettings, setup)

@@ -1,0 +1,1 @@
+"""MAVLink bridge for PX4/ArduPilot: cmd/safe → velocity setpoints, vehicle → state (ENU)."""

@@ -1,0 +1,149 @@
+"""``riskfield run mavlink``: ``cmd/safe`` → PX4/ArduPilot velocity setpoints; vehicle → ``state``.
+
+``url`` (env ``RISKFIELD_MAVLINK_URL``, default ``udpin:0.0.0.0:14550``) is a pymavlink
+connection string. The node polls the link every ``poll_s``, publishes ``RobotState`` in the
+ENU map frame (see ``convert``) whenever a LOCAL_POSITION_NED or ATTITUDE arrives and both
+are fresh, and sends what the core's schedule asks for. It never arms or switches modes.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import ClassVar, Literal
+
+from pydantic import Field
+from pydantic_settings import SettingsConfigDict
+from pymavlink import mavutil
+
+from riskfield.protocol import RobotState, VelocityCommand
+from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
+
+from .bridge import Heartbeat, MavlinkBridge, MavlinkConfig, RequestInterval, SetpointOut
+from .convert import MAV_FRAME_BODY_NED, MAV_FRAME_LOCAL_NED, VelocityLimits
+
+MAV = mavutil.mavlink
+
+
+class MavlinkSettings(NodeSettings):
+    model_config = SettingsConfigDict(populate_by_name=True)
+    SERVICE: ClassVar[str] = "mavlink"
+
+    url: str = Field(default="udpin:0.0.0.0:14550", validation_alias="riskfield_mavlink_url",
+                     description="pymavlink connection string (env RISKFIELD_MAVLINK_URL)")
+    baudrate: int = Field(default=115200, gt=0, description="for serial links")
+    frame: Literal["body", "local"] = "body"
+    setpoint_hz: float = Field(default=20.0, ge=10)
+    heartbeat_hz: float = Field(default=1.0, gt=0)
+    watchdog_s: float = Field(default=0.2, gt=0)
+    stream_hz: float = Field(default=30.0, gt=0)
+    max_horizontal: float = Field(default=1.0, gt=0)
+    max_vertical: float = Field(default=0.5, gt=0)
+    max_yaw_rate: float = Field(default=1.0, gt=0)
+    poll_s: float = Field(default=0.005, gt=0)
+    source_system: int = Field(default=255, ge=1, le=255)
+    source_component: int = Field(default=MAV.MAV_COMP_ID_MISSIONPLANNER, ge=0, le=255)
+
+    def bridge_config(self) -> MavlinkConfig:
+        return MavlinkConfig(
+            setpoint_hz=self.setpoint_hz, heartbeat_hz=self.heartbeat_hz, watchdog_s=self.watchdog_s,
+            frame=MAV_FRAME_BODY_NED if self.frame == "body" else MAV_FRAME_LOCAL_NED,
+            limits=VelocityLimits(self.max_horizontal, self.max_vertical, self.max_yaw_rate),
+            stream_hz=self.stream_hz,
+        )
+
+
+class MavlinkNode:
+    def __init__(self, node: Node, s: MavlinkSettings):
+        self.node, self.s = node, s
+        self.core = MavlinkBridge(s.bridge_config(), t0=time.monotonic())
+        try:
+            # autoreconnect: a USB/serial autopilot link is reopened after it drops (UDP needs nothing).
+            self.conn = mavutil.mavlink_connection(s.url, baud=s.baudrate, source_system=s.source_system,
+                                                   source_component=s.source_component, autoreconnect=True)
+        except OSError as exc:
+            raise ConnectionError(f"cannot open the MAVLink link {s.url}: {exc}") from None
+        self.bad_messages = 0
+        node.subscribe(node.keys.cmd_safe, VelocityCommand, self.on_command)
+        node.every(s.poll_s, self.poll)
+
+    def on_command(self, cmd: VelocityCommand) -> None:
+        out = self.core.on_command(cmd.linear, cmd.angular[2], time.monotonic())
+        if out is not None:
+            self._send([out])
+
+    def poll(self) -> None:
+        now = time.monotonic()
+        publish = False
+        for _ in range(200):  # bounded: a flood must not starve the loop
+            try:
+                msg = self.conn.recv_match(blocking=False)
+            except (OSError, ValueError) as exc:
+                self.node.ratelog(logging.ERROR, "recv", f"MAVLink receive failed: {exc}")
+                break
+            if msg is None:
+                break
+            publish |= self._handle(msg, now)
+        if publish:
+            st = self.core.state(now)
+            if st is not None:
+                self.node.publish(self.node.keys.state, RobotState(
+                    position=st.position, orientation=st.orientation, linear_velocity=st.linear_velocity,
+                    angular_velocity=st.angular_velocity))
+        self._send(self.core.tick(now))
+        c = self.core.counters
+        self.node.stats.update(setpoints=c.setpoints, zero_setpoints=c.zero_setpoints, heartbeats=c.heartbeats,
+                               vehicle_heartbeats=c.vehicle_heartbeats, watchdog_stops=c.watchdog_stops,
+                               bad_messages=self.bad_messages)
+
+    def _handle(self, msg: object, now: float) -> bool:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.bad_messages += 1
+            self.node.ratelog(logging.WARNING, "bad", "undecodable MAVLink bytes received")
+            return False
+        if kind == "HEARTBEAT":
+            had = self.core.target
+            self.core.on_heartbeat(msg.get_srcSystem(), msg.get_srcComponent(), msg.type, msg.autopilot, now)
+            if had is None and self.core.target is not None:
+                self.node.log.info("vehicle found: system %d component %d autopilot %d", *self.core.target,
+                                   msg.autopilot)
+        elif kind == "LOCAL_POSITION_NED":
+            self.core.on_local_position(msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, now)
+            return True
+        elif kind == "ATTITUDE":
+            self.core.on_attitude(msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed, now)
+            return True
+        return False
+
+    def _send(self, items: list) -> None:
+        mav = self.conn.mav
+        try:
+            for item in items:
+                if isinstance(item, Heartbeat):
+                    mav.heartbeat_send(MAV.MAV_TYPE_GCS, MAV.MAV_AUTOPILOT_INVALID, 0, 0, MAV.MAV_STATE_ACTIVE)
+                elif isinstance(item, SetpointOut):
+                    sp = item.setpoint
+                    mav.set_position_target_local_ned_send(
+                        item.time_boot_ms, item.target_system, item.target_component, sp.frame, sp.type_mask,
+                        0.0, 0.0, 0.0, sp.vx, sp.vy, sp.vz, 0.0, 0.0, 0.0, 0.0, sp.yaw_rate)
+                elif isinstance(item, RequestInterval):
+                    mav.command_long_send(item.target_system, item.target_component,
+                                          MAV.MAV_CMD_SET_MESSAGE_INTERVAL, 0, item.message_id, item.interval_us,
+                                          0, 0, 0, 0, 0)
+        except OSError as exc:  # e.g. the network went away: keep serving, try again next tick
+            self.node.ratelog(logging.ERROR, "send", f"MAVLink send failed: {exc}")
+
+    def close(self) -> None:
+        """Leave the vehicle with a zero setpoint rather than the last velocity."""
+        out = self.core.shutdown(time.monotonic())
+        if out is not None:
+            self._send([out])
+        self.conn.close()
+
+
+def setup(node: Node, s: MavlinkSettings) -> MavlinkNode:
+    return MavlinkNode(node, s)
+
+
+SERVICE = ServiceSpec("mavlink", MavlinkSettings, setup)

@@ -1,0 +1,125 @@
+"""The ``limo`` node in its own process over a real router, against the pty chassis emulator."""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+import uuid
+from pathlib import Path
+
+from riskfield.edge.limo import protocol as p
+from riskfield.edge.limo.emulator import ChassisEmulator
+from riskfield.edge.limo.messages import LimoDiagnostics, decode_diagnostics
+from riskfield.protocol import Keys, NodeStatus, RobotState, VelocityCommand
+from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+
+
+def rejected_or_skipped(st: NodeStatus) -> int:
+    """Bad payloads the node refused, plus those a latest-value queue skipped under load; at least one refused."""
+    invalid = st.invalid.get("cmd/safe", 0)
+    return invalid + st.dropped.get("cmd/safe", 0) if invalid else 0
+
+
+def cmd(vx: float, wz: float = 0.0) -> VelocityCommand:
+    return VelocityCommand(linear=(vx, 0.0, 0.0), angular=(0.0, 0.0, wz), source="test")
+
+
+def motions(emu: ChassisEmulator, since: float = 0.0) -> list[p.MotionCommand]:
+    return [m for t, m in emu.frames(p.MotionCommand) if t >= since]
+
+
+def diag(col: Collector) -> LimoDiagnostics:
+    return decode_diagnostics(col.items[-1])
+
+
+def start(robot: str, endpoint: str, port: str, *extra: str) -> ServiceProcess:
+    return ServiceProcess("limo", endpoint, ["--robot", robot, "--set", f"port={port}",
+                                             "--set", "reconnect_s=0.1", *extra])
+
+
+def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_path: Path) -> None:
+    robot = f"t_limo_{uuid.uuid4().hex[:6]}"
+    keys = Keys(robot)
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu, client_session(router_endpoint) as s:
+        states = Collector(s, keys.state, RobotState)
+        diags = Collector(s, keys.key("limo/diagnostics"))
+        with start(robot, router_endpoint, emu.port) as node:
+            assert wait_alive(s, keys.alive("limo")), node.output
+            assert wait_until(lambda: emu.model.control_mode == 1, 5.0), node.output
+            # Drive: commands at 25 Hz, one beyond the platform limit.
+            for i in range(15):
+                put(s, keys.cmd_safe, cmd(0.4, 0.3) if i < 14 else cmd(5.0))
+                time.sleep(0.04)
+            assert wait_until(lambda: any(m.linear == 1.0 for m in motions(emu)), 2.0)
+            assert any(m == p.MotionCommand(0.4, 0.3) for m in motions(emu))
+            assert all(abs(m.linear) <= 1.0 for m in motions(emu))
+            # Watchdog: no more commands → a stop frame within the period (+ poll and transport).
+            t_last = time.perf_counter()
+            assert wait_until(lambda: any(m.is_stop for m in motions(emu, t_last)), 1.0)
+            t_stop = min(t for t, m in emu.frames(p.MotionCommand) if t >= t_last and m.is_stop)
+            assert t_stop - t_last < 0.2 + 0.1
+            assert emu.model.v == 0.0
+            # State: the estimate moved forward and turned left, all values finite.
+            states.wait(5)
+            st = states.items[-1]
+            assert st.position[0] > 0.1 and st.yaw > 0.05
+            assert st.position == tuple(float(v) for v in st.position)
+            assert all(math.isfinite(v) for m in states.items for v in (*m.position, *m.linear_velocity))
+            assert abs(st.position[0] - emu.model.x) < 0.05
+            assert wait_until(lambda: diags.items and diag(diags).watchdog_stops >= 1, 2.0)
+            d = diag(diags)
+            assert d.connected and d.command_mode_confirmed and d.frames_ok > 10 and d.frames_bad == 0
+            assert d.battery_v > 11
+            # Shutdown: a clean exit leaves a stop frame as the last word.
+            put(s, keys.cmd_safe, cmd(0.3))
+            assert wait_until(lambda: emu.model.v == 0.3, 2.0)
+            t0 = time.perf_counter()
+            assert node.stop(signal.SIGTERM) == 0
+            assert any(m.is_stop for m in motions(emu, t0)), node.output
+        states.close()
+        diags.close()
+
+
+def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str, tmp_path: Path,
+                                                           bad_velocity_payloads: list[bytes]) -> None:
+    robot = f"t_limo_{uuid.uuid4().hex[:6]}"
+    keys = Keys(robot)
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu, client_session(router_endpoint) as s:
+        diags = Collector(s, keys.key("limo/diagnostics"))
+        states = Collector(s, keys.state)
+        status = Collector(s, keys.status("limo"), NodeStatus)
+        with start(robot, router_endpoint, emu.port) as node:
+            assert wait_alive(s, keys.alive("limo")), node.output
+            assert wait_until(lambda: emu.model.control_mode == 1, 5.0)
+            for payload in bad_velocity_payloads:
+                put(s, keys.cmd_safe, payload)
+                time.sleep(0.02)  # a latest-value queue would otherwise skip some of them
+            t0 = time.perf_counter()
+            put(s, keys.cmd_safe, cmd(0.25))
+            assert wait_until(lambda: any(m.linear == 0.25 for m in motions(emu, t0)), 3.0), node.output
+            assert not any(m.linear not in (0.0, 0.25) for m in motions(emu, t0))
+            n_bad = len(bad_velocity_payloads)
+            assert wait_until(lambda: status.items and rejected_or_skipped(status.items[-1]) >= n_bad, 5.0), \
+                status.items[-1:]
+            # The port disappears: the node keeps serving and says so.
+            emu.disconnect()
+            assert wait_until(lambda: diags.items and not diag(diags).connected, 3.0), node.output
+            n_states = len(states.items)
+            put(s, keys.cmd_safe, cmd(0.3))  # nowhere to go: must not crash the node
+            time.sleep(0.3)
+            assert node.alive()
+            assert len(states.items) <= n_states + 1  # no state without feedback
+            assert "LIMO serial link lost" in node.output
+            # A new device appears at the path: reconnect, command mode again, commands flow.
+            emu.model.control_mode = 0
+            emu.reconnect()
+            assert wait_until(lambda: emu.model.control_mode == 1, 5.0), node.output
+            t1 = time.perf_counter()
+            put(s, keys.cmd_safe, cmd(0.35))
+            assert wait_until(lambda: any(m.linear == 0.35 for m in motions(emu, t1)), 3.0)
+            assert wait_until(lambda: diag(diags).connected and diag(diags).reconnects >= 1, 3.0)
+            assert states.wait(len(states.items) + 2, 3.0)
+            assert node.stop() == 0
+        for c in (diags, states, status):
+            c.close()

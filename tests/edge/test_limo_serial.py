@@ -1,0 +1,85 @@
+"""The serial link and the chassis emulator over a real pseudo-terminal (no Zenoh)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from riskfield.edge.limo import protocol as p
+from riskfield.edge.limo.bridge import BridgeConfig, LimoBridge
+from riskfield.edge.limo.emulator import ChassisEmulator
+from riskfield.edge.limo.serial_link import SerialLink
+from riskfield.testing import wait_until
+
+
+def pump(link: SerialLink, bridge: LimoBridge, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            bridge.on_bytes(link.read(), time.monotonic())
+        except ConnectionError:
+            bridge.on_disconnected()
+            return
+        time.sleep(0.005)
+
+
+def test_bridge_drives_the_emulated_chassis_over_a_pty(tmp_path: Path) -> None:
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu:
+        link = SerialLink(emu.port, 460800)
+        bridge = LimoBridge(BridgeConfig(watchdog_s=10))
+        try:
+            assert link.try_open(time.monotonic())
+            link.write(bridge.on_connected(time.monotonic()))
+            link.write(bridge.on_command(0.5, 0.0, 0.0, time.monotonic()))
+            assert wait_until(lambda: any(m == p.MotionCommand(0.5) for _, m in emu.frames()), 2.0)
+            assert emu.model.control_mode == 1 and emu.model.v == 0.5
+            pump(link, bridge, 0.4)
+            assert bridge.diag.command_mode_confirmed
+            s = bridge.state(time.monotonic())
+            assert s is not None and s.x > 0.1 and s.vx == 0.5
+            assert bridge.diag.frames_bad == 0
+            # Noise and a corrupt frame on the line: counted, and feedback keeps coming.
+            bad = bytearray(p.encode(p.Odometry(9.0, 9.0)))
+            bad[13] ^= 0x55
+            emu.inject(b"\xde\xad\x55" + bytes(bad))
+            ok_before = bridge.diag.frames_ok
+            pump(link, bridge, 0.2)
+            assert bridge.diag.frames_bad >= 1 and bridge.diag.frames_ok > ok_before
+            assert bridge.odometry.jumps == 0
+        finally:
+            link.close()
+
+
+def test_link_detects_loss_and_reopens_the_repointed_path(tmp_path: Path) -> None:
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu:
+        link = SerialLink(emu.port, 460800, reconnect_s=0.05)
+        try:
+            assert link.try_open(time.monotonic())
+            emu.disconnect()
+            lost = False
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end and not lost:
+                try:
+                    link.read()
+                    link.write(p.encode(p.MotionCommand()))
+                except ConnectionError:
+                    lost = True
+                time.sleep(0.01)
+            assert lost and not link.is_open
+            assert not link.try_open(time.monotonic() + 1)  # nothing at the path yet
+            emu.reconnect()
+            assert Path(emu.port).resolve() == Path(emu.path)
+            assert wait_until(lambda: link.try_open(time.monotonic()), 2.0)
+            link.write(p.encode(p.ControlModeCommand(enable=True)))
+            assert wait_until(lambda: emu.model.control_mode == 1, 2.0)
+        finally:
+            link.close()
+
+
+def test_open_of_a_missing_port_fails_cleanly(tmp_path: Path) -> None:
+    link = SerialLink(str(tmp_path / "nothing"), 460800, reconnect_s=10)
+    assert not link.try_open(0.0)
+    assert "cannot open" in link.last_error
+    assert not link.try_open(1.0)  # retry not due yet
+    assert link.read() == b""
+    link.write(b"\x00")  # a write with no port is a no-op, not an exception
