@@ -62,7 +62,7 @@ class RiskConfig(Message):
 
     groups: list[RiskGroup] = Field(
         default_factory=lambda: [
-            RiskGroup(name="high", labels=HIGH_LABELS, margin=0.15, alpha=0.6, alpha1=1.2, alpha2=0.4),
+            RiskGroup(name="high", labels=HIGH_LABELS, margin=0.15, alpha=0.6, alpha1=1.2, alpha2=0.36),
             RiskGroup(name="mid", labels=MID_LABELS, margin=0.05, alpha=1.0, alpha1=1.8, alpha2=0.8),
             RiskGroup(name="low", labels=LOW_LABELS, margin=0.0, alpha=1.5, alpha1=2.5, alpha2=1.5),
         ],

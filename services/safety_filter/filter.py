@@ -1,0 +1,204 @@
+"""The CBF-QP safety filter core: one step from (state, reference, field) to a safe input.
+
+    min_u  ½ (u - u_ref)ᵀ W (u - u_ref)   s.t.  A(x) u ≥ b(x),  u ∈ U
+
+Each barrier point adds a row built from the field's distance, gradient (and Hessian) at that
+point and the gains of the risk group of its nearest obstacle (:class:`GainTable`). Anything
+that makes the answer doubtful — a point outside the map, a non-finite number, an infeasible
+QP, a solver failure — yields the braking input and a ``fallback`` reason instead.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from riskfield.protocol import RiskConfig
+
+from .barriers import ALPHA1, ALPHA2, BarrierModel
+from .config import FilterConfig
+from .field import DistanceField, FieldSample
+from .qp import ActiveSetSolver, OsqpSolver, QPResult
+from .state import FilterState
+
+MARGIN = 3
+_ZERO3 = np.zeros(3)
+#: Above this many rows the exact active-set path hands over to OSQP.
+ACTIVE_SET_MAX_ROWS = 4
+
+
+def hocbf_gains(alpha1: float, alpha2: float) -> tuple[float, float]:
+    """(α₁, α₂) with real roots of s² + α₁ s + α₂, lowering α₂ to α₁²/4 if needed.
+
+    With complex roots the equality ḧ + α₁ ḣ + α₂ h = 0 oscillates and h crosses zero, so the
+    HOCBF would not keep the safe set invariant; critical damping is the closest safe choice.
+    """
+    return alpha1, min(alpha2, alpha1 * alpha1 / 4.0)
+
+
+def _rows_of(s: FieldSample, rows: slice) -> FieldSample:
+    return FieldSample(s.distance[rows], s.gradient[rows], None if s.hessian is None else s.hessian[rows],
+                       s.risk_group[rows], s.inside[rows])
+
+
+class GainTable:
+    """Per risk group id of a field: [α, α₁, α₂, margin] from the risk configuration.
+
+    Field groups are matched to configured groups by name (``EsdfGrid.groups[id - 1]``). Id 0
+    (no obstacle recorded) and names the configuration does not know get the most
+    conservative values: the smallest gains and the largest margin.
+    """
+
+    def __init__(self, risk: RiskConfig):
+        self.risk = risk
+        rows = {}
+        for g in risk.groups:
+            a1, a2 = hocbf_gains(g.alpha1, g.alpha2)
+            rows[g.name] = (g.alpha, a1, a2, g.margin)
+        self._rows = rows
+        vals = np.array(list(rows.values()))
+        self.conservative = np.array([vals[:, 0].min(), vals[:, 1].min(), 0.0, vals[:, 3].max()])
+        self.conservative[ALPHA2] = hocbf_gains(self.conservative[ALPHA1], vals[:, 2].min())[1]
+        self._cache: dict[tuple[str, ...], np.ndarray] = {}
+
+    def for_groups(self, groups: Sequence[str]) -> np.ndarray:
+        key = tuple(groups)
+        table = self._cache.get(key)
+        if table is None:
+            table = np.array([self.conservative, *[self._rows.get(n, self.conservative) for n in key]], np.float64)
+            self._cache[key] = table
+        return table
+
+
+@dataclass(frozen=True)
+class FilterResult:
+    """One filter step. ``u`` is the model input (the braking input when ``fallback`` is set)."""
+
+    u: np.ndarray
+    u_ref: np.ndarray
+    h: float  # d - r at the critical point (0.0 when unknown)
+    risk_group: int  # field group id at the critical point (0 = none or unknown)
+    intervening: bool
+    fallback: str | None
+    solve_us: float
+    solver: str = ""
+    margin: float = 0.0  # the barrier h - δ (- margin) at the critical point
+    qp_us: float = 0.0  # of solve_us (field query + rows + QP), the QP alone
+    rows: int = 0  # CBF rows in the QP
+
+
+class SafetyFilter:
+    """The pure filter: config → model + solvers; ``filter()`` once per control step."""
+
+    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None):
+        self.config = config or FilterConfig()
+        self.model: BarrierModel = self.config.build_model()
+        self.delta = self.config.margin(self.model)
+        self.gains = GainTable(risk or RiskConfig())
+        self._active_set = ActiveSetSolver()
+        self._osqp: OsqpSolver | None = None
+        self.rows_max = self.model.m * (2 if self.config.predictive_rows else 1)
+        self._use_active_set = self.config.solver != "osqp" and self.rows_max <= ACTIVE_SET_MAX_ROWS
+        if self.config.solver == "active_set" and not self._use_active_set:
+            raise ValueError(f"the active-set solver handles at most {ACTIVE_SET_MAX_ROWS} rows")
+
+    @property
+    def risk(self) -> RiskConfig:
+        return self.gains.risk
+
+    def set_risk(self, risk: RiskConfig) -> None:
+        self.gains = GainTable(risk)
+
+    def osqp(self) -> OsqpSolver:
+        if self._osqp is None:
+            self._osqp = OsqpSolver(self.model.n, self.rows_max)
+        return self._osqp
+
+    def barrier(self, state: FilterState, field: DistanceField) -> tuple[float, int, bool]:
+        """(h = d - r at the critical point, its risk group id, all points inside the map)."""
+        sample = field.query(self.model.points(state))
+        h = sample.distance - self.model.radius
+        k = int(np.argmin(h))
+        return float(h[k]), int(sample.risk_group[k]), bool(sample.inside.all())
+
+    def filter(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
+               angular: np.ndarray | None = None) -> FilterResult:
+        """The safe input closest to ``u_ref`` (model input space; see the barrier models).
+
+        ``angular`` is the body-frame angular velocity passed through by single integrators.
+        """
+        t0 = time.perf_counter()
+        model = self.model
+        ang = _ZERO3 if angular is None else np.asarray(angular, np.float64)
+        u_ref = np.asarray(u_ref, np.float64)
+        if u_ref.shape != (model.n,) or not all(map(math.isfinite, (*u_ref.tolist(), *ang.tolist()))):
+            return self._brake(state, u_ref, "non_finite", t0)
+        u_box = np.minimum(np.maximum(u_ref, model.lo), model.hi)
+        pts = model.points(state)
+        m = pts.shape[0]
+        if self.config.predictive_rows:
+            # Where the barrier points would be one period later under the (bounded) reference.
+            pts = np.concatenate([pts, model.predicted_points(state, u_box, self.config.dt, ang)])
+        both = field.query(pts, hessian=model.needs_hessian)
+        sample = _rows_of(both, slice(0, m))
+        clearance = sample.distance - model.radius
+        table = self.gains.for_groups(field.groups)
+        gains = table[np.minimum(both.risk_group, table.shape[0] - 1)]
+        hb = clearance - self.delta
+        if self.config.margins_in_filter:
+            hb = hb - gains[:m, MARGIN]
+        k = int(np.argmin(hb))
+        h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
+        if not sample.inside.all():
+            return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
+        a, b = model.rows(state, sample, hb, gains[:m], ang)
+        if self.config.predictive_rows:
+            # The same CBF row with the gradient (and group) found at the predicted point: where the
+            # nearest obstacle changes within one period (the ridge between two obstacles, where the
+            # distance field has a kink) this row constrains the approach to the obstacle about to
+            # become nearest, which the current gradient cannot see. h stays the current one (the
+            # smaller), so the row is at least as strict as that obstacle's own CBF row and u = 0
+            # always satisfies it. Rows whose gradient and group match the current ones are dropped.
+            ahead_s = _rows_of(both, slice(m, 2 * m))
+            same = (np.abs(ahead_s.gradient - sample.gradient).max(axis=1) < 0.05) & (
+                ahead_s.risk_group == sample.risk_group)
+            keep = ahead_s.inside & ~same
+            if keep.any():
+                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang)
+                a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
+        if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
+            return self._brake(state, u_ref, "non_finite", t0, 0.0, rg)
+        tq = time.perf_counter()
+        res = self._solve(a, b, u_ref)
+        qp_us = (time.perf_counter() - tq) * 1e6
+        if res.status != "solved":
+            reason = "infeasible" if res.status == "infeasible" else "solver_failed"
+            return self._brake(state, u_ref, reason, t0, h_crit, rg, res.solver)
+        if not np.isfinite(res.u).all():
+            return self._brake(state, u_ref, "non_finite", t0, h_crit, rg, res.solver)
+        intervening = bool(np.abs(res.u - u_box).max() > 1e-6)
+        return FilterResult(res.u, u_ref, h_crit, rg, intervening, None, (time.perf_counter() - t0) * 1e6,
+                            res.solver, float(hb[k]), qp_us, a.shape[0])
+
+    def _solve(self, a: np.ndarray, b: np.ndarray, u_ref: np.ndarray) -> QPResult:
+        m = self.model
+        if self._use_active_set:
+            res = self._active_set.solve(m.weights, u_ref, a, b, m.lo, m.hi)
+            if res.status != "failed":
+                return res
+        # OSQP keeps one sparsity pattern: pad to the largest row count with rows that always hold.
+        solver = self.osqp()
+        pad = solver.m - a.shape[0]
+        if pad > 0:
+            a = np.concatenate([a, np.zeros((pad, m.n))])
+            b = np.concatenate([b, np.full(pad, -np.inf)])
+        return solver.solve(m.weights, u_ref, a, b, m.lo, m.hi)
+
+    def _brake(self, state: FilterState, u_ref: np.ndarray, reason: str, t0: float, h: float = 0.0,
+               rg: int = 0, solver: str = "") -> FilterResult:
+        return FilterResult(self.model.brake(state), u_ref, h, rg, True, reason,
+                            (time.perf_counter() - t0) * 1e6, solver)

@@ -1,0 +1,140 @@
+"""The ``safety-filter`` node: ESDF + state + reference in, ``cmd/safe`` + ``safety/status`` out.
+
+Subscribes ``{robot}/map/esdf``, ``{robot}/state`` and ``{robot}/cmd/ref`` (latest-value queues)
+and ``{robot}/config/risk``; publishes on every new reference and at ``rate_hz`` (a tick is
+skipped when a reference-triggered step went out less than half a period before). The map,
+state and reference are decoded here rather than by the runtime so that a bad message is
+not only counted and logged but also makes the filter brake (``invalid_*``) until a good one
+arrives. The risk configuration hot-reloads from the config key and from ``risk_config``
+(file polled every ``risk_poll_s``); a bad configuration is logged and the old one kept.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+from riskfield.protocol import DecodeError, EsdfGrid, Limits, RiskConfig, RobotState, VelocityCommand, decode
+
+from ..runtime.node import Node
+from ..runtime.service import ServiceSpec
+from .filter import SafetyFilter
+from .risk_file import RiskFileWatcher
+from .settings import FilterSettings
+from .supervisor import FilterSupervisor
+
+
+class FilterNode:
+    """Glue between the runtime node and the supervisor (decode → core → encode → publish)."""
+
+    def __init__(self, node: Node, s: FilterSettings):
+        self.node = node
+        self.settings = s
+        self.watcher = RiskFileWatcher(s.risk_config) if s.risk_config is not None else None
+        if s.risk_config is not None and not s.risk_config.is_file():
+            raise FileNotFoundError(f"risk config file {s.risk_config} does not exist")
+        risk = self.watcher.poll() if self.watcher is not None else None  # a bad file at start is fatal
+        self.supervisor = FilterSupervisor(SafetyFilter(s.filter_config(), risk), s.map_timeout_s,
+                                           s.state_timeout_s, s.ref_timeout_s)
+        self.period = 1.0 / s.rate_hz
+        self._last_pub = -1e9
+        self._last_fallback: str | None = "start"
+        # distance (4 B/voxel) and risk_group (1 B/voxel) travel together: the payload is ~1.25 × distance
+        self._map_limits = Limits(max_payload_bytes=2 * s.max_map_bytes + 65536, max_array_bytes=s.max_map_bytes)
+        self._small_limits = Limits(max_payload_bytes=64 * 1024, max_array_bytes=4096)
+        for name in ("steps", "brakes", "intervening", "invalid_map", "invalid_state", "invalid_ref",
+                     "risk_reloads", "risk_errors"):
+            node.stats[name] = 0.0
+        k = node.keys
+        node.subscribe(k.esdf, None, self._on_map, queue="latest")
+        node.subscribe(k.state, None, self._on_state, queue="latest")
+        node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
+        node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
+        node.every(self.period, self._on_timer)
+        if self.watcher is not None:
+            node.every(s.risk_poll_s, self._poll_risk_file)
+        model = self.supervisor.filter.model
+        node.log.info("safety filter: model %s, %d barrier row(s), δ = %.3f m, %.0f Hz", model.name, model.m,
+                      self.supervisor.filter.delta, s.rate_hz)
+
+    # -- inputs -----------------------------------------------------------------------------------
+    def _decode(self, what: str, payload: bytes, msg_type: type, limits: Limits) -> Any:
+        try:
+            return decode(payload, msg_type, limits)
+        except DecodeError as exc:
+            self.supervisor.invalid(what, time.monotonic())
+            self.node.stats[f"invalid_{what}"] += 1
+            self.node.ratelog(logging.WARNING, f"invalid_{what}", f"rejected a {what} message ({exc}): braking")
+            return None
+
+    def _on_map(self, key: str, payload: bytes) -> None:
+        grid = self._decode("map", payload, EsdfGrid, self._map_limits)
+        if grid is None:
+            return
+        reason = self.supervisor.on_map(grid, time.monotonic())
+        if reason is not None:
+            self.node.stats["invalid_map"] += 1
+            self.node.ratelog(logging.WARNING, "invalid_map", f"unusable ESDF ({reason}): braking")
+
+    def _on_state(self, key: str, payload: bytes) -> None:
+        msg = self._decode("state", payload, RobotState, self._small_limits)
+        if msg is not None:
+            self.supervisor.on_state(msg, time.monotonic())
+
+    def _on_ref(self, key: str, payload: bytes) -> None:
+        msg = self._decode("ref", payload, VelocityCommand, self._small_limits)
+        if msg is not None:
+            self.supervisor.on_ref(msg, time.monotonic())
+        self._step()  # a bad reference brakes at once, too
+
+    def _on_risk(self, risk: RiskConfig) -> None:
+        self.supervisor.set_risk(risk)
+        self.node.stats["risk_reloads"] += 1
+        self.node.log.info("risk configuration updated from %s: groups %s", self.node.keys.risk_config,
+                           ", ".join(risk.group_names))
+
+    def _poll_risk_file(self) -> None:
+        assert self.watcher is not None
+        try:
+            risk = self.watcher.poll()
+        except Exception as exc:  # any parse or validation error: keep the configuration in force
+            self.node.stats["risk_errors"] += 1
+            self.node.ratelog(logging.ERROR, "risk_file", f"risk file {self.watcher.path} not loaded: {exc}")
+            return
+        if risk is not None:
+            self.supervisor.set_risk(risk)
+            self.node.stats["risk_reloads"] += 1
+            self.node.log.info("risk configuration reloaded from %s", self.watcher.path)
+
+    # -- output -----------------------------------------------------------------------------------
+    def _on_timer(self) -> None:
+        if time.monotonic() - self._last_pub >= 0.5 * self.period:
+            self._step()
+
+    def _step(self) -> None:
+        now = time.monotonic()
+        cmd, status = self.supervisor.tick(now)
+        self.node.publish(self.node.keys.cmd_safe, cmd)
+        self.node.publish(self.node.keys.safety_status, status)
+        self._last_pub = now
+        st = self.node.stats
+        st["steps"] += 1
+        st["brakes"] += status.fallback is not None
+        st["intervening"] += status.intervening and status.fallback is None
+        st["solve_us"] = status.solve_us
+        st["h"] = status.h
+        if status.fallback != self._last_fallback:
+            if status.fallback is None:
+                self.node.log.info("filtering (no fallback)")
+            else:
+                self.node.ratelog(logging.WARNING, f"fallback:{status.fallback}",
+                                  f"braking: {status.fallback}")
+            self._last_fallback = status.fallback
+
+
+def setup(node: Node, settings: FilterSettings) -> FilterNode:
+    return FilterNode(node, settings)
+
+
+SERVICE = ServiceSpec("safety-filter", FilterSettings, setup)

@@ -1,0 +1,29 @@
+"""Settings of the ``safety-filter`` node: the core's ``FilterConfig`` plus timeouts, the risk
+configuration file and input limits. Set them in the config file's ``safety-filter`` section,
+as ``RISKFIELD_<FIELD>`` variables or with ``--set field=value``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, ClassVar
+
+from pydantic import Field
+
+from ..runtime.settings import NodeSettings
+from .config import FilterConfig
+
+Seconds = Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)]
+
+
+class FilterSettings(NodeSettings, FilterConfig):
+    SERVICE: ClassVar[str] = "safety-filter"
+
+    map_timeout_s: Seconds = 0.3
+    state_timeout_s: Seconds = 0.3
+    ref_timeout_s: Seconds = 0.2
+    risk_config: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
+    risk_poll_s: Seconds = 1.0
+    max_map_bytes: Annotated[int, Field(gt=0)] = 64 * 1024 * 1024
+
+    def filter_config(self) -> FilterConfig:
+        return FilterConfig.model_validate({k: getattr(self, k) for k in FilterConfig.model_fields})

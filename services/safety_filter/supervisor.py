@@ -1,0 +1,142 @@
+"""Fail-safe supervision around the filter: freshness and validity of the map, the state and
+the reference, and the messages the node publishes.
+
+The supervisor holds the newest map, state and reference with the local monotonic time each
+arrived (receive time, not the sender's stamp, so clock offsets between machines cannot make
+data look fresh or stale). ``tick(now)`` returns the safe command and its status. It brakes,
+naming the first problem found, in this order:
+
+``no_map`` / ``invalid_map`` / ``stale_map`` → ``no_state`` / ``invalid_state`` / ``stale_state``
+→ ``no_ref`` / ``invalid_ref`` / ``stale_ref`` → the filter's own ``outside_map``,
+``non_finite``, ``infeasible``, ``solver_failed``.
+
+"invalid" means the last message on that key could not be used; it holds until a valid one
+arrives. Braking is the zero velocity command for every model.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from riskfield.protocol import EsdfGrid, Header, RiskConfig, RobotState, SafetyStatus, VelocityCommand
+
+from .field import DistanceField, EsdfField
+from .filter import FilterResult, SafetyFilter
+from .state import FilterState
+
+SOURCE = "safety-filter"
+
+
+@dataclass
+class _Slot:
+    """The newest valid value of one input, when it arrived, and whether a bad message came since."""
+
+    value: object | None = None
+    at: float = -math.inf
+    invalid: bool = False
+
+
+class FilterSupervisor:
+    """Tracks the inputs and turns them into (cmd/safe, safety/status) on every tick."""
+
+    def __init__(self, filt: SafetyFilter, map_timeout_s: float = 0.3, state_timeout_s: float = 0.3,
+                 ref_timeout_s: float = 0.2):
+        self.filter = filt
+        self.timeouts = {"map": map_timeout_s, "state": state_timeout_s, "ref": ref_timeout_s}
+        self._slots = {"map": _Slot(), "state": _Slot(), "ref": _Slot()}
+        self.last: FilterResult | None = None
+        self.counts: dict[str, int] = {}
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def on_map(self, grid: EsdfGrid | DistanceField, now: float) -> str | None:
+        """Take a new map; returns why it was rejected (and marks the map invalid), or None."""
+        try:
+            field = EsdfField.from_grid(grid) if isinstance(grid, EsdfGrid) else grid
+        except ValueError as exc:
+            self.invalid("map", now)
+            return str(exc)
+        self._set("map", field, now)
+        return None
+
+    def on_state(self, msg: RobotState | FilterState, now: float) -> None:
+        state = FilterState.from_message(msg) if isinstance(msg, RobotState) else msg
+        if not state.is_finite():
+            self.invalid("state", now)
+            return
+        self._set("state", state, now)
+
+    def on_ref(self, msg: VelocityCommand, now: float) -> None:
+        self._set("ref", msg, now)
+
+    def invalid(self, what: str, now: float) -> None:
+        """The newest message on ``what`` ("map", "state", "ref") was unusable: brake until a valid one."""
+        self._slots[what].invalid = True
+
+    def set_risk(self, risk: RiskConfig) -> None:
+        self.filter.set_risk(risk)
+
+    def _set(self, what: str, value: object, now: float) -> None:
+        slot = self._slots[what]
+        slot.value, slot.at, slot.invalid = value, now, False
+
+    # -- output ---------------------------------------------------------------------------------
+    def map_age_ms(self, now: float) -> float:
+        slot = self._slots["map"]
+        return -1.0 if slot.value is None else (now - slot.at) * 1e3
+
+    def _problem(self, what: str, now: float) -> str | None:
+        slot = self._slots[what]
+        if slot.invalid:
+            return f"invalid_{what}"
+        if slot.value is None:
+            return f"no_{what}"
+        if now - slot.at > self.timeouts[what]:
+            return f"stale_{what}"
+        return None
+
+    def tick(self, now: float) -> tuple[VelocityCommand, SafetyStatus]:
+        """The safe command for ``now`` and the status explaining it."""
+        problem = self._problem("map", now) or self._problem("state", now) or self._problem("ref", now)
+        field = self._slots["map"].value
+        state = self._slots["state"].value
+        ref = self._slots["ref"].value
+        if problem is not None:
+            h, rg = 0.0, 0
+            if not problem.endswith("_map") and field is not None and isinstance(state, FilterState):
+                h, rg, inside = self.filter.barrier(state, field)  # type: ignore[arg-type]
+                if not inside or not math.isfinite(h):
+                    h, rg = 0.0, 0
+            return self._brake(problem, now, h, rg)
+        assert isinstance(ref, VelocityCommand) and isinstance(state, FilterState)
+        model = self.filter.model
+        lin, ang = np.asarray(ref.linear, np.float64), np.asarray(ref.angular, np.float64)
+        u_ref = model.reference(lin, ang, state)
+        res = self.filter.filter(state, u_ref, field, ang)  # type: ignore[arg-type]
+        self.last = res
+        if res.fallback is not None:
+            return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)
+        out_lin, out_ang = model.command(res.u, ang, state)
+        if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
+            return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
+        self._count(None)
+        cmd = VelocityCommand(header=Header(frame_id="base_link"), linear=tuple(out_lin.tolist()),
+                              angular=tuple(out_ang.tolist()), source=f"{SOURCE}/{ref.source}")
+        status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=None,
+                              solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now))
+        return cmd, status
+
+    def _brake(self, reason: str, now: float, h: float, rg: int, solve_us: float = 0.0) -> tuple[
+            VelocityCommand, SafetyStatus]:
+        self._count(reason)
+        cmd = VelocityCommand.zero(SOURCE, header=Header(frame_id="base_link"))
+        status = SafetyStatus(h=h if math.isfinite(h) else 0.0, risk_group=max(int(rg), 0), intervening=True,
+                              fallback=reason, solve_us=solve_us if math.isfinite(solve_us) else 0.0,
+                              esdf_age_ms=self.map_age_ms(now))
+        return cmd, status
+
+    def _count(self, reason: str | None) -> None:
+        key = reason or "ok"
+        self.counts[key] = self.counts.get(key, 0) + 1
