@@ -1,0 +1,164 @@
+"""``riskfield bench safety``: the paper's simulation benchmark (Tables II and III).
+
+Six procedural scenes by default (``--scannetpp DIR`` adds ScanNet++ scenes), object-centric
+start/goal pairs split evenly over the scenes, three methods on identical pairs, and the
+paper's metrics. Writes ``tables.md``, ``summary.json`` (every number, every trajectory) and
+plots into ``--out``. See ``safety_benchmark`` for the protocol.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from riskfield.protocol import RiskConfig
+
+from .clf import DoubleIntegratorCLF
+from .metrics import Rollout, matched, summarise
+from .report import plot_safety, table2, table3, write_json
+from .safety_benchmark import (
+    ESDF,
+    METHODS,
+    POINTCLOUD,
+    SEMANTIC,
+    BenchConfig,
+    build_esdf_maps,
+    build_pointcloud,
+    camera_poses,
+    gt_perception,
+    hocbf_safe_control,
+    make_case,
+    pairs_for,
+    procedural_case,
+    rollout,
+    sim_perception,
+)
+
+app = typer.Typer(add_completion=False)
+
+
+@app.command()
+def safety(
+    trajectories: Annotated[int, typer.Option(help="Matched start/goal pairs in total (paper: 486).")] = 486,
+    scenes: Annotated[int, typer.Option(help="Procedural scenes.")] = 6,
+    perception: Annotated[str, typer.Option(help="gt (exact pointmaps) or sim (FM-like degraded).")] = "gt",
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/safety"),
+    map_budget: Annotated[float, typer.Option(help="Seconds each method may spend integrating frames.")] = 6.0,
+    frames: Annotated[int, typer.Option(help="Frames in each scene's input stream.")] = 48,
+    robot_radius: Annotated[float, typer.Option(help="Robot radius (m), subtracted from every distance.")] = 0.15,
+    seed: Annotated[int, typer.Option(help="Seed of scenes and pairs.")] = 0,
+    scannetpp: Annotated[list[Path] | None, typer.Option(help="ScanNet++ scene folder (repeatable).")] = None,
+) -> None:
+    """Equal-time comparison of a point-cloud CBF, the ESDF and the semantic ESDF (3-D double integrator)."""
+    if perception not in ("gt", "sim"):
+        raise typer.BadParameter("perception must be gt or sim")
+    console = Console()
+    cfg = BenchConfig(trajectories=trajectories, scenes=scenes, perception=perception, map_budget_s=map_budget,
+                      frames=frames, robot_radius=robot_radius, seed=seed)
+    out.mkdir(parents=True, exist_ok=True)
+    risk = RiskConfig()
+    t_start = time.perf_counter()
+
+    cases = [procedural_case(seed * 1000 + i, risk) for i in range(scenes)]
+    for folder in scannetpp or []:
+        from .scannetpp import load_scene
+
+        cases.append(make_case(f"scannetpp_{folder.name}", load_scene(folder), risk))
+    if not cases:
+        raise typer.BadParameter("no scenes: use --scenes ≥ 1 or --scannetpp")
+    per_scene = [trajectories // len(cases) + (1 if i < trajectories % len(cases) else 0) for i in range(len(cases))]
+
+    from ..simulator.camera import PinholeCamera, Renderer
+
+    renderer = Renderer(PinholeCamera.from_fov(*cfg.image, 90.0))
+    perceive = gt_perception(renderer) if perception == "gt" else sim_perception(renderer, seed)
+    clf = DoubleIntegratorCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
+    safe = hocbf_safe_control(cfg)
+
+    rollouts: list[Rollout] = []
+    maps_info: list[dict] = []
+    first_id = 0
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TimeRemainingColumn())
+    with Progress(*columns, console=console) as progress:
+        task = progress.add_task("roll-outs", total=trajectories * len(METHODS))
+        for case, n in zip(cases, per_scene, strict=True):
+            progress.update(task, description=f"{case.name}: maps")
+            snap = case.scene.at(0.0)
+            stream = [perceive(snap, T) for T in camera_poses(case, cfg.frames)]
+            built = [build_pointcloud(stream, cfg.map_budget_s, cfg.voxel, (case.lo[2], case.hi[2])),
+                     *build_esdf_maps(case, stream, cfg.map_budget_s, cfg, risk)]
+            for b in built:
+                maps_info.append(dict(scene=case.name, method=b.method, frames=b.frames, integrate_s=b.integrate_s,
+                                      finalize_s=b.finalize_s, **b.extra))
+            pairs = pairs_for(case, n, cfg, first_id)
+            first_id += len(pairs)
+            if len(pairs) < n:
+                console.print(f"[yellow]{case.name}: only {len(pairs)} of {n} pairs could be placed[/yellow]")
+                progress.update(task, total=progress.tasks[0].total - (n - len(pairs)) * len(METHODS))
+            progress.update(task, description=f"{case.name}: roll-outs")
+            for pair in pairs:
+                for b in built:
+                    rollouts.append(rollout(b.method, pair, b.field, safe, clf, cfg, case))
+                    progress.advance(task)
+
+    n_pairs = len({r.pair for r in rollouts})
+    mp_all = matched(rollouts, METHODS)
+    mp_esdf = matched(rollouts, (ESDF, SEMANTIC))
+    t2 = {m: summarise(rollouts, mp_all, m).as_dict() for m in METHODS}
+    groups = [g.name for g in risk.groups]
+    t3 = {g: {"esdf": summarise(rollouts, mp_esdf, ESDF, g).as_dict(),
+              "semantic": summarise(rollouts, mp_esdf, SEMANTIC, g).as_dict()} for g in groups}
+    t3_all = {"esdf": summarise(rollouts, mp_esdf, ESDF).as_dict(),
+              "semantic": summarise(rollouts, mp_esdf, SEMANTIC).as_dict()}
+    wall = time.perf_counter() - t_start
+
+    md = [f"# riskfield bench safety — perception `{perception}`", "",
+          f"{len(cases)} scenes, {n_pairs} matched trajectories, robot radius {robot_radius} m, map budget "
+          f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), ""]
+    (out / "tables.md").write_text("\n".join(md))
+    per_traj = [dict(pair=r.pair, scene=r.scene, method=r.method, group=r.group, progress=r.progress,
+                     reached=r.reached, mp_clearance_all=mp_all[(r.method, r.pair)],
+                     mp_clearance_esdf=mp_esdf.get((r.method, r.pair)), min_clearance=float(r.clearance.min()),
+                     steps=len(r.filter_times), filter_time_mean_s=float(r.filter_times.mean()),
+                     start=r.start, goal=r.goal) for r in rollouts]
+    write_json(out / "summary.json", dict(
+        benchmark="safety", config=cfg.__dict__, risk=risk.model_dump(mode="json"), wall_time_s=wall,
+        trajectories=n_pairs, table2=t2, table3=t3, table3_overall=t3_all, maps=maps_info,
+        filter_time_median_s={m: float(np.median(np.concatenate([r.filter_times for r in rollouts if r.method == m])))
+                              for m in METHODS},
+        per_trajectory=per_traj))
+    plot_safety(out,
+                {m: [mp_all[(m, r.pair)] for r in rollouts if r.method == m] for m in METHODS},
+                {m: [r.progress for r in rollouts if r.method == m] for m in METHODS},
+                {m: np.concatenate([r.filter_times for r in rollouts if r.method == m]) for m in METHODS},
+                {g: {"ESDF": [mp_esdf[(ESDF, r.pair)] for r in rollouts if r.method == ESDF and r.group == g],
+                     "Semantic": [mp_esdf[(SEMANTIC, r.pair)] for r in rollouts
+                                  if r.method == SEMANTIC and r.group == g]} for g in groups})
+
+    table = Table("method", "filter time median (µs)", "p99 (µs)", "progress", "MP clearance (m)", "MP collision")
+    for m in METHODS:
+        t = np.concatenate([r.filter_times for r in rollouts if r.method == m]) * 1e6
+        row = t2[m]
+        table.add_row(m, f"{np.median(t):.0f}", f"{np.percentile(t, 99):.0f}", f"{row['progress']:.3f}",
+                      f"{row['mp_clearance_m']:.3f}", f"{row['mp_collision_rate']:.3f}")
+    console.print(table)
+    g_table = Table("group", "n", "ESDF progress", "ESDF MP clear.", "ESDF MP coll.", "Sem. progress",
+                    "Sem. MP clear.", "Sem. MP coll.")
+    for g in groups:
+        e, s = t3[g]["esdf"], t3[g]["semantic"]
+        g_table.add_row(g, str(e["n"]), *(f"{x:.3f}" for x in (e["progress"], e["mp_clearance_m"],
+                                                                e["mp_collision_rate"], s["progress"],
+                                                                s["mp_clearance_m"], s["mp_collision_rate"])))
+    console.print(g_table)
+    console.print(f"wrote {out / 'tables.md'}, {out / 'summary.json'} and plots ({wall:.0f} s)")
+
+
+__all__ = ["POINTCLOUD", "app"]

@@ -1,0 +1,227 @@
+"""``riskfield bench teleop``: the paper's teleoperation experiment, in simulation, through the
+full service stack over Zenoh.
+
+A LIMO (unicycle, look-ahead safety filter) is driven by the scripted operator service
+(``services/operator``: human-like speed, aim, reaction delay and stick noise, one seed per run)
+straight at a ball (low risk) and at a dog (ADE20K ``animal``, high risk), ``--runs`` times each.
+Simulator → perception (ground-truth relay or the FM-like ``sim`` backend) → mapping →
+safety filter → simulator, all separate processes on a loopback router.
+
+Per run: the **first intervention distance** (ground-truth distance from the look-ahead point
+to the obstacle surface when ``SafetyStatus`` first reports a CBF intervention) and the
+**minimum clearance** (smallest such distance over the run); the robot-centre distances too.
+The look-ahead distance is what the filter constrains (the paper's plotted ``d(p_L)``).
+Outputs: ``summary.json``, ``tables.md`` beside the paper's numbers, ``teleop.png`` (distance,
+linear and angular velocity over time for one run of each class).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from riskfield.protocol import RobotState, SafetyStatus, VelocityCommand
+
+from .report import write_json
+from .stack import FAST_FILTER, Stack, perception_args, recording
+
+app = typer.Typer(add_completion=False)
+
+PAPER = {"ball": {"first_intervention_m": 0.36, "min_clearance_m": 0.14},
+         "dog": {"first_intervention_m": 0.56, "min_clearance_m": 0.41}}
+CASES = {"ball": ("teleop_ball", "ball"), "dog": ("teleop_dog", "dog")}
+LOOKAHEAD = 0.25
+
+
+@dataclass
+class Trace:
+    """One run's time series (seconds from the first state) and its metrics."""
+
+    t: np.ndarray
+    centre_distance: np.ndarray
+    lookahead_distance: np.ndarray
+    t_cmd: np.ndarray
+    v_ref: np.ndarray
+    w_ref: np.ndarray
+    t_safe: np.ndarray
+    v_safe: np.ndarray
+    w_safe: np.ndarray
+    t_intervention: float | None
+
+    def metrics(self) -> dict[str, float | None]:
+        first = None
+        first_c = None
+        if self.t_intervention is not None and self.t.size:
+            i = int(np.searchsorted(self.t, self.t_intervention))
+            i = min(i, self.t.size - 1)
+            first, first_c = float(self.lookahead_distance[i]), float(self.centre_distance[i])
+        return dict(first_intervention_m=first, min_clearance_m=float(self.lookahead_distance.min()),
+                    first_intervention_centre_m=first_c, min_clearance_centre_m=float(self.centre_distance.min()))
+
+
+def obstacle_distance(scenario: str, name: str):
+    """Ground-truth distance (m) from planar points to the obstacle's surface, at its mid-height."""
+    from ..simulator.scenario import build_scene, load_scenario
+    from ..simulator.scene import Scene
+
+    scene = build_scene(load_scenario(scenario))
+    obj = scene[name]
+    only = Scene([obj])
+    v = obj.world_mesh(0.0)[0]
+    z_mid = 0.5 * float(v[:, 2].min() + v[:, 2].max())
+
+    def distance(xy: np.ndarray) -> np.ndarray:
+        pts = np.column_stack([xy, np.full(len(xy), z_mid)])
+        return np.asarray(only.at(0.0).distance(pts), dtype=float)
+
+    return distance
+
+
+def trace_of(rec, distance, t0: float) -> Trace:
+    states = rec.snapshot("state")
+    refs = rec.snapshot("ref")
+    safes = rec.snapshot("safe")
+    status = rec.snapshot("status")
+    t = np.array([a for a, _ in states]) - t0
+    xy = np.array([m.position[:2] for _, m in states]).reshape(-1, 2)
+    yaw = np.array([m.yaw for _, m in states])
+    la = xy + LOOKAHEAD * np.column_stack([np.cos(yaw), np.sin(yaw)]) if len(xy) else xy
+    cd = distance(xy) if len(xy) else np.zeros(0)
+    ld = distance(la) if len(xy) else np.zeros(0)
+    first = next((a - t0 for a, s in status if s.intervening and s.fallback is None), None)
+
+    def series(items):
+        if not items:
+            return np.zeros(0), np.zeros(0), np.zeros(0)
+        return (np.array([a for a, _ in items]) - t0, np.array([m.linear[0] for _, m in items]),
+                np.array([m.angular[2] for _, m in items]))
+
+    tr, vr, wr = series(refs)
+    ts, vs, ws = series(safes)
+    return Trace(t, cd, ld, tr, vr, wr, ts, vs, ws, first)
+
+
+def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, progress, task) -> list[Trace]:
+    scenario, obj = CASES[cls]
+    distance = obstacle_distance(scenario, obj)
+    service, args = perception_args(perception)
+    stack.start("perception", service, args)
+    stack.start("mapping", "mapping", ["--set", "esdf_rate_hz=10"])
+    stack.start("filter", "safety-filter", FAST_FILTER)
+    traces = []
+    keys = {"state": (stack.key("state"), RobotState), "ref": (stack.key("cmd/ref"), VelocityCommand),
+            "safe": (stack.key("cmd/safe"), VelocityCommand), "status": (stack.key("safety/status"), SafetyStatus)}
+    for run in range(runs):
+        stack.start("sim", "simulator", ["--set", f"scenario={scenario}", "--set", "camera_hz=10"])
+        with recording(stack.session, keys) as rec:
+            time.sleep(1.5)  # the first frames reach the map before the operator starts
+            rec.clear()
+            t0 = time.monotonic()
+            stack.start("operator", "operator", ["--set", f"targets=[[{obj}, 0.5, 0.0]]", "--set", f"seed={run}",
+                                                 "--set", "push_s=10.0"])
+            time.sleep(run_s)
+            stack.stop("operator")
+            traces.append(trace_of(rec, distance, t0))
+        stack.stop("sim")
+        progress.advance(task)
+    for label in ("filter", "mapping", "perception"):
+        stack.stop(label)
+    return traces
+
+
+def plot(out: Path, examples: dict[str, Trace]) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(len(examples), 3, figsize=(13, 3.2 * len(examples)), squeeze=False)
+    for row, (cls, tr) in enumerate(examples.items()):
+        ax[row, 0].plot(tr.t, tr.lookahead_distance, label="look-ahead point")
+        ax[row, 0].plot(tr.t, tr.centre_distance, "--", label="robot centre")
+        if tr.t_intervention is not None:
+            for a in ax[row]:
+                a.axvline(tr.t_intervention, color="r", lw=0.8, ls=":")
+        ax[row, 0].set_ylabel(f"{cls}\nobstacle distance (m)")
+        ax[row, 1].plot(tr.t_cmd, tr.v_ref, label="operator")
+        ax[row, 1].plot(tr.t_safe, tr.v_safe, label="filtered")
+        ax[row, 1].set_ylabel("linear velocity (m/s)")
+        ax[row, 2].plot(tr.t_cmd, tr.w_ref, label="operator")
+        ax[row, 2].plot(tr.t_safe, tr.w_safe, label="filtered")
+        ax[row, 2].set_ylabel("angular velocity (rad/s)")
+        for a in ax[row]:
+            a.set_xlabel("time (s)")
+            a.legend(fontsize=7)
+    fig.tight_layout()
+    path = out / "teleop.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _mean(xs: list[float | None]) -> float:
+    vals = [x for x in xs if x is not None and math.isfinite(x)]
+    return float(np.mean(vals)) if vals else float("nan")
+
+
+@app.command()
+def teleop(
+    runs: Annotated[int, typer.Option(help="Runs per obstacle class (paper: 12).")] = 12,
+    perception: Annotated[str, typer.Option(help="gt or sim.")] = "gt",
+    run_s: Annotated[float, typer.Option(help="Seconds each run lasts after the operator starts.")] = 13.0,
+    classes: Annotated[str, typer.Option(help="Comma-separated: ball,dog.")] = "ball,dog",
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/teleop"),
+) -> None:
+    """Scripted-operator teleoperation towards a ball and a dog through the full stack."""
+    console = Console()
+    names = [c.strip() for c in classes.split(",") if c.strip()]
+    if not names or any(c not in CASES for c in names):
+        raise typer.BadParameter(f"classes must be among {', '.join(CASES)}")
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    results: dict[str, list[Trace]] = {}
+    with Progress(console=console) as progress:
+        task = progress.add_task("teleop runs", total=runs * len(names))
+        for cls in names:
+            with Stack(robot=f"teleop_{cls}") as stack:
+                results[cls] = run_class(stack, cls, runs, run_s, perception, progress, task)
+    summary: dict[str, dict] = {}
+    table = Table("class", "runs", "first intervention (m)", "paper", "min clearance (m)", "paper",
+                  "runs with intervention")
+    md = [f"# riskfield bench teleop — perception `{perception}`", "",
+          "Distances: ground truth, look-ahead point (L = 0.25 m) to the obstacle surface; mean over runs.", "",
+          "| Obstacle | Runs | First intervention (m) | Paper | Min clearance (m) | Paper | Centre: first / min (m) |",
+          "|---|---|---|---|---|---|---|"]
+    for cls, traces in results.items():
+        ms = [tr.metrics() for tr in traces]
+        first = _mean([m["first_intervention_m"] for m in ms])
+        clear = _mean([m["min_clearance_m"] for m in ms])
+        first_c = _mean([m["first_intervention_centre_m"] for m in ms])
+        clear_c = _mean([m["min_clearance_centre_m"] for m in ms])
+        n_int = sum(m["first_intervention_m"] is not None for m in ms)
+        summary[cls] = dict(runs=len(ms), first_intervention_m=first, min_clearance_m=clear,
+                            first_intervention_centre_m=first_c, min_clearance_centre_m=clear_c,
+                            runs_with_intervention=n_int, per_run=ms, paper=PAPER[cls])
+        table.add_row(cls, str(len(ms)), f"{first:.3f}", f"{PAPER[cls]['first_intervention_m']:.2f}", f"{clear:.3f}",
+                      f"{PAPER[cls]['min_clearance_m']:.2f}", str(n_int))
+        md.append(f"| {cls} | {len(ms)} | {first:.3f} | {PAPER[cls]['first_intervention_m']:.2f} | {clear:.3f} | "
+                  f"{PAPER[cls]['min_clearance_m']:.2f} | {first_c:.3f} / {clear_c:.3f} |")
+    examples = {cls: traces[0] for cls, traces in results.items() if traces}
+    plot(out, examples)
+    wall = time.perf_counter() - t_start
+    (out / "tables.md").write_text("\n".join(md) + "\n")
+    write_json(out / "summary.json", dict(benchmark="teleop", perception=perception, runs=runs, run_s=run_s,
+                                          wall_time_s=wall, classes=summary,
+                                          examples={c: {k: getattr(tr, k) for k in tr.__dataclass_fields__}
+                                                    for c, tr in examples.items()}))
+    console.print(table)
+    console.print(f"wrote {out / 'tables.md'}, {out / 'summary.json'}, {out / 'teleop.png'} ({wall:.0f} s)")

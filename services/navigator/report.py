@@ -1,0 +1,141 @@
+"""Paper-shaped result tables (Tables II and III), the JSON of every number, and plots."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: The paper's Table II (equal-time comparison) and Table III (risk-group ablation).
+PAPER_TABLE2 = {
+    "SaferSplat": dict(computation_time_s=0.149, progress=0.360, mp_clearance_m=0.101, mp_collision_rate=0.216),
+    "Ours (ESDF)": dict(computation_time_s=0.002, progress=0.697, mp_clearance_m=0.106, mp_collision_rate=0.218),
+    "Ours (Semantic ESDF)": dict(computation_time_s=0.002, progress=0.603, mp_clearance_m=0.108,
+                                 mp_collision_rate=0.200),
+}
+PAPER_TABLE3 = {
+    "high": {"esdf": (0.669, 0.128, 0.146), "semantic": (0.534, 0.134, 0.116)},
+    "mid": {"esdf": (0.777, 0.092, 0.248), "semantic": (0.631, 0.093, 0.224)},
+    "low": {"esdf": (0.647, 0.098, 0.261), "semantic": (0.647, 0.098, 0.261)},
+}
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _time(x: float) -> str:
+    if x is None or math.isnan(x):
+        return "–"
+    return f"{x:.3f}" if x >= 1e-3 else f"{x:.2e}"
+
+
+def table2(rows: Mapping[str, Mapping[str, float]], n_pairs: int) -> str:
+    """Method × (computation time, progress, MP clearance, MP collision rate)."""
+    out = [f"**Table II (reproduction).** Equal-time comparison, {n_pairs} matched trajectories; MP metrics up to "
+           "the common progress of all three methods.", "",
+           "| Method | Computation Time (s) ↓ | Progress to Goal ↑ | MP Clearance (m) ↑ | MP Collision Rate ↓ |",
+           "|---|---|---|---|---|"]
+    for name, r in rows.items():
+        out.append(f"| {name} | {_time(r['computation_time_s'])} | {_f(r['progress'])} | "
+                   f"{_f(r['mp_clearance_m'])} | {_f(r['mp_collision_rate'])} |")
+    out += ["", "Paper (ScanNet++, SaferSplat as the map-free baseline):", "",
+            "| Method | Computation Time (s) ↓ | Progress to Goal ↑ | MP Clearance (m) ↑ | MP Collision Rate ↓ |",
+            "|---|---|---|---|---|"]
+    for name, r in PAPER_TABLE2.items():
+        out.append(f"| {name} | {r['computation_time_s']:.3f} | {r['progress']:.3f} | {r['mp_clearance_m']:.3f} | "
+                   f"{r['mp_collision_rate']:.3f} |")
+    return "\n".join(out)
+
+
+def table3(rows: Mapping[str, Mapping[str, Mapping[str, float]]], n_pairs: int) -> str:
+    """Risk group × (ESDF, Semantic ESDF) × (progress, MP clearance, MP collision rate)."""
+    head = ("| Risk Group | n | ESDF Progress ↑ | ESDF MP Clearance (m) ↑ | ESDF MP Collision ↓ | "
+            "Sem. Progress ↑ | Sem. MP Clearance (m) ↑ | Sem. MP Collision ↓ |")
+    out = [f"**Table III (reproduction).** Risk-group ablation, {n_pairs} matched trajectories; MP metrics up to "
+           "the common progress of the two ESDF variants.", "", head, "|---|---|---|---|---|---|---|---|"]
+    for group, r in rows.items():
+        e, s = r["esdf"], r["semantic"]
+        out.append(f"| {group.capitalize()} | {e['n']} | {_f(e['progress'])} | {_f(e['mp_clearance_m'])} | "
+                   f"{_f(e['mp_collision_rate'])} | {_f(s['progress'])} | {_f(s['mp_clearance_m'])} | "
+                   f"{_f(s['mp_collision_rate'])} |")
+    out += ["", "Paper:", "", head.replace("| n |", "|"), "|---|---|---|---|---|---|---|"]
+    for group, r in PAPER_TABLE3.items():
+        e, s = r["esdf"], r["semantic"]
+        out.append(f"| {group.capitalize()} | " + " | ".join(f"{x:.3f}" for x in (*e, *s)) + " |")
+    return "\n".join(out)
+
+
+def _clean(x: Any) -> Any:
+    """JSON-safe: NaN/Inf → null, numpy → Python."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _clean(x.tolist())
+    if isinstance(x, np.generic):
+        return _clean(x.item())
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def write_json(path: Path, data: Mapping[str, Any]) -> None:
+    path.write_text(json.dumps(_clean(dict(data)), indent=2))
+
+
+Series = Mapping[str, Sequence[float]]
+
+
+def plot_safety(out: Path, per_method: Series, progress: Series, times: Series,
+                groups: Mapping[str, Series]) -> list[Path]:
+    """Distributions of MP clearance, progress and filter time per method; MP clearance per
+    risk group for the two ESDF variants."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig, ax = plt.subplots(1, 3, figsize=(14, 4))
+    names = list(per_method)
+    ax[0].boxplot([np.asarray(per_method[n]) for n in names], showfliers=False)
+    ax[0].set_xticks(range(1, len(names) + 1), names, rotation=15)
+    ax[0].axhline(0.0, color="r", lw=0.8)
+    ax[0].set_ylabel("MP clearance (m)")
+    ax[1].boxplot([np.asarray(progress[n]) for n in names], showfliers=False)
+    ax[1].set_xticks(range(1, len(names) + 1), names, rotation=15)
+    ax[1].set_ylabel("progress to goal")
+    for n in names:
+        t = np.asarray(times[n]) * 1e6
+        if t.size:
+            ax[2].hist(t, bins=60, range=(0, float(np.percentile(t, 99.5))), histtype="step", label=n)
+    ax[2].set_xlabel("filter step time (µs)")
+    ax[2].legend()
+    fig.tight_layout()
+    paths.append(out / "safety_methods.png")
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    labels, data = [], []
+    for g, per in groups.items():
+        for m, vals in per.items():
+            labels.append(f"{g}\n{m}")
+            data.append(np.asarray(vals))
+    if data:
+        ax.boxplot(data, showfliers=False)
+        ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=8)
+    ax.axhline(0.0, color="r", lw=0.8)
+    ax.set_ylabel("MP clearance (m)")
+    ax.set_title("Risk-group ablation (ESDF vs semantic ESDF)")
+    fig.tight_layout()
+    paths.append(out / "safety_groups.png")
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+    return paths

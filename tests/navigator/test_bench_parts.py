@@ -1,0 +1,141 @@
+"""Pieces of the safety benchmark: point-cloud baseline field, object-centric sampling, the
+ScanNet++ loader and the paper-shaped tables."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from riskfield.protocol import RiskConfig, ade20k
+from riskfield.services.navigator.pointcloud import PointCloudField
+from riskfield.services.navigator.report import table2, table3, write_json
+from riskfield.services.navigator.sampling import sample_pairs, targets_from_boxes
+
+
+def sphere_points(n: int, c: np.ndarray, r: float, seed: int = 0) -> np.ndarray:
+    x = np.random.default_rng(seed).normal(size=(n, 3))
+    return c + r * x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-3, 3), min_size=3, max_size=3))
+def test_pointcloud_distance_matches_brute_force_and_gradient_is_unit(q):
+    pts = sphere_points(500, np.zeros(3), 0.5)
+    f = PointCloudField(voxel=1e-4)
+    f.integrate(pts)
+    s = f.query(np.array([q]), hessian=True)
+    brute = np.linalg.norm(pts - np.array(q), axis=1).min()
+    assert s.distance[0] == pytest.approx(min(max(brute, f.min_distance), f.far))
+    assert np.linalg.norm(s.gradient[0]) == pytest.approx(1.0)
+    # Hessian of the distance to a point: symmetric, the gradient is in its null space.
+    np.testing.assert_allclose(s.hessian[0], s.hessian[0].T, atol=1e-12)
+    np.testing.assert_allclose(s.hessian[0] @ s.gradient[0], 0.0, atol=1e-9)
+
+
+def test_pointcloud_gradient_matches_finite_differences_away_from_switches():
+    f = PointCloudField(voxel=1e-4)
+    f.integrate(np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]))
+    p, h = np.array([0.4, 0.3, 0.2]), 1e-6
+    s = f.query(p[None], hessian=True)
+    fd = [(f.query((p + h * e)[None]).distance[0] - f.query((p - h * e)[None]).distance[0]) / (2 * h)
+          for e in np.eye(3)]
+    np.testing.assert_allclose(s.gradient[0], fd, atol=1e-6)
+
+
+def test_pointcloud_voxel_downsampling_and_empty_field():
+    f = PointCloudField(voxel=0.1)
+    assert f.query(np.zeros((2, 3))).distance.tolist() == [f.far, f.far]
+    f.integrate(np.array([[0.01, 0.01, 0.01], [0.02, 0.02, 0.02], [0.5, 0.5, 0.5], [np.nan, 0, 0]]))
+    assert f.size == 2  # two points share a voxel, NaN dropped
+    f.integrate(np.array([[0.03, 0.03, 0.03]]))
+    assert f.size == 2
+
+
+def boxes():
+    idx = ade20k.index
+    return [
+        ("wall", idx("wall"), np.array([-3.0, -3, 0]), np.array([3.0, -2.9, 2.5])),
+        ("floor", idx("floor"), np.array([-3.0, -3, -0.1]), np.array([3.0, 3, 0])),
+        ("person", idx("person"), np.array([-0.2, -0.2, 0]), np.array([0.2, 0.2, 1.7])),
+        ("chair", idx("chair"), np.array([1.0, 1.0, 0]), np.array([1.4, 1.4, 0.9])),
+        ("ball", idx("ball"), np.array([-1.2, 1.0, 0]), np.array([-1.0, 1.2, 0.2])),
+    ]
+
+
+def test_targets_exclude_structure_and_carry_risk_groups():
+    targets = targets_from_boxes(boxes(), RiskConfig())
+    assert [(t.name, t.group) for t in targets] == [("person", "high"), ("chair", "mid"), ("ball", "low")]
+    np.testing.assert_allclose(targets[0].centre, [0.0, 0.0])
+    assert targets[0].radius == pytest.approx(np.hypot(0.4, 0.4) / 2)
+
+
+def test_pairs_straddle_their_target_and_are_balanced():
+    targets = targets_from_boxes(boxes(), RiskConfig())
+    centres = {t.name: t for t in targets}
+
+    def clearance(p):  # distance to the target boxes' footprint circles, as a stand-in for the mesh
+        return np.min([np.linalg.norm(p[:, :2] - t.centre, axis=1) - t.radius for t in targets], axis=0)
+
+    rng = np.random.default_rng(0)
+    pairs = sample_pairs(targets, 30, clearance, rng, robot_radius=0.1, bounds_lo=np.array([-2.9, -2.9, 0]),
+                         bounds_hi=np.array([3.0, 3.0, 2.5]))
+    assert len(pairs) == 30
+    assert [p.pair for p in pairs] == list(range(30))
+    counts = {g: sum(p.group == g for p in pairs) for g in ("high", "mid", "low")}
+    assert counts == {"high": 10, "mid": 10, "low": 10}
+    for p in pairs:
+        t = centres[p.target]
+        a, b = p.start[:2] - t.centre, p.goal[:2] - t.centre
+        assert a @ b < 0  # opposite sides
+        assert clearance(np.stack([p.start, p.goal])).min() > 0.2 - 1e-9
+        # the segment passes within the footprint circle's neighbourhood
+        d = b - a
+        s = np.clip(-(a @ d) / (d @ d), 0, 1)
+        assert np.linalg.norm(a + s * d) <= t.radius * 0.5 + 1e-9
+        assert p.start[2] == p.goal[2]
+
+
+def test_tables_are_paper_shaped(tmp_path):
+    row = dict(computation_time_s=1e-4, progress=0.7, mp_clearance_m=0.1, mp_collision_rate=0.2, n=10)
+    t2 = table2({"Point cloud": row, "Ours (ESDF)": row, "Ours (Semantic ESDF)": row}, 30)
+    assert t2.count("\n| Ours (ESDF) |") == 2  # ours and the paper's
+    assert "| 1.00e-04 | 0.700 | 0.100 | 0.200 |" in t2
+    t3 = table3({g: {"esdf": row, "semantic": row} for g in ("high", "mid", "low")}, 30)
+    assert "| High | 10 | 0.700 | 0.100 | 0.200 | 0.700 | 0.100 | 0.200 |" in t3
+    assert "| High | 0.669 | 0.128 | 0.146 | 0.534 | 0.134 | 0.116 |" in t3
+    write_json(tmp_path / "s.json", {"a": float("nan"), "b": np.arange(2), "c": np.float32(1.5)})
+    assert json.loads((tmp_path / "s.json").read_text()) == {"a": None, "b": [0, 1], "c": 1.5}
+
+
+def test_scannetpp_loader(tmp_path):
+    import open3d as o3d
+
+    from riskfield.services.navigator.scannetpp import ade20k_label, load_scene
+
+    scans = tmp_path / "scene0" / "scans"
+    scans.mkdir(parents=True)
+    floor = o3d.geometry.TriangleMesh.create_box(4, 4, 0.01).translate((-2, -2, -0.01))
+    chair = o3d.geometry.TriangleMesh.create_box(0.5, 0.5, 0.9).translate((0.5, 0.5, 0))
+    mesh = floor + chair
+    o3d.io.write_triangle_mesh(str(scans / "mesh_aligned_0.05.ply"), mesh)
+    nf = len(floor.vertices)
+    anno = {"segGroups": [
+        {"id": 0, "objectId": 0, "label": "floor", "segments": list(range(nf))},
+        {"id": 1, "objectId": 1, "label": "office chair", "segments": list(range(nf, nf + len(chair.vertices)))},
+    ]}
+    (scans / "segments_anno.json").write_text(json.dumps(anno))
+    objects = load_scene(tmp_path / "scene0")
+    by_name = {o.name: o for o in objects}
+    assert set(by_name) == {"office_chair_1", "structure"}
+    assert by_name["office_chair_1"].label == ade20k.index("swivel chair")
+    assert len(by_name["office_chair_1"].mesh[1]) == 12
+    assert set(by_name["structure"].triangle_labels.tolist()) == {ade20k.index("floor")}
+    assert not by_name["structure"].watertight
+    assert ade20k_label("Couch") == ade20k.index("sofa")
+    assert ade20k_label("mystery thing") == ade20k.index("box")
+    with pytest.raises(FileNotFoundError):
+        load_scene(tmp_path)
