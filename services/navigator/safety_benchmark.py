@@ -31,6 +31,7 @@ import numpy as np
 
 from riskfield.protocol import RiskConfig
 
+from ..mapping.synthetic import look_at
 from .clf import DoubleIntegratorCLF
 from .metrics import Rollout
 from .pointcloud import PointCloudField
@@ -123,21 +124,6 @@ def procedural_case(seed: int, risk: RiskConfig) -> SceneCase:
 
 
 # -- input stream and perception -------------------------------------------------------------------
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """4x4 camera → world of an OpenCV camera (x right, y down, z forward) at ``eye``."""
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x) < 1e-6:
-        x = np.array([1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def camera_poses(case: SceneCase, n: int, height: float = 1.3) -> list[np.ndarray]:
@@ -320,9 +306,9 @@ def build_esdf_maps(case: SceneCase, frames: Sequence[Frame], budget_s: float, c
                     risk: RiskConfig) -> list[BuiltMap]:
     """Both ESDF variants from one semantic TSDF fed within the budget: the variants differ
     only in the inflation margins applied before the ESDF, so they share the integration."""
+    from ..esdf_field import EsdfField
     from ..mapping.config import MapperConfig
     from ..mapping.mapper import Mapper
-    from ..safety_filter.field import EsdfField
 
     half = tuple(float(h) for h in (case.hi - case.lo) / 2 + 0.3)
     mc = MapperConfig(voxel_size=cfg.voxel, half_extent=half, output="3d", recentre_distance=1e3, pixel_stride=1,

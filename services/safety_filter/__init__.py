@@ -19,10 +19,10 @@ OSQP), ``filter`` (one filter step, gains per risk group), ``config`` (the core'
 ``risk_file``, ``node``; ``bench`` is ``riskfield bench filter``.
 """
 
+from ..esdf_field import DistanceField, EsdfField, FieldSample
 from .analytic import Plane, Sphere, Union, to_esdf, to_grid_message
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
 from .config import FilterConfig
-from .field import DistanceField, EsdfField, FieldSample
 from .filter import FilterResult, GainTable, SafetyFilter
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState

@@ -14,7 +14,7 @@ import numpy as np
 
 from riskfield.protocol import EsdfGrid
 
-from .field import EsdfField, FieldSample
+from ..esdf_field import EsdfField, FieldSample
 
 
 class Plane:

@@ -35,7 +35,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .field import DistanceField, FieldSample
+from ..esdf_field import DistanceField, FieldSample
 from .state import FilterState, skew, so3_exp, so3_integral, yaw_matrix
 
 ALPHA, ALPHA1, ALPHA2 = 0, 1, 2

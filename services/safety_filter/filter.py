@@ -19,9 +19,9 @@ import numpy as np
 
 from riskfield.protocol import RiskConfig
 
+from ..esdf_field import DistanceField, FieldSample
 from .barriers import ALPHA1, ALPHA2, BarrierModel
 from .config import FilterConfig
-from .field import DistanceField, FieldSample
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.protocol import EsdfGrid, decode, encode
+from riskfield.services.esdf_field import EsdfField
 from riskfield.services.safety_filter.analytic import Plane, Sphere, Union, to_esdf, to_grid_message
-from riskfield.services.safety_filter.field import EsdfField
 
 GROUPS = ["high", "mid", "low"]
 

@@ -1,4 +1,5 @@
-"""Distance-field access for the safety filter: distance, gradient, Hessian and risk group.
+"""Access to a published ESDF grid, shared by the safety filter, the mapping service's queries
+and the benchmarks: distance, gradient, Hessian and risk group.
 
 The ESDF is sampled at voxel centres ``origin + voxel_size * (i, j, k)``. Following the paper
 ("ESDF gradients and Hessians are computed by finite differences and evaluated at query
