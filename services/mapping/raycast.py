@@ -15,6 +15,26 @@ _EPS = 1e-9
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def pixel_ray(points: np.ndarray, conf: np.ndarray, R: np.ndarray, v: int, u: int, q_min: float, r_min: float,
+              dw: np.ndarray) -> tuple[float, float]:
+    """Confidence ``q`` and range ``r`` of pixel (v, u), its world-frame unit ray direction
+    written into ``dw``; ``r = -1`` marks a pixel every integrator skips (confidence below
+    ``q_min`` or not positive, NaN, range below ``r_min``)."""
+    q = conf[v, u]
+    if not q >= q_min or q <= 0.0:
+        return q, -1.0
+    px = points[v, u, 0]
+    py = points[v, u, 1]
+    pz = points[v, u, 2]
+    r = np.sqrt(px * px + py * py + pz * pz)
+    if not r >= r_min:
+        return q, -1.0
+    for a in range(3):
+        dw[a] = (R[a, 0] * px + R[a, 1] * py + R[a, 2] * pz) / r
+    return q, r
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def clip_to_box(o: np.ndarray, d: np.ndarray, t0: float, t1: float, shape: np.ndarray) -> tuple[float, float]:
     """Slab test of the segment against the grid box [−½, n − ½)³ (index units); empty → t0 > t1."""
     for a in range(3):

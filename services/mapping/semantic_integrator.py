@@ -23,7 +23,7 @@ from numba import njit
 
 from .config import MapperConfig
 from .layers import SemanticLayer
-from .raycast import ray_voxels
+from .raycast import pixel_ray, ray_voxels
 from .volume import Volume
 
 
@@ -51,17 +51,10 @@ def _integrate(points: np.ndarray, conf: np.ndarray, labels: np.ndarray, R: np.n
     n_votes = 0
     for v in range(0, h, stride):
         for u in range(0, w, stride):
-            q = conf[v, u]
-            if not q >= q_min or q <= 0.0:
-                continue
-            px = points[v, u, 0]
-            py = points[v, u, 1]
-            pz = points[v, u, 2]
-            r = np.sqrt(px * px + py * py + pz * pz)
-            if not r >= r_min or r > r_max:
+            q, r = pixel_ray(points, conf, R, v, u, q_min, r_min, dw)
+            if r < 0.0 or r > r_max:
                 continue
             for a in range(3):
-                dw[a] = (R[a, 0] * px + R[a, 1] * py + R[a, 2] * pz) / r
                 di[a] = dw[a] / vs
             y = labels[v, u]
             n = ray_voxels(o, di, r - band - 0.87 * vs, r + band + 0.87 * vs, shape, buf)

@@ -32,7 +32,7 @@ from numba import njit
 
 from .config import MapperConfig
 from .layers import TsdfLayer
-from .raycast import ray_voxels
+from .raycast import pixel_ray, ray_voxels
 from .volume import Volume
 
 
@@ -83,17 +83,10 @@ def _integrate(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.
         s = stride if pass_ == 0 else carve_stride
         for v in range(0, h, s):
             for u in range(0, w, s):
-                q = conf[v, u]
-                if not q >= q_min or q <= 0.0:
-                    continue
-                px = points[v, u, 0]
-                py = points[v, u, 1]
-                pz = points[v, u, 2]
-                r = np.sqrt(px * px + py * py + pz * pz)
-                if not r >= r_min:
+                q, r = pixel_ray(points, conf, R, v, u, q_min, r_min, dw)
+                if r < 0.0:
                     continue
                 for a in range(3):
-                    dw[a] = (R[a, 0] * px + R[a, 1] * py + R[a, 2] * pz) / r
                     di[a] = dw[a] / vs
                 if pass_ == 0:
                     if r > r_max:
@@ -131,17 +124,10 @@ def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_wor
     used = 0
     for v in range(0, h, stride):
         for u in range(0, w, stride):
-            q = conf[v, u]
-            if not q >= q_min or q <= 0.0:
-                continue
-            px = points[v, u, 0]
-            py = points[v, u, 1]
-            pz = points[v, u, 2]
-            r = np.sqrt(px * px + py * py + pz * pz)
-            if not r >= r_min:
+            q, r = pixel_ray(points, conf, R, v, u, q_min, r_min, dw)
+            if r < 0.0:
                 continue
             for a in range(3):
-                dw[a] = (R[a, 0] * px + R[a, 1] * py + R[a, 2] * pz) / r
                 pw[a] = o[a] + dw[a] * r / vs  # the point in index units
             i = int(np.floor(pw[0] + 0.5))
             j = int(np.floor(pw[1] + 0.5))
