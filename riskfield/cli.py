@@ -17,18 +17,9 @@ app = typer.Typer(help="Semantic-risk safety filtering from one RGB camera, as Z
                   no_args_is_help=True, add_completion=False)
 console = Console(stderr=True, soft_wrap=True, highlight=False)
 
-#: ``riskfield bench NAME``: name → "module:typer_app", imported only when asked for.
-BENCHES: dict[str, str] = {
-    "codec": "riskfield.bench_codec:app",
-    "filter": "riskfield.services.safety_filter.bench:app",
-    "mapping": "riskfield.services.mapping.bench:app",
-    "latency": "riskfield.edge.latency_bench:app",
-    "safety": "riskfield.services.navigator.bench_safety:app",
-    "teleop": "riskfield.services.navigator.bench_teleop:app",
-    "navigation": "riskfield.services.navigator.bench_navigation:app",
-    "sim": "riskfield.services.simulator.bench:app",
-    "perception": "riskfield.services.perception.bench:app",
-}
+#: ``riskfield bench NAME`` runs ``riskfield.experiments.benches.NAME:app``, imported only when asked for.
+BENCHES: tuple[str, ...] = ("codec", "filter", "mapping", "latency", "safety", "teleop", "navigation", "sim",
+                            "perception")
 
 
 def _version(value: bool) -> None:
@@ -177,7 +168,7 @@ def demo(
     with an unseen obstacle; ends with a summary table and a report folder."""
     import json
 
-    from riskfield.demo.run import Demo, DemoConfig, make_report
+    from riskfield.experiments.demo.run import Demo, DemoConfig, make_report
 
     cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose)
     if report_only:
@@ -223,13 +214,11 @@ def bench(
     name: Annotated[str, typer.Argument(help=f"One of: {', '.join(BENCHES)}.")],
 ) -> None:
     """Run a benchmark (pass --help after its name for its options)."""
-    target = BENCHES.get(name)
-    if target is None:
+    if name not in BENCHES:
         console.print(f"[red]unknown benchmark {name!r}; known: {', '.join(BENCHES)}[/red]")
         raise typer.Exit(2)
-    module, attr = target.split(":")
     try:
-        sub = getattr(importlib.import_module(module), attr)
+        sub = importlib.import_module(f"riskfield.experiments.benches.{name}").app
     except ModuleNotFoundError as exc:
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/red]")
         raise typer.Exit(2) from None

@@ -1,5 +1,5 @@
-"""Navigator: CLF-based nominal goal-reaching controller over a waypoint sequence, plus the
-paper-reproduction benchmarks (``riskfield bench safety|teleop|navigation``)."""
+"""Navigator: CLF-based nominal goal-reaching controller over a waypoint sequence. The paper's
+benchmarks that use it live in :mod:`riskfield.experiments`."""
 
 from .clf import DoubleIntegratorCLF, UnicycleCLF
 from .config import NavigatorConfig

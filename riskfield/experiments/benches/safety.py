@@ -18,12 +18,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from riskfield.protocol import RiskConfig
-
-from .clf import DoubleIntegratorCLF
-from .metrics import Rollout, matched, summarise
-from .report import plot_safety, table2, table3, write_json
-from .safety_benchmark import (
+from riskfield.experiments.metrics import Rollout, matched, summarise
+from riskfield.experiments.safety_benchmark import (
     ESDF,
     METHODS,
     POINTCLOUD,
@@ -40,6 +36,11 @@ from .safety_benchmark import (
     rollout,
     sim_perception,
 )
+from riskfield.experiments.scannetpp import load_scene
+from riskfield.experiments.tables import plot_safety, table2, table3, write_json
+from riskfield.protocol import RiskConfig
+from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.simulator.camera import PinholeCamera, Renderer
 
 app = typer.Typer(add_completion=False)
 
@@ -68,14 +69,12 @@ def safety(
 
     cases = [procedural_case(seed * 1000 + i, risk) for i in range(scenes)]
     for folder in scannetpp or []:
-        from .scannetpp import load_scene
 
         cases.append(make_case(f"scannetpp_{folder.name}", load_scene(folder), risk))
     if not cases:
         raise typer.BadParameter("no scenes: use --scenes ≥ 1 or --scannetpp")
     per_scene = [trajectories // len(cases) + (1 if i < trajectories % len(cases) else 0) for i in range(len(cases))]
 
-    from ..simulator.camera import PinholeCamera, Renderer
 
     renderer = Renderer(PinholeCamera.from_fov(*cfg.image, 90.0))
     perceive = gt_perception(renderer) if perception == "gt" else sim_perception(renderer, seed)

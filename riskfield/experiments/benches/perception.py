@@ -14,9 +14,9 @@ from rich.console import Console
 from rich.table import Table
 
 from riskfield.protocol import PerceptionFrame
-
-from .fusion import fuse_pointmap, vote_fuse
-from .sim_backend import SimBackend, SimBackendConfig
+from riskfield.services.perception.fusion import fuse_pointmap, vote_fuse
+from riskfield.services.perception.sim_backend import SimBackend, SimBackendConfig
+from riskfield.services.simulator.world import World
 
 app = typer.Typer(add_completion=False)
 
@@ -31,7 +31,6 @@ def _stats(ts: list[float]) -> dict[str, float]:
 def perception(out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-perception"),
                n: Annotated[int, typer.Option(help="Frames per measurement.")] = 60) -> None:
     """Sim backend per frame (both publish modes) and the fusion rules, on a driving sequence."""
-    from riskfield.services.simulator.world import World  # the simulator provides the ground truth
 
     world = World("navigation")
     truths = []

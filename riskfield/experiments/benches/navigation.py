@@ -24,12 +24,13 @@ import yaml
 from rich.console import Console
 from rich.table import Table
 
-from riskfield.protocol import NavGoal, RobotState, SafetyStatus
+from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, recording
+from riskfield.experiments.tables import write_json
+from riskfield.protocol import NavGoal, RiskConfig, RobotState, SafetyStatus
+from riskfield.services.navigator.waypoints import WaypointSequencer
+from riskfield.services.simulator.scenario import ObjectSpec, build_scene, load_scenario, object_from_spec
+from riskfield.services.simulator.scene import Scene
 from riskfield.testing import put
-
-from .report import write_json
-from .stack import FAST_FILTER, Stack, perception_args, recording
-from .waypoints import WaypointSequencer
 
 app = typer.Typer(add_completion=False)
 
@@ -60,10 +61,7 @@ def polyline_distance(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
 
 def clearance_fn(scenario_path: Path, extra: list[dict]):
     """Ground-truth distance from the robot centre (at body height) to every obstacle surface."""
-    from riskfield.protocol import RiskConfig
 
-    from ..simulator.scenario import ObjectSpec, build_scene, load_scenario, object_from_spec
-    from ..simulator.scene import Scene
 
     scene = build_scene(load_scenario(str(scenario_path)))
     lut = RiskConfig().label_to_group()

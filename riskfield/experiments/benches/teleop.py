@@ -29,10 +29,11 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, recording
+from riskfield.experiments.tables import write_json
 from riskfield.protocol import RobotState, SafetyStatus, VelocityCommand
-
-from .report import write_json
-from .stack import FAST_FILTER, Stack, perception_args, recording
+from riskfield.services.simulator.scenario import build_scene, load_scenario
+from riskfield.services.simulator.scene import Scene
 
 app = typer.Typer(add_completion=False)
 
@@ -70,8 +71,6 @@ class Trace:
 
 def obstacle_distance(scenario: str, name: str):
     """Ground-truth distance (m) from planar points to the obstacle's surface, at its mid-height."""
-    from ..simulator.scenario import build_scene, load_scenario
-    from ..simulator.scene import Scene
 
     scene = build_scene(load_scenario(scenario))
     obj = scene[name]

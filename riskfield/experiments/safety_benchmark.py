@@ -29,13 +29,21 @@ from typing import Literal, Protocol
 
 import numpy as np
 
+from riskfield.experiments.metrics import Rollout
+from riskfield.experiments.pointcloud import PointCloudField
+from riskfield.experiments.sampling import Pair, Target, sample_pairs, targets_from_boxes
 from riskfield.protocol import RiskConfig
-
-from ..mapping.synthetic import look_at
-from .clf import DoubleIntegratorCLF
-from .metrics import Rollout
-from .pointcloud import PointCloudField
-from .sampling import Pair, Target, sample_pairs, targets_from_boxes
+from riskfield.services.esdf_field import EsdfField
+from riskfield.services.mapping.config import MapperConfig
+from riskfield.services.mapping.mapper import Mapper
+from riskfield.services.mapping.synthetic import look_at
+from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.perception.degrade import Degrader
+from riskfield.services.safety_filter.config import FilterConfig
+from riskfield.services.safety_filter.filter import SafetyFilter
+from riskfield.services.safety_filter.state import FilterState
+from riskfield.services.simulator.procedural import random_room
+from riskfield.services.simulator.scene import Scene
 
 METHODS = ("Point cloud", "Ours (ESDF)", "Ours (Semantic ESDF)")
 POINTCLOUD, ESDF, SEMANTIC = METHODS
@@ -85,7 +93,6 @@ class SceneCase:
 
 
 def make_case(name: str, objects: Sequence, risk: RiskConfig, margin: float = 0.1) -> SceneCase:
-    from ..simulator.scene import Scene
 
     lut = risk.label_to_group()
 
@@ -117,7 +124,6 @@ def make_case(name: str, objects: Sequence, risk: RiskConfig, margin: float = 0.
 
 def procedural_case(seed: int, risk: RiskConfig) -> SceneCase:
     """A procedural room with enough objects of every risk group to sample around."""
-    from ..simulator.procedural import random_room
 
     objects = random_room(seed, furniture=4, boxes=2, balls=2, people=2, animals=2)
     return make_case(f"procedural_{seed}", objects, risk)
@@ -178,7 +184,6 @@ def sim_perception(renderer, seed: int) -> Perceive:
     """The perception service's FM-like degradation (``perception.degrade``) applied to the same
     renders: depth noise growing with range, confidence from incidence and range, label noise
     at boundaries and class confusions, pose drift."""
-    from ..perception.degrade import Degrader
 
     degrader = Degrader(seed=seed)
 
@@ -283,9 +288,6 @@ def hocbf_safe_control(cfg: BenchConfig, risk: RiskConfig | None = None) -> Safe
     """One step of the safety filter core (``safety_filter.SafetyFilter``, model ``double3d``:
     the paper's HOCBF ``∇dᵀu + vᵀ∇²d v + α₁∇dᵀv + α₂(d − r) ≥ 0`` with |a_i| ≤ a_max) at the
     roll-out's control period; its braking input when it falls back."""
-    from ..safety_filter.config import FilterConfig
-    from ..safety_filter.filter import SafetyFilter
-    from ..safety_filter.state import FilterState
 
     fc = FilterConfig(model="double3d", robot_radius=cfg.robot_radius, a_max=cfg.a_max, v_max=cfg.v_max,
                       rate_hz=1.0 / cfg.dt)
@@ -306,9 +308,6 @@ def build_esdf_maps(case: SceneCase, frames: Sequence[Frame], budget_s: float, c
                     risk: RiskConfig) -> list[BuiltMap]:
     """Both ESDF variants from one semantic TSDF fed within the budget: the variants differ
     only in the inflation margins applied before the ESDF, so they share the integration."""
-    from ..esdf_field import EsdfField
-    from ..mapping.config import MapperConfig
-    from ..mapping.mapper import Mapper
 
     half = tuple(float(h) for h in (case.hi - case.lo) / 2 + 0.3)
     mc = MapperConfig(voxel_size=cfg.voxel, half_extent=half, output="3d", recentre_distance=1e3, pixel_stride=1,
@@ -340,7 +339,6 @@ _WARM: set = set()
 
 def _warm_up(mc, risk: RiskConfig, frame: Frame) -> None:
     """Compile the mapper's numba kernels once, outside every timed budget."""
-    from ..mapping.mapper import Mapper
 
     if "mapper" in _WARM:
         return

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from riskfield.experiments.pointcloud import PointCloudField
+from riskfield.experiments.sampling import sample_pairs, targets_from_boxes
+from riskfield.experiments.tables import table2, table3, write_json
 from riskfield.protocol import RiskConfig, ade20k
-from riskfield.services.navigator.pointcloud import PointCloudField
-from riskfield.services.navigator.report import table2, table3, write_json
-from riskfield.services.navigator.sampling import sample_pairs, targets_from_boxes
 
 
 def sphere_points(n: int, c: np.ndarray, r: float, seed: int = 0) -> np.ndarray:
@@ -114,7 +114,7 @@ def test_tables_are_paper_shaped(tmp_path):
 def test_scannetpp_loader(tmp_path):
     import open3d as o3d
 
-    from riskfield.services.navigator.scannetpp import ade20k_label, load_scene
+    from riskfield.experiments.scannetpp import ade20k_label, load_scene
 
     scans = tmp_path / "scene0" / "scans"
     scans.mkdir(parents=True)

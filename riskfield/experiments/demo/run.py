@@ -14,6 +14,8 @@ from rich.table import Table
 
 from riskfield.launcher import Launcher
 from riskfield.protocol import ENCODING, Keys, NavGoal, NodeStatus, SafetyStatus, decode, encode
+from riskfield.services.simulator.scenario import ObjectSpec, build_scene, load_scenario, object_from_spec
+from riskfield.services.simulator.scene import Scene
 from riskfield.testing import client_session, free_port, wait_alive, wait_until
 
 from . import report as rp
@@ -145,7 +147,6 @@ class Demo:
 
 def _scene_objects():
     """Ground truth: every object of the demo scene but floor and ceiling, plus the unseen ball."""
-    from riskfield.services.simulator.scenario import ObjectSpec, build_scene, load_scenario, object_from_spec
 
     full = build_scene(load_scenario(scenario()))
     objs = {o.name: o for o in full.objects if o.class_name not in ("floor", "ceiling")}
@@ -156,7 +157,6 @@ def _scene_objects():
 def _clearances(cfg: DemoConfig, t: np.ndarray, xy: np.ndarray, placed_at: float) -> dict[str, np.ndarray]:
     """Clearance to every object along the trajectory, and ``"all"``: the minimum over them.
     The unseen ball counts only from the moment it was placed."""
-    from riskfield.services.simulator.scene import Scene
 
     objs = _scene_objects()
     scenes = {name: Scene([o]) for name, o in objs.items()}

@@ -22,10 +22,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .analytic import Plane, Sphere, Union, to_esdf
-from .config import FilterConfig
-from .filter import SafetyFilter
-from .state import FilterState, so3_exp
+from riskfield.services.safety_filter.analytic import Plane, Sphere, Union, to_esdf
+from riskfield.services.safety_filter.config import FilterConfig
+from riskfield.services.safety_filter.filter import SafetyFilter
+from riskfield.services.safety_filter.state import FilterState, so3_exp
 
 app = typer.Typer(add_completion=False)
 

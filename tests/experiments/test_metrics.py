@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from riskfield.services.navigator.metrics import (
+from riskfield.experiments.metrics import (
     Rollout,
     matched,
     matched_end_index,

@@ -19,10 +19,9 @@ from rich.console import Console
 from rich.table import Table
 
 from riskfield.protocol import Image, PerceptionFrame, encode
-
-from .scenario import load_scenario
-from .scene import Scene
-from .world import World
+from riskfield.services.simulator.scenario import load_scenario
+from riskfield.services.simulator.scene import Scene
+from riskfield.services.simulator.world import World
 
 app = typer.Typer(add_completion=False)
 

@@ -21,12 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from riskfield.protocol import ade20k
+from riskfield.services.simulator.mesh_io import ade20k_index_of
+from riskfield.services.simulator.scene import SceneObject
 
 
 def ade20k_label(name: str) -> int:
     """ADE20K index of a ScanNet++ label (the simulator's name/synonym table; ``box`` when
     nothing matches)."""
-    from ..simulator.mesh_io import ade20k_index_of
 
     return ade20k_index_of(name, unknown="box")
 
@@ -35,7 +36,6 @@ def load_scene(folder: str | Path):
     """The objects of one ScanNet++ scene (``folder`` is ``data/<id>`` or its ``scans``)."""
     import open3d as o3d
 
-    from ..simulator.scene import SceneObject
 
     folder = Path(folder)
     scans = folder / "scans" if (folder / "scans").is_dir() else folder

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..esdf_field import FieldSample
+from riskfield.services.esdf_field import FieldSample
 
 
 @dataclass

@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
+from riskfield.experiments.benches.navigation import CORNERS, clearance_fn, polyline_distance
+from riskfield.experiments.benches.teleop import Trace, obstacle_distance
+from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, recording
 from riskfield.protocol import NavGoal, RobotState, SafetyStatus
-from riskfield.services.navigator.bench_navigation import CORNERS, clearance_fn, polyline_distance
-from riskfield.services.navigator.bench_teleop import Trace, obstacle_distance
-from riskfield.services.navigator.stack import FAST_FILTER, Stack, perception_args, recording
 from riskfield.testing import put, wait_until
 
 
@@ -40,7 +40,7 @@ def test_teleop_ground_truth_distance_and_metrics():
 def test_navigation_clearance_includes_the_unseen_obstacle(tmp_path):
     import yaml
 
-    from riskfield.services.navigator.bench_navigation import SCENARIO, UNSEEN
+    from riskfield.experiments.benches.navigation import SCENARIO, UNSEEN
 
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump(SCENARIO))

@@ -7,9 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from riskfield.protocol import RiskConfig, ade20k
-from riskfield.services.navigator.clf import DoubleIntegratorCLF
-from riskfield.services.navigator.safety_benchmark import (
+from riskfield.experiments.safety_benchmark import (
     BenchConfig,
     build_pointcloud,
     camera_poses,
@@ -19,7 +17,9 @@ from riskfield.services.navigator.safety_benchmark import (
     rollout,
     zero_margins,
 )
-from riskfield.services.navigator.sampling import Pair
+from riskfield.experiments.sampling import Pair
+from riskfield.protocol import RiskConfig, ade20k
+from riskfield.services.navigator.clf import DoubleIntegratorCLF
 from riskfield.services.safety_filter.analytic import Sphere
 from riskfield.services.simulator import procedural, shapes
 from riskfield.services.simulator.scene import SceneObject
@@ -91,7 +91,7 @@ def test_zero_margins_keeps_groups_and_gains():
 def test_bench_cli_end_to_end(tmp_path):
     from typer.testing import CliRunner
 
-    from riskfield.services.navigator.bench_safety import app
+    from riskfield.experiments.benches.safety import app
 
     res = CliRunner().invoke(app, ["--trajectories", "6", "--scenes", "1", "--frames", "9", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output

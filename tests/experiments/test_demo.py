@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from riskfield.demo import report as rp
-from riskfield.demo.scenario import LOOP, navigation_waypoints
+from riskfield.experiments.demo import report as rp
+from riskfield.experiments.demo.scenario import LOOP, navigation_waypoints
 
 
 def test_report_helpers_on_hand_made_series():

@@ -26,10 +26,9 @@ from rich.console import Console
 from rich.table import Table
 
 from riskfield.protocol import RiskConfig, ade20k
-
-from .config import MapperConfig
-from .mapper import Mapper
-from .synthetic import Box, Camera, Plane, Sphere, look_at, render
+from riskfield.services.mapping.config import MapperConfig
+from riskfield.services.mapping.mapper import Mapper
+from riskfield.services.mapping.synthetic import Box, Camera, Plane, Sphere, look_at, render
 
 app = typer.Typer(add_completion=False)
 

@@ -1,0 +1,11 @@
+"""The paper's experiments and the demo, in one place.
+
+Everything here composes the services' pure cores (mapping, safety filter, navigator, simulator,
+perception) or runs the whole stack as processes; no service imports from here.
+
+* ``safety_benchmark``, ``sampling``, ``metrics``, ``tables``, ``pointcloud``, ``scannetpp``: the
+  simulation protocol of the paper's Section V-A (Tables II and III);
+* ``stack``: the whole stack as processes, for the teleop and navigation experiments;
+* ``demo``: ``riskfield demo`` — both hardware experiments in simulation, with a report;
+* ``benches``: every ``riskfield bench NAME`` entry point, one module per NAME exposing ``app``.
+"""
