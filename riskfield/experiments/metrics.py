@@ -12,6 +12,15 @@
   part of the path.
 * **MP collision rate** — the fraction of trajectories whose MP clearance is negative.
 
+Beside the paper's matched-progress metrics, the honest safety figures over the *whole* run
+(a method that stops early is not excused for what it hit before or after the common progress):
+
+* **Full-run collision rate** — the fraction of trajectories with any step whose clearance
+  (ground-truth distance to the obstacle surfaces minus the robot radius) is below zero.
+* **Minimum clearance** — the smallest clearance over every step of every trajectory.
+* **Relaxed-step fraction** — the fraction of filter steps that could not certify the nominal
+  barrier (slack-relaxed QP or a braking fallback).
+
 Aggregates are means over trajectories, overall and per risk group (the group of the
 object a trajectory was sampled around).
 """
@@ -65,6 +74,12 @@ class Rollout:
     clearance: np.ndarray
     filter_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     scene: str = ""
+    relaxed_steps: int = 0  # filter steps that fell back (slack-relaxed QP or braking)
+
+    @property
+    def min_clearance(self) -> float:
+        """Smallest clearance over the whole run."""
+        return float(self.clearance.min())
 
     @property
     def curve(self) -> np.ndarray:
@@ -107,11 +122,15 @@ class Summary:
     mp_clearance_m: float
     mp_collision_rate: float
     filter_time_p99_s: float = 0.0
+    collision_rate: float = float("nan")  # full run: any step with clearance < 0
+    min_clearance_m: float = float("nan")  # full run, over every trajectory
+    relaxed_fraction: float = float("nan")  # of all filter steps
 
     def as_dict(self) -> dict[str, float]:
         return dict(n=self.n, computation_time_s=self.computation_time_s, progress=self.progress,
                     mp_clearance_m=self.mp_clearance_m, mp_collision_rate=self.mp_collision_rate,
-                    filter_time_p99_s=self.filter_time_p99_s)
+                    filter_time_p99_s=self.filter_time_p99_s, collision_rate=self.collision_rate,
+                    min_clearance_m=self.min_clearance_m, relaxed_fraction=self.relaxed_fraction)
 
 
 def summarise(rollouts: Iterable[Rollout], mp: dict[tuple[str, int], float], method: str,
@@ -122,6 +141,8 @@ def summarise(rollouts: Iterable[Rollout], mp: dict[tuple[str, int], float], met
         return Summary(0, float("nan"), float("nan"), float("nan"), float("nan"))
     times = np.concatenate([r.filter_times for r in runs]) if runs else np.zeros(0)
     clear = np.array([mp[(method, r.pair)] for r in runs])
+    full = np.array([r.min_clearance for r in runs])
+    steps = sum(len(r.filter_times) for r in runs)
     return Summary(
         n=len(runs),
         computation_time_s=float(times.mean()) if times.size else float("nan"),
@@ -129,4 +150,7 @@ def summarise(rollouts: Iterable[Rollout], mp: dict[tuple[str, int], float], met
         mp_clearance_m=float(clear.mean()),
         mp_collision_rate=float(np.mean(clear < 0.0)),
         filter_time_p99_s=float(np.percentile(times, 99)) if times.size else float("nan"),
+        collision_rate=float(np.mean(full < 0.0)),
+        min_clearance_m=float(full.min()),
+        relaxed_fraction=sum(r.relaxed_steps for r in runs) / steps if steps else float("nan"),
     )

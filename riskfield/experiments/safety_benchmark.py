@@ -235,7 +235,9 @@ def build_pointcloud(frames: Sequence[Frame], budget_s: float, voxel: float,
 # -- roll-outs ----------------------------------------------------------------------------------------------
 
 SafeControl = Callable[[DistanceField, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""``safe(field, p, v, u_ref) -> u``: one safety-filter step (field query + QP)."""
+"""``safe(field, p, v, u_ref) -> u``: one safety-filter step (field query + QP). A callable that also
+has a ``relaxed`` attribute (set by each call: True when the step could not certify the nominal
+barrier and fell back to a relaxed or braking input) has those steps counted in the roll-out."""
 
 
 def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, clf: DoubleIntegratorCLF,
@@ -250,11 +252,13 @@ def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, c
     times = np.empty(steps)
     still = 0
     n = 0
+    relaxed = 0
     for k in range(steps):
         u_ref = clf.command(p, v, goal)
         t0 = time.perf_counter()
         u = safe(field_, p, v, u_ref)
         times[k] = time.perf_counter() - t0
+        relaxed += bool(getattr(safe, "relaxed", False))
         p = p + dt * v + (0.5 * dt * dt) * u
         v = v + dt * u
         path[k + 1] = p
@@ -268,7 +272,7 @@ def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, c
     path = path[: n + 1]
     clearance = case.clearance(path) - cfg.robot_radius
     return Rollout(method, pair.pair, pair.group, path, pair.start, goal, clearance, times[:n].copy(),
-                   scene=case.name)
+                   scene=case.name, relaxed_steps=relaxed)
 
 
 def pairs_for(case: SceneCase, n: int, cfg: BenchConfig, first_id: int) -> list[Pair]:
@@ -292,11 +296,21 @@ def hocbf_safe_control(cfg: BenchConfig, risk: RiskConfig | None = None) -> Safe
     fc = FilterConfig(model="double3d", robot_radius=cfg.robot_radius, a_max=cfg.a_max, v_max=cfg.v_max,
                       rate_hz=1.0 / cfg.dt)
     filt = SafetyFilter(fc, uniform_gains(risk or RiskConfig(), cfg.alpha1, cfg.alpha2))
+    return _FilterStep(filt)
 
-    def safe(field_: DistanceField, p: np.ndarray, v: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
-        return filt.filter(FilterState(p, velocity=v), u_ref, field_).u
 
-    return safe
+class _FilterStep:
+    """``SafeControl`` over the filter core that remembers whether the last step was relaxed (the
+    filter reported a fallback: slack-relaxed QP, backup braking or a braking input)."""
+
+    def __init__(self, filt: SafetyFilter):
+        self.filt = filt
+        self.relaxed = False
+
+    def __call__(self, field_: DistanceField, p: np.ndarray, v: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
+        res = self.filt.filter(FilterState(p, velocity=v), u_ref, field_)
+        self.relaxed = res.fallback is not None
+        return res.u
 
 
 def zero_margins(risk: RiskConfig) -> RiskConfig:

@@ -70,6 +70,18 @@ def table3(rows: Mapping[str, Mapping[str, Mapping[str, float]]], n_pairs: int) 
     return "\n".join(out)
 
 
+def safety_table(rows: Mapping[str, Mapping[str, float]], n_pairs: int) -> str:
+    """Method × the full-run safety figures that the paper's MP metrics leave out."""
+    out = [f"**Full-run safety.** {n_pairs} trajectories; a collision is any step whose ground-truth clearance "
+           "(distance to the obstacle surfaces minus the robot radius) is below zero, wherever it happens.", "",
+           "| Method | Collision Rate ↓ | Min. Clearance (m) ↑ | Relaxed Steps ↓ | MP Collision Rate ↓ |",
+           "|---|---|---|---|---|"]
+    for name, r in rows.items():
+        out.append(f"| {name} | {_f(r['collision_rate'])} | {_f(r['min_clearance_m'])} | "
+                   f"{_f(100 * r['relaxed_fraction'], 2)} % | {_f(r['mp_collision_rate'])} |")
+    return "\n".join(out)
+
+
 def _clean(x: Any) -> Any:
     """JSON-safe: NaN/Inf → null, numpy → Python."""
     if isinstance(x, dict):

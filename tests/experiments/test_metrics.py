@@ -102,3 +102,20 @@ def test_mp_properties(xa, xb, seed):
     # the one with the smaller reach on its prefix up to its own maximum.
     low = a if a.reached <= b.reached else b
     assert mp[(low.method, 0)] == pytest.approx(low.clearance[: matched_end_index(low.curve, low.reached) + 1].min())
+
+
+def test_full_run_metrics_count_collisions_after_the_matched_progress():
+    """Worked by hand: method A dips to -0.05 m *after* the common progress, which the MP metrics
+    forgive and the full-run metrics do not; B never collides."""
+    start, goal = np.zeros(3), np.array([4.0, 0.0, 0.0])
+    path_a = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]])  # progress 0, .25, .5, .75
+    path_b = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])  # reaches 0.5: the common progress
+    a = Rollout("A", 0, "high", path_a, start, goal, np.array([0.3, 0.2, 0.1, -0.05]),
+                np.full(3, 1e-4), relaxed_steps=1)
+    b = Rollout("B", 0, "high", path_b, start, goal, np.array([0.3, 0.25, 0.2]), np.full(2, 1e-4))
+    mp = matched([a, b], ("A", "B"))
+    assert mp[("A", 0)] == 0.1 and mp[("B", 0)] == 0.2  # up to progress 0.5
+    sa, sb = summarise([a, b], mp, "A"), summarise([a, b], mp, "B")
+    assert sa.mp_collision_rate == 0.0 and sa.collision_rate == 1.0
+    assert sa.min_clearance_m == -0.05 and sb.min_clearance_m == 0.2 and sb.collision_rate == 0.0
+    assert sa.relaxed_fraction == 1 / 3 and sb.relaxed_fraction == 0.0

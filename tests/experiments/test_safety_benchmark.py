@@ -103,5 +103,10 @@ def test_bench_cli_end_to_end(tmp_path):
         assert 0 < row["computation_time_s"] < 0.05
     assert {m["method"] for m in s["maps"]} == set(s["table2"])
     md = (tmp_path / "tables.md").read_text()
-    assert "Table II" in md and "Table III" in md
+    assert "Table II" in md and "Table III" in md and "Full-run safety" in md
+    for traj in s["per_trajectory"]:  # every trajectory keeps its full-run minimum clearance
+        assert isinstance(traj["min_clearance"], float) and traj["relaxed_steps"] >= 0
+    for name, row in s["table2"].items():
+        assert 0.0 <= row["collision_rate"] <= 1.0 and 0.0 <= row["relaxed_fraction"] <= 1.0
+        assert row["min_clearance_m"] == min(t["min_clearance"] for t in s["per_trajectory"] if t["method"] == name)
     assert (tmp_path / "safety_methods.png").stat().st_size > 1000

@@ -37,7 +37,7 @@ from riskfield.experiments.safety_benchmark import (
     sim_perception,
 )
 from riskfield.experiments.scannetpp import load_scene
-from riskfield.experiments.tables import plot_safety, table2, table3, write_json
+from riskfield.experiments.tables import plot_safety, safety_table, table2, table3, write_json
 from riskfield.protocol import RiskConfig
 from riskfield.services.navigator.clf import DoubleIntegratorCLF
 from riskfield.services.simulator.camera import PinholeCamera, Renderer
@@ -121,11 +121,14 @@ def safety(
 
     md = [f"# riskfield bench safety — perception `{perception}`", "",
           f"{len(cases)} scenes, {n_pairs} matched trajectories, robot radius {robot_radius} m, map budget "
-          f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), ""]
+          f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), "",
+          safety_table({**t2, **{f"{m} – {g}": t3[g][k] for g in groups
+                                 for m, k in ((ESDF, "esdf"), (SEMANTIC, "semantic"))}}, n_pairs), ""]
     (out / "tables.md").write_text("\n".join(md))
     per_traj = [dict(pair=r.pair, scene=r.scene, method=r.method, group=r.group, progress=r.progress,
                      reached=r.reached, mp_clearance_all=mp_all[(r.method, r.pair)],
-                     mp_clearance_esdf=mp_esdf.get((r.method, r.pair)), min_clearance=float(r.clearance.min()),
+                     mp_clearance_esdf=mp_esdf.get((r.method, r.pair)), min_clearance=r.min_clearance,
+                     relaxed_steps=r.relaxed_steps,
                      steps=len(r.filter_times), filter_time_mean_s=float(r.filter_times.mean()),
                      start=r.start, goal=r.goal) for r in rollouts]
     write_json(out / "summary.json", dict(
@@ -142,20 +145,25 @@ def safety(
                      "Semantic": [mp_esdf[(SEMANTIC, r.pair)] for r in rollouts
                                   if r.method == SEMANTIC and r.group == g]} for g in groups})
 
-    table = Table("method", "filter time median (µs)", "p99 (µs)", "progress", "MP clearance (m)", "MP collision")
+    table = Table("method", "filter time median (µs)", "p99 (µs)", "progress", "MP clearance (m)", "MP collision",
+                  "collision (full run)", "min clearance (m)", "relaxed steps")
     for m in METHODS:
         t = np.concatenate([r.filter_times for r in rollouts if r.method == m]) * 1e6
         row = t2[m]
         table.add_row(m, f"{np.median(t):.0f}", f"{np.percentile(t, 99):.0f}", f"{row['progress']:.3f}",
-                      f"{row['mp_clearance_m']:.3f}", f"{row['mp_collision_rate']:.3f}")
+                      f"{row['mp_clearance_m']:.3f}", f"{row['mp_collision_rate']:.3f}",
+                      f"{row['collision_rate']:.3f}", f"{row['min_clearance_m']:.3f}",
+                      f"{100 * row['relaxed_fraction']:.2f} %")
     console.print(table)
-    g_table = Table("group", "n", "ESDF progress", "ESDF MP clear.", "ESDF MP coll.", "Sem. progress",
-                    "Sem. MP clear.", "Sem. MP coll.")
+    g_table = Table("group", "n", "ESDF progress", "ESDF MP clear.", "ESDF MP coll.", "ESDF coll.", "Sem. progress",
+                    "Sem. MP clear.", "Sem. MP coll.", "Sem. coll.", "Sem. min clear.")
     for g in groups:
         e, s = t3[g]["esdf"], t3[g]["semantic"]
         g_table.add_row(g, str(e["n"]), *(f"{x:.3f}" for x in (e["progress"], e["mp_clearance_m"],
-                                                                e["mp_collision_rate"], s["progress"],
-                                                                s["mp_clearance_m"], s["mp_collision_rate"])))
+                                                                e["mp_collision_rate"], e["collision_rate"],
+                                                                s["progress"], s["mp_clearance_m"],
+                                                                s["mp_collision_rate"], s["collision_rate"],
+                                                                s["min_clearance_m"])))
     console.print(g_table)
     console.print(f"wrote {out / 'tables.md'}, {out / 'summary.json'} and plots ({wall:.0f} s)")
 
