@@ -1,92 +1,373 @@
-"""``geometry_msgs/Twist`` and ``nav_msgs/Odometry`` ⇄ riskfield messages.
+"""ROS 2 messages ⇄ riskfield messages, serialised by ``rosbags``' type store.
 
-Frames (REP 103/105): body frame = ``base_link`` (x forward, y left, z up), the same as the
-body frame of ``VelocityCommand``; the map frame = the odometry frame (ENU). An Odometry's
-twist is expressed in its child frame (the body), so it is rotated into the world frame for
-``RobotState``, whose velocities are world-frame.
+The type store holds the official message definitions of a ROS 2 distribution (Humble or
+Jazzy; the types used here are identical in both), so no CDR layout is written by hand here.
+zenoh-bridge-ros2dds forwards DDS samples as their raw CDR bytes (4-byte encapsulation header,
+then the body), which is exactly what ``Typestore.serialize_cdr``/``deserialize_cdr`` produce
+and consume.
+
+Frames (REP 103/105): the body frame is ``base_link`` (x forward, y left, z up), the body frame
+of ``VelocityCommand`` too; ``RobotState`` is expressed in the ESDF's frame (``map`` by
+default). An Odometry is in ``odom``; it enters the map frame only through a ``map → odom``
+transform, never by relabelling.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cache
+from typing import Any, Literal
 
 import numpy as np
 
-from riskfield.protocol import Header, RobotState, VelocityCommand
+from riskfield.protocol import EsdfGrid, Header, RobotState, SafetyStatus, VelocityCommand
 
-from .cdr import CdrReader, CdrWriter
+TwistType = Literal["Twist", "TwistStamped"]
+Distro = Literal["humble", "jazzy"]
+
+TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+TYPENAMES = {"Twist": TWIST, "TwistStamped": TWIST_STAMPED}
+
+# nav2_costmap_2d/include/nav2_costmap_2d/cost_values.hpp: the costmap's 0–255 scale.
+NO_INFORMATION, LETHAL_OBSTACLE, INSCRIBED_INFLATED_OBSTACLE, FREE_SPACE = 255, 254, 253, 0
 
 
-def encode_twist(cmd: VelocityCommand) -> bytes:
-    w = CdrWriter()
-    w.float64(*cmd.linear, *cmd.angular)
-    return w.bytes()
+class CdrError(ValueError):
+    """A payload that is not a valid CDR sample of the expected ROS 2 type."""
 
 
-def decode_twist(data: bytes) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    r = CdrReader(data)
-    v = r.float64(6)
-    return (v[0], v[1], v[2]), (v[3], v[4], v[5])
+@cache
+def typestore(distro: Distro = "jazzy") -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore({"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}[distro])
+
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]  # x, y, z, w (ROS order)
+
+
+@dataclass(frozen=True)
+class Transform:
+    """One ``geometry_msgs/TransformStamped``: the pose of ``child`` in ``parent``."""
+
+    parent: str
+    child: str
+    translation: Vec3
+    rotation: Quat
+    stamp_ns: int = 0
 
 
 @dataclass(frozen=True)
 class Odometry:
-    sec: int
-    nanosec: int
+    stamp_ns: int
     frame_id: str
     child_frame_id: str
-    position: tuple[float, float, float]
-    orientation: tuple[float, float, float, float]  # x, y, z, w
-    pose_covariance: tuple[float, ...]
-    linear: tuple[float, float, float]  # child (body) frame
-    angular: tuple[float, float, float]
-    twist_covariance: tuple[float, ...]
+    position: Vec3
+    orientation: Quat
+    linear: Vec3  # in the child (body) frame
+    angular: Vec3
 
 
-def encode_odometry(o: Odometry) -> bytes:
-    w = CdrWriter()
-    w.int32(o.sec)
-    w.uint32(o.nanosec)
-    w.string(o.frame_id)
-    w.string(o.child_frame_id)
-    w.float64(*o.position, *o.orientation)
-    w.float64(*o.pose_covariance)
-    w.float64(*o.linear, *o.angular)
-    w.float64(*o.twist_covariance)
-    return w.bytes()
+def _finite(*values: float) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise CdrError("NaN or Inf in a field that must be finite")
 
 
-def decode_odometry(data: bytes) -> Odometry:
-    r = CdrReader(data)
-    sec, nanosec = r.int32(), r.uint32()
-    frame_id, child = r.string(), r.string()
-    pose = r.float64(7)
-    pcov = r.float64(36)
-    twist = r.float64(6)
-    tcov = r.float64(36)
-    return Odometry(sec, nanosec, frame_id, child, pose[:3], pose[3:], pcov, twist[:3], twist[3:], tcov)
+def _stamp_ns(t: Any) -> int:
+    return max(0, int(t.sec)) * 1_000_000_000 + int(t.nanosec)
 
 
-def _rotate(q: tuple[float, float, float, float], v: tuple[float, float, float]) -> np.ndarray:
-    x, y, z, w = q
-    u = np.array([x, y, z])
+def _vec(v: Any) -> Vec3:
+    return (float(v.x), float(v.y), float(v.z))
+
+
+def _quat(q: Any) -> Quat:
+    return (float(q.x), float(q.y), float(q.z), float(q.w))
+
+
+class RosCodec:
+    """Encode/decode the ROS 2 message types the bridge speaks, through one type store."""
+
+    def __init__(self, distro: Distro = "jazzy"):
+        self.ts = typestore(distro)
+        self.t = self.ts.types
+
+    # -- primitives ---------------------------------------------------------------------------
+    def decode(self, raw: bytes, typename: str) -> Any:
+        try:
+            return self.ts.deserialize_cdr(raw, typename)
+        except Exception as exc:  # rosbags raises SerdeError, but guard any parse failure of foreign bytes
+            raise CdrError(f"not a CDR {typename}: {exc}") from None
+
+    def encode(self, msg: Any, typename: str) -> bytes:
+        return bytes(self.ts.serialize_cdr(msg, typename))
+
+    def header(self, stamp_ns: int, frame_id: str) -> Any:
+        sec, nanosec = divmod(max(0, int(stamp_ns)), 1_000_000_000)
+        return self.t["std_msgs/msg/Header"](stamp=self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                             frame_id=frame_id)
+
+    def vector3(self, v: Sequence[float]) -> Any:
+        return self.t["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    def quaternion(self, q: Sequence[float]) -> Any:
+        return self.t["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
+    # -- velocity -----------------------------------------------------------------------------
+    def encode_twist(self, cmd: VelocityCommand, kind: TwistType = "Twist", stamp_ns: int = 0,
+                     frame_id: str = "base_link") -> bytes:
+        twist = self.t[TWIST](linear=self.vector3(cmd.linear), angular=self.vector3(cmd.angular))
+        if kind == "Twist":
+            return self.encode(twist, TWIST)
+        return self.encode(self.t[TWIST_STAMPED](header=self.header(stamp_ns, frame_id), twist=twist), TWIST_STAMPED)
+
+    def decode_twist(self, raw: bytes, kind: TwistType = "Twist") -> tuple[Vec3, Vec3, str]:
+        """``(linear, angular, frame_id)``; ``frame_id`` is "" for a plain Twist."""
+        msg = self.decode(raw, TYPENAMES[kind])
+        frame = ""
+        if kind == "TwistStamped":
+            frame, msg = str(msg.header.frame_id), msg.twist
+        lin, ang = _vec(msg.linear), _vec(msg.angular)
+        _finite(*lin, *ang)
+        return lin, ang, frame
+
+    # -- odometry and TF ----------------------------------------------------------------------
+    def encode_odometry(self, o: Odometry) -> bytes:
+        t = self.t
+        cov = np.zeros(36, np.float64)
+        pose = t["geometry_msgs/msg/PoseWithCovariance"](
+            pose=t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](*o.position),
+                                             orientation=self.quaternion(o.orientation)),
+            covariance=cov)
+        twist = t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t[TWIST](linear=self.vector3(o.linear), angular=self.vector3(o.angular)), covariance=cov)
+        msg = t[ODOMETRY](header=self.header(o.stamp_ns, o.frame_id), child_frame_id=o.child_frame_id,
+                          pose=pose, twist=twist)
+        return self.encode(msg, ODOMETRY)
+
+    def decode_odometry(self, raw: bytes) -> Odometry:
+        msg = self.decode(raw, ODOMETRY)
+        p, tw = msg.pose.pose, msg.twist.twist
+        o = Odometry(_stamp_ns(msg.header.stamp), str(msg.header.frame_id), str(msg.child_frame_id),
+                     _vec(p.position), _quat(p.orientation), _vec(tw.linear), _vec(tw.angular))
+        _finite(*o.position, *o.orientation, *o.linear, *o.angular)
+        return o
+
+    def encode_tf(self, transforms: Sequence[Transform]) -> bytes:
+        t = self.t
+        items = [t["geometry_msgs/msg/TransformStamped"](
+            header=self.header(tr.stamp_ns, tr.parent), child_frame_id=tr.child,
+            transform=t["geometry_msgs/msg/Transform"](translation=self.vector3(tr.translation),
+                                                       rotation=self.quaternion(tr.rotation)))
+            for tr in transforms]
+        return self.encode(t[TF_MESSAGE](transforms=items), TF_MESSAGE)
+
+    def decode_tf(self, raw: bytes) -> list[Transform]:
+        out = []
+        for ts in self.decode(raw, TF_MESSAGE).transforms:
+            tr = Transform(str(ts.header.frame_id), str(ts.child_frame_id), _vec(ts.transform.translation),
+                           _quat(ts.transform.rotation), _stamp_ns(ts.header.stamp))
+            _finite(*tr.translation, *tr.rotation)
+            out.append(tr)
+        return out
+
+    # -- map and status -----------------------------------------------------------------------
+    def encode_occupancy_grid(self, esdf: EsdfGrid, data: np.ndarray, stamp_ns: int) -> bytes:
+        """``data`` (nx × ny int8, from :func:`costmap`) as an OccupancyGrid in the ESDF's frame.
+
+        OccupancyGrid cells are row-major with x fastest (``data[x + y·width]``) and
+        ``info.origin`` is the *corner* of cell (0, 0), whereas the ESDF's origin is the
+        *centre* of voxel (0, 0, 0): hence the half-voxel shift.
+        """
+        t = self.t
+        nx, ny = data.shape
+        h = esdf.voxel_size / 2.0
+        origin = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=esdf.origin[0] - h, y=esdf.origin[1] - h, z=esdf.origin[2]),
+            orientation=self.quaternion((0.0, 0.0, 0.0, 1.0)))
+        sec, nanosec = divmod(max(0, int(stamp_ns)), 1_000_000_000)
+        info = t["nav_msgs/msg/MapMetaData"](map_load_time=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                             resolution=float(esdf.voxel_size), width=nx, height=ny, origin=origin)
+        msg = t[OCCUPANCY_GRID](header=self.header(stamp_ns, esdf.header.frame_id), info=info,
+                                data=np.ascontiguousarray(data.T).reshape(-1).astype(np.int8))
+        return self.encode(msg, OCCUPANCY_GRID)
+
+    def encode_diagnostics(self, status: SafetyStatus, hardware_id: str, stamp_ns: int) -> bytes:
+        t = self.t
+        Status, KeyValue = t["diagnostic_msgs/msg/DiagnosticStatus"], t["diagnostic_msgs/msg/KeyValue"]
+        level, message = diagnostic_level(status)
+        values = [KeyValue(key=k, value=v) for k, v in (
+            ("h", f"{status.h:.4f}"), ("risk_group", str(status.risk_group)),
+            ("intervening", str(status.intervening).lower()), ("fallback", status.fallback or ""),
+            ("solve_us", f"{status.solve_us:.1f}"), ("esdf_age_ms", f"{status.esdf_age_ms:.1f}"))]
+        st = Status(level=level, name="riskfield: safety filter", message=message, hardware_id=hardware_id,
+                    values=values)
+        return self.encode(t[DIAGNOSTIC_ARRAY](header=self.header(stamp_ns, ""), status=[st]), DIAGNOSTIC_ARRAY)
+
+
+def diagnostic_level(status: SafetyStatus) -> tuple[int, str]:
+    """``DiagnosticStatus`` level (0 OK, 1 WARN, 2 ERROR) and message of a ``SafetyStatus``:
+    braking for a fail-safe reason is an error, an intervening filter a warning."""
+    if status.fallback:
+        return 2, f"braking: {status.fallback}"
+    if status.intervening:
+        return 1, "intervening"
+    return 0, "passing the reference through"
+
+
+# -- frames -------------------------------------------------------------------------------------
+def _normalised(q: Sequence[float]) -> np.ndarray:
+    a = np.asarray(q, dtype=float)
+    n = float(np.linalg.norm(a))
+    if not math.isfinite(n) or n < 1e-6:
+        raise ValueError("orientation is not a quaternion")
+    return a / n
+
+
+def rotate(q: Sequence[float], v: Sequence[float]) -> np.ndarray:
+    """``R(q)·v`` for a unit quaternion ``q = (x, y, z, w)``:
+    :math:`v + 2u×(u×v + w v)` with :math:`u = (x, y, z)`."""
+    u, w = np.asarray(q[:3], float), float(q[3])
     v = np.asarray(v, dtype=float)
     return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
 
 
-def odometry_to_state(o: Odometry) -> RobotState:
-    """World-frame RobotState from an Odometry (twist rotated out of the body frame)."""
-    q = np.asarray(o.orientation, dtype=float)
-    n = float(np.linalg.norm(q))
-    if not math.isfinite(n) or n < 1e-6:
-        raise ValueError("odometry orientation is not a quaternion")
-    qn = tuple(float(c) for c in q / n)
-    stamp = max(0, o.sec) * 1_000_000_000 + o.nanosec
+def quat_mul(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
+    """Hamilton product :math:`a ⊗ b` in (x, y, z, w) order: the rotation ``b`` then ``a``."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz])
+
+
+def odometry_to_state(o: Odometry, map_frame: str, map_T_odom: Transform | None = None) -> RobotState:
+    """The ``RobotState`` in ``map_frame`` of an Odometry.
+
+    With ``o.frame_id == map_frame`` the pose is taken as is; otherwise ``map_T_odom`` (the
+    pose of ``o.frame_id`` in ``map_frame``) composes it: :math:`p_m = R_{mo} p_o + t_{mo}`,
+    :math:`q_m = q_{mo} ⊗ q_o`. The body-frame twist is rotated into the map frame by
+    :math:`q_m`. Any other frame raises ``ValueError`` naming both frames: a state is never
+    relabelled into a frame it is not in.
+    """
+    q = _normalised(o.orientation)
+    p = np.asarray(o.position, dtype=float)
+    if o.frame_id != map_frame:
+        if map_T_odom is None or map_T_odom.parent != map_frame or map_T_odom.child != o.frame_id:
+            raise ValueError(f"odometry frame {o.frame_id!r} is not the map frame {map_frame!r} "
+                             f"and no {map_frame} → {o.frame_id} transform is known")
+        qt = _normalised(map_T_odom.rotation)
+        p = rotate(qt, p) + np.asarray(map_T_odom.translation, dtype=float)
+        q = _normalised(quat_mul(qt, q))
     return RobotState(
-        header=Header(stamp_ns=stamp, frame_id=o.frame_id or "map"),
-        position=o.position,
-        orientation=qn,
-        linear_velocity=tuple(_rotate(qn, o.linear)),
-        angular_velocity=tuple(_rotate(qn, o.angular)),
+        header=Header(stamp_ns=o.stamp_ns, frame_id=map_frame),
+        position=tuple(float(c) for c in p),
+        orientation=tuple(float(c) for c in q),
+        linear_velocity=tuple(float(c) for c in rotate(q, o.linear)),
+        angular_velocity=tuple(float(c) for c in rotate(q, o.angular)),
     )
+
+
+def state_to_tf(state: RobotState, odom_frame: str, base_frame: str) -> list[Transform]:
+    """REP-105 transforms of riskfield's state: ``odom → base`` is the state's pose; when the
+    state's frame (the map) is not ``odom_frame``, ``map → odom`` is published as the identity,
+    because riskfield's state has no separate drift correction (it *is* the map-frame pose)."""
+    frame = state.header.frame_id
+    out = []
+    if frame != odom_frame:
+        out.append(Transform(frame, odom_frame, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), state.header.stamp_ns))
+    out.append(Transform(odom_frame, base_frame, state.position, state.orientation, state.header.stamp_ns))
+    return out
+
+
+# -- costmap ------------------------------------------------------------------------------------
+def _translation_table() -> np.ndarray:
+    """Costmap (0–255) → OccupancyGrid (−1–100), as Nav2 publishes its costmaps
+    (nav2_costmap_2d/src/costmap_2d_publisher.cpp, ``Costmap2DPublisher``'s
+    ``cost_translation_table_``): 0 → 0, 253 → 99, 254 → 100, 255 → −1, and 1–252 scaled
+    linearly onto 1–98."""
+    table = np.empty(256, np.int8)
+    i = np.arange(1, 253)
+    table[1:253] = 1 + (97 * (i - 1)) // 251
+    table[FREE_SPACE], table[INSCRIBED_INFLATED_OBSTACLE] = 0, 99
+    table[LETHAL_OBSTACLE], table[NO_INFORMATION] = 100, -1
+    return table
+
+
+COST_TRANSLATION = _translation_table()
+
+
+def nav2_cost(distance: np.ndarray, scaling: np.ndarray, inscribed_radius: float,
+              inflation_radius: float) -> np.ndarray:
+    """Nav2's inflation cost (0–255 scale) of a signed distance ``d`` (m) to the inflated
+    obstacle set, after ``InflationLayer::computeCost``
+    (nav2_costmap_2d/include/nav2_costmap_2d/inflation_layer.hpp):
+
+    .. math::
+        c(d) = \\begin{cases} 254 & d ≤ 0 \\\\ 253 & 0 < d ≤ r_{in} \\\\
+               ⌊252\\,e^{-k (d - r_{in})}⌋ & r_{in} < d ≤ r_{inf} \\\\ 0 & d > r_{inf} \\end{cases}
+
+    Nav2 measures ``d`` from obstacle cell centres (lethal only at d = 0); the ESDF's zero level
+    set is the inflated obstacle's boundary, so lethal is ``d ≤ 0``. ``k`` is per cell (the
+    scaling factor of the risk group of the nearest obstacle). Non-finite distances are unknown.
+    """
+    d = np.asarray(distance, dtype=np.float64)
+    known = np.isfinite(d)
+    dd = np.where(known, d, 0.0)
+    decay = np.floor((INSCRIBED_INFLATED_OBSTACLE - 1) * np.exp(-scaling * (dd - inscribed_radius)))
+    cost = np.where(dd > inflation_radius, FREE_SPACE, decay)
+    cost = np.where(dd <= inscribed_radius, INSCRIBED_INFLATED_OBSTACLE, cost)
+    cost = np.where(dd <= 0.0, LETHAL_OBSTACLE, cost)
+    return np.where(known, cost, NO_INFORMATION).astype(np.uint8)
+
+
+def costmap(esdf: EsdfGrid, scaling_by_group: dict[str, float], default_scaling: float, inscribed_radius: float,
+            inflation_radius: float) -> np.ndarray:
+    """The OccupancyGrid values (nx × ny int8) of a 2-D ESDF slice (nz = 1): Nav2's costmap
+    values through Nav2's costmap → OccupancyGrid translation (100 lethal, 99 inscribed,
+    1–98 decaying, 0 free, −1 unknown)."""
+    if esdf.distance.shape[2] != 1:
+        raise ValueError(f"the costmap needs a 2-D ESDF slice (nz = 1), got nz = {esdf.distance.shape[2]}")
+    factors = np.array([default_scaling] + [scaling_by_group.get(g, default_scaling) for g in esdf.groups])
+    k = factors[esdf.risk_group[:, :, 0]]
+    return COST_TRANSLATION[nav2_cost(esdf.distance[:, :, 0], k, inscribed_radius, inflation_radius)]
+
+
+# -- input arbitration --------------------------------------------------------------------------
+@dataclass
+class VelocityInput:
+    name: str
+    priority: int
+    timeout_s: float  # 0: never expires
+    stamp: float = -math.inf
+
+    def expired(self, now: float) -> bool:
+        return self.timeout_s > 0 and now - self.stamp > self.timeout_s
+
+
+class TwistMux:
+    """Priority arbitration of velocity inputs, as twist_mux does it (ros-teleop/twist_mux,
+    ``TwistMux::hasPriority`` in src/twist_mux.cpp and ``TopicHandle_::hasExpired`` in
+    include/twist_mux/topic_handle.hpp): a message is forwarded iff its input is the
+    highest-priority input that has not expired (received within its timeout, a timeout of 0
+    never expires); among equal priorities the first declared wins. No locks."""
+
+    def __init__(self, inputs: Sequence[VelocityInput]):
+        self.inputs = {i.name: i for i in inputs}
+
+    def offer(self, name: str, now: float) -> bool:
+        self.inputs[name].stamp = now
+        best: VelocityInput | None = None
+        for i in self.inputs.values():
+            if not i.expired(now) and (best is None or i.priority > best.priority):
+                best = i
+        return best is not None and best.name == name

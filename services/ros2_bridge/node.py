@@ -1,81 +1,289 @@
-"""ROS 2 bridge node: ``cmd/safe`` → CDR Twist on ``{ns}/cmd_vel``; CDR Odometry on
-``{ns}/odom`` → ``state``. With zenoh-bridge-ros2dds in front of a stock ROS 2 driver
-(``zenoh-bridge-ros2dds -n /<ns>``), the robot is driven by the safety filter's output.
-When ``cmd/safe`` stops, zero Twists are streamed so the driver stops too."""
+"""ROS 2 bridge node: riskfield as a drop-in safety layer between Nav2's controller and the base,
+through zenoh-bridge-ros2dds (docs/ros2.md).
+
+Keys follow zenoh-bridge-ros2dds (eclipse-zenoh/zenoh-plugin-ros2dds,
+``ros2_name_to_key_expr`` in zenoh-plugin-ros2dds/src/ros2_utils.rs): a ROS topic ``/ns/topic``
+is the Zenoh key ``ns/topic`` (the bridge's ``namespace`` prefixed, the leading ``/`` dropped,
+also for absolute names such as ``/tf``); payloads are the raw CDR samples, put here with the
+``application/cdr`` encoding.
+
+In:  velocity input (Nav2's ``cmd_vel_smoothed``) and an optional teleop input, arbitrated like
+     twist_mux → ``cmd/ref``; ``odom`` (+ ``tf``/``tf_static`` for ``map → odom``) → ``state`` in
+     the ESDF's frame; a state in another frame is refused and counted.
+Out: ``cmd/safe`` → Twist/TwistStamped on ``cmd_vel`` (zero commands when it stops);
+     ``map/esdf`` → OccupancyGrid with Nav2's costmap values; ``safety/status`` →
+     DiagnosticArray; optionally TF (``odom → base_link``, ``map → odom``) from ``state``.
+"""
 
 from __future__ import annotations
 
 import logging
 import time
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from riskfield.protocol import VelocityCommand
+from riskfield.protocol import EsdfGrid, RobotState, SafetyStatus, VelocityCommand
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
-from .messages import decode_odometry, encode_twist, odometry_to_state
+from .messages import (
+    CdrError,
+    Distro,
+    Odometry,
+    RosCodec,
+    Transform,
+    TwistMux,
+    TwistType,
+    VelocityInput,
+    costmap,
+    diagnostic_level,
+    odometry_to_state,
+    state_to_tf,
+)
 
 CDR_ENCODING = "application/cdr"
+Priority = Annotated[int, Field(ge=0, le=255)]  # twist_mux clamps priorities to [0, 255]
+Seconds = Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)]
+Metres = Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)]
 
 
 class Ros2BridgeSettings(NodeSettings):
+    """Topic names are ROS names relative to the bridge's namespace; "" switches a topic off."""
+
     SERVICE: ClassVar[str] = "ros2-bridge"
 
-    namespace: str = ""  # ROS namespace as zenoh-bridge-ros2dds maps it, e.g. "limo1"
+    namespace: str = Field(default="", description="zenoh-bridge-ros2dds `namespace`, e.g. limo1")
+    ros_distro: Distro = "jazzy"
+    # Velocity inputs → cmd/ref (twist_mux-style arbitration).
+    cmd_in_topic: str = "cmd_vel_smoothed"
+    cmd_in_type: TwistType = "Twist"
+    cmd_in_priority: Priority = 10
+    cmd_in_timeout_s: Seconds = 0.5
+    teleop_topic: str = ""
+    teleop_type: TwistType = "Twist"
+    teleop_priority: Priority = 100
+    teleop_timeout_s: Seconds = 0.5
+    # The safe command out.
     cmd_vel_topic: str = "cmd_vel"
+    cmd_out_type: TwistType = "Twist"
+    watchdog_s: float = Field(default=0.2, gt=0, le=10)
+    zero_rate_hz: float = Field(default=10.0, gt=0, le=1000)
+    # State in: odometry (+ TF map → odom) into the ESDF's frame.
     odom_topic: str = "odom"
-    watchdog_s: float = Field(default=0.2, gt=0)
-    zero_rate_hz: float = Field(default=10.0, gt=0)
+    tf_topic: str = "tf"
+    tf_static_topic: str = "tf_static"
+    tf_timeout_s: float = Field(default=1.0, gt=0, le=60, description="age limit of a dynamic map → odom")
+    map_frame: str = Field(default="map", description="the ESDF's frame until the first ESDF names it")
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    # Outputs for RViz / Nav2.
+    costmap_topic: str = "riskfield/costmap"
+    inscribed_radius: Metres = 0.1
+    inflation_radius: Metres = 0.55
+    cost_scaling_factor: dict[str, Annotated[float, Field(gt=0, le=1000)]] = Field(
+        default_factory=lambda: {"high": 3.0, "mid": 5.0, "low": 10.0},
+        description="Nav2 cost_scaling_factor per risk group: a smaller factor keeps cost high farther out")
+    default_cost_scaling_factor: float = Field(default=10.0, gt=0, le=1000)
+    diagnostics_topic: str = "diagnostics"
+    diagnostics_rate_hz: float = Field(default=2.0, gt=0, le=100)
+    publish_tf: bool = Field(default=False, description="TF from riskfield's state (a simulated robot)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Ros2BridgeSettings:
+        if self.publish_tf and self.odom_topic:
+            raise ValueError("publish_tf echoes riskfield's state as TF; with odom_topic set that state comes from "
+                             "the robot's own odometry, whose driver already publishes odom → base_link: "
+                             "set odom_topic='' to publish TF")
+        if self.teleop_topic and self.teleop_topic == self.cmd_in_topic:
+            raise ValueError("teleop_topic and cmd_in_topic must differ")
+        if self.inscribed_radius > self.inflation_radius:
+            raise ValueError("inscribed_radius must not exceed inflation_radius")
+        return self
 
 
 def ros_key(namespace: str, topic: str) -> str:
+    """The Zenoh key zenoh-bridge-ros2dds routes ROS topic ``topic`` to under ``namespace``."""
     return "/".join(p.strip("/") for p in (namespace, topic) if p.strip("/"))
 
 
 class Ros2Bridge:
-    """Core of the bridge: the watchdog that turns a silent ``cmd/safe`` into zero Twists."""
+    """Core of the bridge (no I/O): arbitration, frames, watchdog; bytes in, bytes/messages out."""
 
-    def __init__(self, watchdog_s: float):
-        self.watchdog_s = watchdog_s
+    def __init__(self, s: Ros2BridgeSettings):
+        self.s = s
+        self.codec = RosCodec(s.ros_distro)
+        inputs = [VelocityInput("nav", s.cmd_in_priority, s.cmd_in_timeout_s)] if s.cmd_in_topic else []
+        if s.teleop_topic:
+            inputs.append(VelocityInput("teleop", s.teleop_priority, s.teleop_timeout_s))
+        self.mux = TwistMux(inputs)
         self.last_cmd = -float("inf")
+        self.map_frame = s.map_frame
+        self.static_tf: dict[tuple[str, str], Transform] = {}
+        self.dynamic_tf: dict[tuple[str, str], tuple[Transform, float]] = {}
 
-    def on_cmd(self, cmd: VelocityCommand, now: float) -> bytes:
+    # -- velocity -------------------------------------------------------------------------------
+    def on_velocity(self, name: str, kind: TwistType, raw: bytes, now: float, stamp_ns: int) -> VelocityCommand | None:
+        """The ``cmd/ref`` for a velocity sample, or None when a higher-priority input holds the
+        robot. Raises ``ValueError`` for bad CDR or a TwistStamped not in the body frame."""
+        lin, ang, frame = self.codec.decode_twist(raw, kind)
+        if frame and frame != self.s.base_frame:
+            raise ValueError(f"TwistStamped in frame {frame!r}, not the body frame {self.s.base_frame!r}")
+        if not self.mux.offer(name, now):
+            return None
+        cmd = VelocityCommand(linear=lin, angular=ang, source=f"ros2/{name}")
+        # The ROS stamp may be simulation time; the filter judges freshness by our wall clock.
+        cmd.header.stamp_ns = stamp_ns
+        cmd.header.frame_id = self.s.base_frame
+        return cmd
+
+    def on_safe(self, cmd: VelocityCommand, now: float, stamp_ns: int) -> bytes:
         self.last_cmd = now
-        return encode_twist(cmd)
+        return self.codec.encode_twist(cmd, self.s.cmd_out_type, stamp_ns, self.s.base_frame)
 
-    def on_tick(self, now: float) -> bytes | None:
-        if now - self.last_cmd > self.watchdog_s:
-            return encode_twist(VelocityCommand.zero("ros2-bridge watchdog"))
+    def on_tick(self, now: float, stamp_ns: int) -> bytes | None:
+        if now - self.last_cmd > self.s.watchdog_s:
+            return self.codec.encode_twist(VelocityCommand.zero("ros2-bridge watchdog"), self.s.cmd_out_type,
+                                           stamp_ns, self.s.base_frame)
         return None
+
+    # -- state ----------------------------------------------------------------------------------
+    def on_tf(self, raw: bytes, static: bool, now: float) -> int:
+        transforms = self.codec.decode_tf(raw)
+        for tr in transforms:
+            if static:
+                self.static_tf[(tr.parent, tr.child)] = tr
+            else:
+                self.dynamic_tf[(tr.parent, tr.child)] = (tr, now)
+        return len(transforms)
+
+    def transform(self, parent: str, child: str, now: float) -> Transform | None:
+        if (parent, child) in self.static_tf:
+            return self.static_tf[(parent, child)]
+        tr, t = self.dynamic_tf.get((parent, child), (None, 0.0))
+        return tr if tr is not None and now - t <= self.s.tf_timeout_s else None
+
+    def on_odometry(self, raw: bytes, now: float) -> RobotState:
+        """The map-frame state of an Odometry; ``ValueError`` (reason in the text) when its
+        frames do not match the ESDF's frame and the robot's body frame."""
+        o: Odometry = self.codec.decode_odometry(raw)
+        if o.child_frame_id and o.child_frame_id != self.s.base_frame:
+            raise ValueError(f"odometry child frame {o.child_frame_id!r} is not the body frame {self.s.base_frame!r}")
+        tr = None if o.frame_id == self.map_frame else self.transform(self.map_frame, o.frame_id, now)
+        return odometry_to_state(o, self.map_frame, tr)
+
+    # -- outputs --------------------------------------------------------------------------------
+    def on_esdf(self, esdf: EsdfGrid) -> None:
+        self.map_frame = esdf.header.frame_id or self.s.map_frame
+
+    def occupancy_grid(self, esdf: EsdfGrid) -> bytes:
+        data = costmap(esdf, self.s.cost_scaling_factor, self.s.default_cost_scaling_factor,
+                       self.s.inscribed_radius, self.s.inflation_radius)
+        return self.codec.encode_occupancy_grid(esdf, data, esdf.header.stamp_ns)
+
+    def on_state_tf(self, state: RobotState) -> bytes:
+        return self.codec.encode_tf(state_to_tf(state, self.s.odom_frame, self.s.base_frame))
 
 
 def setup(node: Node, s: Ros2BridgeSettings) -> None:
-    core = Ros2Bridge(s.watchdog_s)
-    cmd_vel = ros_key(s.namespace, s.cmd_vel_topic)
+    core = Ros2Bridge(s)
+    key = lambda topic: ros_key(s.namespace, topic)  # noqa: E731
+    cmd_vel = key(s.cmd_vel_topic)
 
+    def count(name: str) -> None:
+        node.stats[name] = node.stats.get(name, 0) + 1
+
+    def reject(what: str, k: str, exc: Exception, counter: str) -> None:
+        count(counter)
+        node.ratelog(logging.WARNING, counter, f"rejected {what} on {k}: {exc}")
+
+    def cdr_put(k: str, payload: bytes) -> None:
+        node.publish_raw(k, payload, CDR_ENCODING)
+
+    # Velocity inputs → cmd/ref.
+    def velocity_handler(name: str, kind: TwistType):
+        def on_velocity(k: str, payload: bytes) -> None:
+            try:
+                cmd = core.on_velocity(name, kind, payload, time.monotonic(), time.time_ns())
+            except CdrError as exc:
+                return reject(f"a {kind}", k, exc, f"{name}_invalid")
+            except ValueError as exc:
+                return reject(f"a {kind}", k, exc, f"{name}_frame_mismatch")
+            if cmd is None:
+                count(f"{name}_preempted")
+                return
+            node.publish(node.keys.cmd_ref, cmd)
+        return on_velocity
+
+    if s.cmd_in_topic:
+        node.subscribe(key(s.cmd_in_topic), None, velocity_handler("nav", s.cmd_in_type))
+    if s.teleop_topic:
+        node.subscribe(key(s.teleop_topic), None, velocity_handler("teleop", s.teleop_type))
+
+    # Safe command out, with the watchdog.
     def on_safe(cmd: VelocityCommand) -> None:
-        node.publish_raw(cmd_vel, core.on_cmd(cmd, time.monotonic()), CDR_ENCODING)
-
-    def on_odom(key: str, payload: bytes) -> None:
-        try:
-            state = odometry_to_state(decode_odometry(payload))
-        except ValueError as exc:
-            node.ratelog(logging.WARNING, "odom", f"rejected an Odometry on {key}: {exc}")
-            node.stats["odom_invalid"] = node.stats.get("odom_invalid", 0) + 1
-            return
-        node.publish(node.keys.state, state)
+        cdr_put(cmd_vel, core.on_safe(cmd, time.monotonic(), time.time_ns()))
 
     def tick() -> None:
-        zero = core.on_tick(time.monotonic())
+        zero = core.on_tick(time.monotonic(), time.time_ns())
         if zero is not None:
-            node.publish_raw(cmd_vel, zero, CDR_ENCODING)
+            cdr_put(cmd_vel, zero)
 
     node.subscribe(node.keys.cmd_safe, VelocityCommand, on_safe)
-    node.subscribe(ros_key(s.namespace, s.odom_topic), None, on_odom)
     node.every(1.0 / s.zero_rate_hz, tick)
+
+    # State in.
+    if s.odom_topic:
+        def on_odom(k: str, payload: bytes) -> None:
+            try:
+                state = core.on_odometry(payload, time.monotonic())
+            except CdrError as exc:
+                return reject("an Odometry", k, exc, "odom_invalid")
+            except ValueError as exc:
+                return reject("an Odometry", k, exc, "state_frame_mismatch")
+            node.publish(node.keys.state, state)
+
+        node.subscribe(key(s.odom_topic), None, on_odom)
+        for topic, static in ((s.tf_topic, False), (s.tf_static_topic, True)):
+            if topic:
+                def on_tf(k: str, payload: bytes, static: bool = static) -> None:
+                    try:
+                        core.on_tf(payload, static, time.monotonic())
+                    except CdrError as exc:
+                        reject("a TFMessage", k, exc, "tf_invalid")
+                # TF carries many frames per topic: every sample matters, not just the latest.
+                node.subscribe(key(topic), None, on_tf, queue="fifo", maxlen=1000)
+
+    # Map, status and TF out.
+    def on_esdf(esdf: EsdfGrid) -> None:
+        core.on_esdf(esdf)  # the ESDF names the frame every state must be in
+        if not s.costmap_topic:
+            return
+        try:
+            payload = core.occupancy_grid(esdf)
+        except ValueError as exc:
+            return reject("an ESDF for the costmap", node.keys.esdf, exc, "costmap_skipped")
+        cdr_put(key(s.costmap_topic), payload)
+
+    if s.costmap_topic or s.odom_topic:
+        node.subscribe(node.keys.esdf, EsdfGrid, on_esdf)
+
+    if s.diagnostics_topic:
+        last = {"t": -float("inf"), "level": -1}
+
+        def on_status(status: SafetyStatus) -> None:
+            now, level = time.monotonic(), diagnostic_level(status)[0]
+            # /diagnostics is a low-rate topic: throttle, but never hold back a change of level.
+            if level == last["level"] and now - last["t"] < 1.0 / s.diagnostics_rate_hz:
+                return
+            last["t"], last["level"] = now, level
+            cdr_put(key(s.diagnostics_topic), core.codec.encode_diagnostics(status, node.keys.root, time.time_ns()))
+
+        node.subscribe(node.keys.safety_status, SafetyStatus, on_status)
+
+    if s.publish_tf and s.tf_topic:
+        node.subscribe(node.keys.state, RobotState, lambda st: cdr_put(key(s.tf_topic), core.on_state_tf(st)))
 
 
 SERVICE = ServiceSpec("ros2-bridge", Ros2BridgeSettings, setup)
