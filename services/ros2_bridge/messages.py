@@ -21,6 +21,7 @@ from functools import cache
 from typing import Any, Literal
 
 import numpy as np
+from rosbags.typesys import Stores, get_typestore
 
 from riskfield.protocol import EsdfGrid, Header, RobotState, SafetyStatus, VelocityCommand
 
@@ -45,8 +46,6 @@ class CdrError(ValueError):
 
 @cache
 def typestore(distro: Distro = "jazzy") -> Any:
-    from rosbags.typesys import Stores, get_typestore
-
     return get_typestore({"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}[distro])
 
 

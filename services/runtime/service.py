@@ -49,6 +49,7 @@ EXTRAS: dict[str, str] = {
     "record": "tools",
     "replay": "tools",
     "viewer": "viz",
+    "ros2-bridge": "ros2",
 }
 
 
