@@ -21,6 +21,8 @@ import logging
 import time
 from typing import Annotated, ClassVar
 
+import zenoh
+import zenoh.ext as zenoh_ext
 from pydantic import Field, model_validator
 
 from riskfield.protocol import EsdfGrid, RobotState, SafetyStatus, VelocityCommand
@@ -198,12 +200,22 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
         count(counter)
         node.ratelog(logging.WARNING, counter, f"rejected {what} on {k}: {exc}")
 
+    def foreign(k: str, expected: str) -> bool:
+        """A put on a key expression that merely matches ours (a wildcard) is dropped and counted."""
+        if k == expected:
+            return False
+        count("wildcard_dropped")
+        node.ratelog(logging.WARNING, "wildcard", f"dropped a sample on {k}: only {expected} is served")
+        return True
+
     def cdr_put(k: str, payload: bytes) -> None:
         node.publish_raw(k, payload, CDR_ENCODING)
 
     # Velocity inputs → cmd/ref.
-    def velocity_handler(name: str, kind: TwistType):
+    def velocity_handler(name: str, kind: TwistType, expected: str):
         def on_velocity(k: str, payload: bytes) -> None:
+            if foreign(k, expected):
+                return
             try:
                 cmd = core.on_velocity(name, kind, payload, time.monotonic(), time.time_ns())
             except CdrError as exc:
@@ -217,9 +229,9 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
         return on_velocity
 
     if s.cmd_in_topic:
-        node.subscribe(key(s.cmd_in_topic), None, velocity_handler("nav", s.cmd_in_type))
+        node.subscribe(key(s.cmd_in_topic), None, velocity_handler("nav", s.cmd_in_type, key(s.cmd_in_topic)))
     if s.teleop_topic:
-        node.subscribe(key(s.teleop_topic), None, velocity_handler("teleop", s.teleop_type))
+        node.subscribe(key(s.teleop_topic), None, velocity_handler("teleop", s.teleop_type, key(s.teleop_topic)))
 
     # Safe command out, with the watchdog.
     def on_safe(cmd: VelocityCommand) -> None:
@@ -236,6 +248,8 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
     # State in.
     if s.odom_topic:
         def on_odom(k: str, payload: bytes) -> None:
+            if foreign(k, key(s.odom_topic)):
+                return
             try:
                 state = core.on_odometry(payload, time.monotonic())
             except CdrError as exc:
@@ -245,15 +259,36 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
             node.publish(node.keys.state, state)
 
         node.subscribe(key(s.odom_topic), None, on_odom)
-        for topic, static in ((s.tf_topic, False), (s.tf_static_topic, True)):
-            if topic:
-                def on_tf(k: str, payload: bytes, static: bool = static) -> None:
-                    try:
-                        core.on_tf(payload, static, time.monotonic())
-                    except CdrError as exc:
-                        reject("a TFMessage", k, exc, "tf_invalid")
-                # TF carries many frames per topic: every sample matters, not just the latest.
-                node.subscribe(key(topic), None, on_tf, queue="fifo", maxlen=1000)
+
+        def on_tf(k: str, payload: bytes, static: bool) -> None:
+            if foreign(k, key(s.tf_static_topic if static else s.tf_topic)):
+                return
+            try:
+                core.on_tf(payload, static, time.monotonic())
+            except CdrError as exc:
+                reject("a TFMessage", k, exc, "tf_invalid")
+
+        if s.tf_topic:
+            # TF carries many frames per topic: every sample matters, not just the latest.
+            node.subscribe(key(s.tf_topic), None, lambda k, p: on_tf(k, p, False), queue="fifo", maxlen=1000)
+        if s.tf_static_topic:
+            # /tf_static is TRANSIENT_LOCAL: zenoh-bridge-ros2dds serves it from an AdvancedPublisher
+            # with a cache and publisher detection (route_publisher.rs, RoutePublisher::create), so a
+            # late-joining bridge still gets the static transforms through an AdvancedSubscriber's history.
+            static_key = key(s.tf_static_topic)
+
+            def on_static(k: str, payload: bytes) -> None:
+                count("tf_static_received")  # not a runtime subscription: NodeStatus.received misses it
+                on_tf(k, payload, True)
+
+            def on_static_sample(sample: zenoh.Sample) -> None:
+                k, payload = str(sample.key_expr), sample.payload.to_bytes()
+                node.post(lambda: on_static(k, payload))
+
+            static_sub = zenoh_ext.declare_advanced_subscriber(
+                node.session, static_key, on_static_sample,
+                history=zenoh_ext.HistoryConfig(detect_late_publishers=True))
+            node.on_close(static_sub.undeclare)
 
     # Map, status and TF out.
     def on_esdf(esdf: EsdfGrid) -> None:

@@ -16,7 +16,15 @@ import numpy as np
 from riskfield.protocol import EsdfGrid, NodeStatus, RobotState, SafetyStatus, VelocityCommand
 from riskfield.services.ros2_bridge.messages import Odometry, RosCodec, Transform
 from riskfield.services.safety_filter.analytic import Plane, to_esdf, to_grid_message
-from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    client_config,
+    client_session,
+    put,
+    wait_alive,
+    wait_until,
+)
 
 ROBOT, NS = "t_nav2", "t_nav2_ns"
 GROUPS = ["high", "mid", "low"]
@@ -140,3 +148,40 @@ def test_nav2_cmd_vel_through_the_safety_filter(router_endpoint):
         assert bridge.stop() == 0 and sf.stop() == 0
         for c in (out, grids, diags, states, refs, safety, status):
             c.close()
+
+
+def test_static_map_to_odom_reaches_a_bridge_started_later(router_endpoint):
+    """/tf_static is TRANSIENT_LOCAL: zenoh-bridge-ros2dds keeps it in an AdvancedPublisher's cache,
+    and the riskfield bridge, started after it was published, still receives it."""
+    import zenoh
+    import zenoh.ext as zext
+
+    robot, ns = "t_nav2_static", "t_nav2_static_ns"
+    codec = RosCodec("humble")
+    cfg = client_config(router_endpoint)
+    cfg.insert_json5("timestamping", '{"enabled": true}')  # an AdvancedPublisher's cache needs timestamps
+    with zenoh.open(cfg) as s:
+        static_pub = zext.declare_advanced_publisher(s, f"{ns}/tf_static", cache=zext.CacheConfig(max_samples=10),
+                                                     publisher_detection=True)
+        static_pub.put(codec.encode_tf([Transform("map", "odom", (2.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))]))
+        args = ["--robot", robot, "--set", f"namespace={ns}", "--set", "ros_distro=humble",
+                "--set", "status_period_s=0.1"]
+        with ServiceProcess("ros2-bridge", router_endpoint, args) as bridge:
+            assert wait_alive(s, f"rf/{robot}/alive/ros2-bridge"), bridge.output
+            states = Collector(s, f"rf/{robot}/state", RobotState)
+            status = Collector(s, f"rf/{robot}/status/ros2-bridge", NodeStatus)
+            assert wait_until(lambda: bool(status.items) and status.items[-1].extra.get("tf_static_received", 0) >= 1,
+                              20), bridge.output
+            odom = codec.encode_odometry(Odometry(time.time_ns(), "odom", "base_link", (0.5, 0.0, 0.0),
+                                                  (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
+            s.put(f"{ns}/odom", odom)
+            st = states.wait(1)[0]
+            assert st.header.frame_id == "map" and st.position == (2.5, 1.0, 0.0)
+            # A put on a key expression that only matches the odometry key is not served.
+            s.put(f"{ns}/*", odom)
+            assert wait_until(lambda: status.items[-1].extra.get("wildcard_dropped", 0) >= 1, 20), bridge.output
+            assert len(states.items) == 1
+            assert bridge.stop() == 0
+            states.close()
+            status.close()
+        static_pub.undeclare()

@@ -352,7 +352,9 @@ def test_bridge_node_over_zenoh_serves_through_garbage(router_endpoint):
             if not status.items:
                 return False
             st_ = status.items[-1]
-            if any(st_.received.get(f"{ns}/{t}", 0) != n for t, n in sent.items()):
+            received = {t: st_.received.get(f"{ns}/{t}", 0) for t in sent}
+            received["tf_static"] = int(st_.extra.get("tf_static_received", 0))  # an AdvancedSubscriber
+            if received != sent:
                 return False
             latest = all(st_.extra.get(counters[t], 0) + st_.dropped.get(f"{ns}/{t}", 0) == sent[t]
                          for t in ("cmd_vel_smoothed", "cmd_vel_teleop", "odom"))
