@@ -379,3 +379,53 @@ def test_bridge_node_over_zenoh_serves_through_garbage(router_endpoint):
         assert bridge.alive() and bridge.stop() == 0
         for c in (twists, refs, states, status):
             c.close()
+
+
+def test_bridge_node_rejects_hostile_msgpack_and_publishes_rep105_tf(router_endpoint):
+    """The riskfield-side keys (cmd/safe, map/esdf, safety/status, state) take hostile msgpack and
+    the node keeps serving; with publish_tf, riskfield's state becomes odom → base_link (+ map → odom)."""
+    from riskfield.testing import hostile_payloads
+
+    robot, ns = "t_ros_tf", "t_ns_tf"
+    codec = RosCodec("jazzy")
+    args = ["--robot", robot, "--set", f"namespace={ns}", "--set", "publish_tf=true", "--set", "odom_topic=",
+            "--set", "status_period_s=0.1"]
+    st_ = RobotState(header=Header(frame_id="map"), position=(1.0, 2.0, 0.0), orientation=_yaw_q(0.4),
+                     linear_velocity=(0, 0, 0), angular_velocity=(0, 0, 0))
+    status_msg = SafetyStatus(h=0.3, risk_group=0, intervening=False, fallback=None, solve_us=1.0, esdf_age_ms=1.0)
+    valid = {"cmd/safe": _cmd((0.2, 0, 0), (0, 0, 0)), "map/esdf": wall_grid(), "safety/status": status_msg,
+             "state": st_}
+    with ServiceProcess("ros2-bridge", router_endpoint, args) as bridge, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/ros2-bridge"), bridge.output
+        status = Collector(s, f"rf/{robot}/status/ros2-bridge", NodeStatus)
+        tfs = Collector(s, f"{ns}/tf")
+        grids = Collector(s, f"{ns}/riskfield/costmap")
+        diags = Collector(s, f"{ns}/diagnostics")
+        status.wait(1)  # the node runs (its subscriptions are declared after its liveliness token)
+        n = 150
+        for k, msg in valid.items():
+            for payload in hostile_payloads(msg, n=n, seed=3):
+                put(s, f"rf/{robot}/{k}", payload)
+
+        def settled() -> bool:
+            if not status.items:
+                return False
+            last = status.items[-1]
+            return all(last.received.get(k, 0) == n and last.invalid.get(k, 0) + last.dropped.get(k, 0) == n
+                       for k in valid)
+
+        assert wait_until(settled, 30), (status.items[-1].model_dump(exclude={"header"}) if status.items else None)
+        assert all(status.items[-1].invalid.get(k, 0) >= 1 for k in valid)
+        assert not tfs.items and not grids.items and not diags.items  # nothing bad got through
+        for k, msg in valid.items():
+            put(s, f"rf/{robot}/{k}", msg)
+        mo, ob = codec.decode_tf(tfs.wait(1)[0])
+        assert (mo.parent, mo.child, mo.translation, mo.rotation) == ("map", "odom", (0, 0, 0), (0, 0, 0, 1))
+        assert (ob.parent, ob.child, ob.translation) == ("odom", "base_link", (1.0, 2.0, 0.0))
+        assert np.allclose(ob.rotation, _yaw_q(0.4))
+        grid = codec.ts.deserialize_cdr(grids.wait(1)[0], "nav_msgs/msg/OccupancyGrid")
+        assert grid.info.width == 31 and (grid.data == 100).any()
+        assert codec.decode(diags.wait(1)[0], "diagnostic_msgs/msg/DiagnosticArray").status[0].level == 0
+        assert bridge.alive() and bridge.stop() == 0
+        for c in (status, tfs, grids, diags):
+            c.close()
