@@ -44,6 +44,10 @@ class CdrError(ValueError):
     """A payload that is not a valid CDR sample of the expected ROS 2 type."""
 
 
+class FrameMismatch(ValueError):
+    """A valid message in a frame riskfield must not mix with its own (REP 105)."""
+
+
 @cache
 def typestore(distro: Distro = "jazzy") -> Any:
     return get_typestore({"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}[distro])
@@ -255,14 +259,14 @@ def odometry_to_state(o: Odometry, map_frame: str, map_T_odom: Transform | None 
     With ``o.frame_id == map_frame`` the pose is taken as is; otherwise ``map_T_odom`` (the
     pose of ``o.frame_id`` in ``map_frame``) composes it: :math:`p_m = R_{mo} p_o + t_{mo}`,
     :math:`q_m = q_{mo} ⊗ q_o`. The body-frame twist is rotated into the map frame by
-    :math:`q_m`. Any other frame raises ``ValueError`` naming both frames: a state is never
+    :math:`q_m`. Any other frame raises ``FrameMismatch`` naming both frames: a state is never
     relabelled into a frame it is not in.
     """
     q = _normalised(o.orientation)
     p = np.asarray(o.position, dtype=float)
     if o.frame_id != map_frame:
         if map_T_odom is None or map_T_odom.parent != map_frame or map_T_odom.child != o.frame_id:
-            raise ValueError(f"odometry frame {o.frame_id!r} is not the map frame {map_frame!r} "
+            raise FrameMismatch(f"odometry frame {o.frame_id!r} is not the map frame {map_frame!r} "
                              f"and no {map_frame} → {o.frame_id} transform is known")
         qt = _normalised(map_T_odom.rotation)
         p = rotate(qt, p) + np.asarray(map_T_odom.translation, dtype=float)

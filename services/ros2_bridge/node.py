@@ -33,6 +33,7 @@ from ..runtime.settings import NodeSettings
 from .messages import (
     CdrError,
     Distro,
+    FrameMismatch,
     Odometry,
     RosCodec,
     Transform,
@@ -91,6 +92,7 @@ class Ros2BridgeSettings(NodeSettings):
     diagnostics_topic: str = "diagnostics"
     diagnostics_rate_hz: float = Field(default=2.0, gt=0, le=100)
     publish_tf: bool = Field(default=False, description="TF from riskfield's state (a simulated robot)")
+    max_cdr_bytes: int = Field(default=1 << 20, gt=0, description="larger ROS samples are rejected unparsed")
 
     @model_validator(mode="after")
     def _consistent(self) -> Ros2BridgeSettings:
@@ -98,8 +100,12 @@ class Ros2BridgeSettings(NodeSettings):
             raise ValueError("publish_tf echoes riskfield's state as TF; with odom_topic set that state comes from "
                              "the robot's own odometry, whose driver already publishes odom → base_link: "
                              "set odom_topic='' to publish TF")
-        if self.teleop_topic and self.teleop_topic == self.cmd_in_topic:
+        inputs = [t for t in (self.cmd_in_topic, self.teleop_topic) if t]
+        if len(set(inputs)) != len(inputs):
             raise ValueError("teleop_topic and cmd_in_topic must differ")
+        if self.cmd_vel_topic in inputs:
+            raise ValueError(f"cmd_vel_topic {self.cmd_vel_topic!r} is also a velocity input: the safe command "
+                             "would feed back into cmd/ref")
         if self.inscribed_radius > self.inflation_radius:
             raise ValueError("inscribed_radius must not exceed inflation_radius")
         return self
@@ -128,10 +134,11 @@ class Ros2Bridge:
     # -- velocity -------------------------------------------------------------------------------
     def on_velocity(self, name: str, kind: TwistType, raw: bytes, now: float, stamp_ns: int) -> VelocityCommand | None:
         """The ``cmd/ref`` for a velocity sample, or None when a higher-priority input holds the
-        robot. Raises ``ValueError`` for bad CDR or a TwistStamped not in the body frame."""
+        robot. Raises ``CdrError`` for bad CDR, ``FrameMismatch`` for a TwistStamped not in the body frame."""
+        self._check_size(raw)
         lin, ang, frame = self.codec.decode_twist(raw, kind)
         if frame and frame != self.s.base_frame:
-            raise ValueError(f"TwistStamped in frame {frame!r}, not the body frame {self.s.base_frame!r}")
+            raise FrameMismatch(f"TwistStamped in frame {frame!r}, not the body frame {self.s.base_frame!r}")
         if not self.mux.offer(name, now):
             return None
         cmd = VelocityCommand(linear=lin, angular=ang, source=f"ros2/{name}")
@@ -151,8 +158,16 @@ class Ros2Bridge:
         return None
 
     # -- state ----------------------------------------------------------------------------------
+    def _check_size(self, raw: bytes) -> None:
+        if len(raw) > self.s.max_cdr_bytes:
+            raise CdrError(f"{len(raw)} bytes, over max_cdr_bytes = {self.s.max_cdr_bytes}")
+
     def on_tf(self, raw: bytes, static: bool, now: float) -> int:
+        self._check_size(raw)
         transforms = self.codec.decode_tf(raw)
+        for tr in transforms:
+            if not 0.5 < sum(c * c for c in tr.rotation) < 2.0:  # far from unit: not a rotation at all
+                raise ValueError(f"{tr.parent} → {tr.child}: rotation {tr.rotation} is not a unit quaternion")
         for tr in transforms:
             if static:
                 self.static_tf[(tr.parent, tr.child)] = tr
@@ -167,11 +182,14 @@ class Ros2Bridge:
         return tr if tr is not None and now - t <= self.s.tf_timeout_s else None
 
     def on_odometry(self, raw: bytes, now: float) -> RobotState:
-        """The map-frame state of an Odometry; ``ValueError`` (reason in the text) when its
-        frames do not match the ESDF's frame and the robot's body frame."""
+        """The map-frame state of an Odometry; ``FrameMismatch`` (reason in the text) when its
+        frames do not match the ESDF's frame and the robot's body frame, ``ValueError`` when it
+        is malformed."""
+        self._check_size(raw)
         o: Odometry = self.codec.decode_odometry(raw)
         if o.child_frame_id and o.child_frame_id != self.s.base_frame:
-            raise ValueError(f"odometry child frame {o.child_frame_id!r} is not the body frame {self.s.base_frame!r}")
+            raise FrameMismatch(f"odometry child frame {o.child_frame_id!r} is not the body frame "
+                                f"{self.s.base_frame!r}")
         tr = None if o.frame_id == self.map_frame else self.transform(self.map_frame, o.frame_id, now)
         return odometry_to_state(o, self.map_frame, tr)
 
@@ -218,10 +236,10 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
                 return
             try:
                 cmd = core.on_velocity(name, kind, payload, time.monotonic(), time.time_ns())
-            except CdrError as exc:
-                return reject(f"a {kind}", k, exc, f"{name}_invalid")
-            except ValueError as exc:
+            except FrameMismatch as exc:
                 return reject(f"a {kind}", k, exc, f"{name}_frame_mismatch")
+            except ValueError as exc:
+                return reject(f"a {kind}", k, exc, f"{name}_invalid")
             if cmd is None:
                 count(f"{name}_preempted")
                 return
@@ -252,10 +270,10 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
                 return
             try:
                 state = core.on_odometry(payload, time.monotonic())
-            except CdrError as exc:
-                return reject("an Odometry", k, exc, "odom_invalid")
-            except ValueError as exc:
+            except FrameMismatch as exc:
                 return reject("an Odometry", k, exc, "state_frame_mismatch")
+            except ValueError as exc:  # bad CDR, NaN/Inf, a zero quaternion
+                return reject("an Odometry", k, exc, "odom_invalid")
             node.publish(node.keys.state, state)
 
         node.subscribe(key(s.odom_topic), None, on_odom)
@@ -265,7 +283,7 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
                 return
             try:
                 core.on_tf(payload, static, time.monotonic())
-            except CdrError as exc:
+            except ValueError as exc:
                 reject("a TFMessage", k, exc, "tf_invalid")
 
         if s.tf_topic:

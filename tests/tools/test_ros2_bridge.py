@@ -15,6 +15,7 @@ from pydantic import ValidationError
 from riskfield.protocol import EsdfGrid, Header, NodeStatus, RobotState, SafetyStatus, VelocityCommand
 from riskfield.services.ros2_bridge.messages import (
     CdrError,
+    FrameMismatch,
     Odometry,
     RosCodec,
     Transform,
@@ -258,6 +259,28 @@ def test_settings_are_strict():
         Ros2BridgeSettings(teleop_priority=256)
     with pytest.raises(ValidationError, match="inscribed_radius"):
         Ros2BridgeSettings(inscribed_radius=1.0, inflation_radius=0.5)
+    with pytest.raises(ValidationError, match="feed back"):
+        Ros2BridgeSettings(cmd_vel_topic="cmd_vel_smoothed")
+    with pytest.raises(ValidationError, match="must differ"):
+        Ros2BridgeSettings(teleop_topic="cmd_vel_smoothed")
+
+
+def test_core_sorts_bad_input_from_frame_mismatches():
+    core = Ros2Bridge(Ros2BridgeSettings(max_cdr_bytes=2000))
+    c = core.codec
+    zero_q = c.encode_odometry(Odometry(0, "map", "base_link", (0, 0, 0), (0, 0, 0, 0), (0, 0, 0), (0, 0, 0)))
+    with pytest.raises(ValueError, match="quaternion") as err:
+        core.on_odometry(zero_q, 0.0)
+    assert not isinstance(err.value, FrameMismatch)
+    odom = c.encode_odometry(Odometry(0, "odom", "base_link", (0, 0, 0), (0, 0, 0, 1), (0, 0, 0), (0, 0, 0)))
+    with pytest.raises(FrameMismatch):
+        core.on_odometry(odom, 0.0)
+    with pytest.raises(ValueError, match="unit quaternion"):
+        core.on_tf(c.encode_tf([Transform("map", "odom", (0, 0, 0), (0, 0, 0, 0))]), False, 0.0)
+    with pytest.raises(FrameMismatch):
+        core.on_odometry(odom, 0.0)  # the bad transform was not kept
+    with pytest.raises(CdrError, match="max_cdr_bytes"):
+        core.on_tf(c.encode_tf([Transform("map", f"f{i}", (0, 0, 0), (0, 0, 0, 1)) for i in range(40)]), False, 0.0)
 
 
 def test_core_watchdog_frames_and_tf_age():
