@@ -95,6 +95,11 @@ class PerceptionFrame(Message):
     confidence: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
     labels: Annotated[np.ndarray, ArraySpec("<u2", (None, None))]
     keyframe_id: int
+    kind: Literal["keyframe_new", "keyframe_update", "tracking"] | None = None
+    """Additive (map-update protocol): ``keyframe_new`` — a keyframe the map has not seen, integrate it;
+    ``keyframe_update`` — keyframe ``keyframe_id`` again, re-posed or with a refined pointmap, carrying
+    its full pointmap: replace its previous contribution; ``tracking`` — a tracked frame, not integrated
+    (its stamp says the map is current). ``None`` (older senders): an independent observation, integrated."""
 
     @model_validator(mode="after")
     def _consistent(self) -> PerceptionFrame:
@@ -104,6 +109,20 @@ class PerceptionFrame(Message):
         if self.labels.shape != hw:
             raise ValueError(f"labels shape {list(self.labels.shape)} differs from points {list(hw)}")
         return self
+
+
+class DepthImage(Message):
+    """Additive (``camera/depth``): a depth image registered to the RGB image of the same stamp,
+    with its pinhole intrinsics (OpenCV axes: x right, y down, z forward; pixel centres at
+    integer coordinates). ``depth`` is z in metres, 0 where the sensor has no return."""
+
+    SCHEMA: ClassVar[str] = "DepthImage/1"
+
+    depth: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
+    fx: PosFloat
+    fy: PosFloat
+    cx: FiniteFloat
+    cy: FiniteFloat
 
 
 # -- maps -----------------------------------------------------------------------------------
@@ -300,6 +319,7 @@ class LimoDiagnostics(Message):
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     Image,
     PerceptionFrame,
+    DepthImage,
     EsdfGrid,
     DistanceQuery,
     DistanceReply,

@@ -27,6 +27,7 @@ from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig
 from .config import MapperConfig
 from .esdf_integrator import EsdfIntegrator
 from .field import DistanceField, FieldAnswer
+from .keyframes import KeyframeMap
 from .layers import SemanticLayer, TsdfLayer
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
@@ -80,6 +81,7 @@ class Mapper:
         self.stamp_ns = 0
         self.frame_id = "map"
         self.set_risk_config(risk or RiskConfig())
+        self.keyframes = KeyframeMap(self.config)  # the keyframe map-update protocol (keyframes.py)
 
     # -- inputs ---------------------------------------------------------------------------------
     def set_risk_config(self, risk: RiskConfig) -> None:
@@ -144,6 +146,8 @@ class Mapper:
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
 
     def integrate_frame(self, frame: PerceptionFrame) -> FrameResult:
+        if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
+            return self.keyframes.integrate_frame(self, frame)
         return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,
                               stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id)
 

@@ -64,7 +64,10 @@ class MappingNode:
         self._last_publish = -float("inf")
         k = node.keys
         frame_limits = Limits(max_array_bytes=12 * settings.max_pixels)
-        node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="latest", limits=frame_limits)
+        # fifo, not latest: under the keyframe protocol (keyframes.py) a dropped new/updated keyframe
+        # would leave its old contribution in the map; 8 bounds the backlog.
+        node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="fifo", maxlen=8,
+                       limits=frame_limits)
         node.subscribe(k.state, RobotState, self.on_state, queue="latest")
         node.subscribe(k.risk_config, RiskConfig, self.on_risk_config, queue="latest")
         node.queryable(k.esdf_query, DistanceQuery, self.on_query,
@@ -88,6 +91,9 @@ class MappingNode:
         st["integrate_ms"] = result.ms
         st["rays"] = result.rays
         st["shifts"] = self.mapper.shifts
+        if frame.kind is not None:  # the keyframe protocol's counters (keyframes.py)
+            kf = self.mapper.keyframes
+            st.update({f"kf_{k}": v for k, v in kf.counts.items()}, kf_bytes=kf.nbytes)
         self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
 
     def on_state(self, state: RobotState) -> None:
