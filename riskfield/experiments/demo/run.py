@@ -35,6 +35,7 @@ class DemoConfig:
     budget_s: float = 100.0  # the two experiments together, after start-up
     robot_radius: float = 0.15
     verbose: bool = False
+    perception: str = "sim"  # or "rgbd": the simulator publishes depth, perception poses it by odometry
     phases: dict[str, float] = field(default_factory=dict)
 
 
@@ -58,8 +59,10 @@ class Demo:
         la = Launcher(log_path=out / "stack.log", echo=c.verbose, console=self.console)
         la.add("router", ["--listen", self.endpoint, *common])
         la.add("record", [*connect, "--set", f"out={out}"])
-        la.add("simulator", [*connect, "--set", f"scenario={out / 'scenario.yaml'}"])
-        la.add("perception", connect)
+        rgbd = c.perception == "rgbd"
+        la.add("simulator", [*connect, "--set", f"scenario={out / 'scenario.yaml'}",
+                             *(["--set", "publish_depth=true", "--set", "publish_truth=false"] if rgbd else [])])
+        la.add("perception", [*connect, *(["--set", "geometry=rgbd"] if rgbd else [])])
         la.add("mapping", connect)
         la.add("safety-filter", [*connect, "--set", f"robot_radius={c.robot_radius}"])
         la.add("navigator", connect)
