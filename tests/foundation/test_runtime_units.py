@@ -36,7 +36,7 @@ def test_precedence_defaults_file_env_cli(clean_env, tmp_path, suffix):
     path = tmp_path / f"cfg{suffix}"
     if suffix == ".yaml":
         path.write_text("robot: fromfile\nname: fromfile\nrate_hz: 10\n"
-                        "demo-svc:\n  rate_hz: 20\nother:\n  rate_hz: 99\n")
+                        "demo-svc:\n  rate_hz: 20\nmapping:\n  rate_hz: 99\n")
     else:
         path.write_text('robot = "fromfile"\nname = "fromfile"\nrate_hz = 10\n[demo_svc]\nrate_hz = 20\n')
     clean_env.setenv("RISKFIELD_CONFIG", str(path))

@@ -1,0 +1,102 @@
+"""Strict settings: a typo in a file, ``--set`` or a ``RISKFIELD_*`` variable is an error that
+names the key and the nearest valid one; what belongs to another service is not."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from riskfield.services.runtime import UnknownSetting
+from riskfield.services.runtime.settings import check_environment
+from riskfield.services.safety_filter.settings import FilterSettings
+
+
+@pytest.fixture
+def env(monkeypatch):
+    import os
+
+    for var in list(os.environ):
+        if var.upper().startswith("RISKFIELD_"):
+            monkeypatch.delenv(var)
+    return monkeypatch
+
+
+def test_set_typo_names_key_and_suggestion(env):
+    with pytest.raises(UnknownSetting, match=r"unknown setting 'robot_raduis' for safety-filter; "
+                                             r"did you mean 'robot_radius'\?"):
+        FilterSettings(robot_raduis=0.5)
+
+
+def test_nested_typo_names_the_dotted_key(env):
+    from riskfield.services.navigator.node import NavigatorSettings
+
+    with pytest.raises(UnknownSetting, match=r"'nav.k_rhoo'.*did you mean 'nav.k_rho'"):
+        NavigatorSettings(nav={"k_rhoo": 1.0})
+
+
+def test_env_typo_names_variable_and_suggestion(env):
+    env.setenv("RISKFIELD_ROBOT_RADUIS", "0.5")
+    with pytest.raises(UnknownSetting, match=r"'RISKFIELD_ROBOT_RADUIS' \(environment variable\) for "
+                                             r"safety-filter; did you mean 'RISKFIELD_ROBOT_RADIUS'\?"):
+        FilterSettings()
+
+
+def test_env_of_other_services_hardware_and_foreign_variables_are_ignored(env):
+    env.setenv("PATH_LIKE_THING", "x")
+    env.setenv("robot_raduis", "1")  # no prefix: not ours
+    env.setenv("RISKFIELD_VOXEL_SIZE", "0.1")  # a mapping setting
+    env.setenv("RISKFIELD_LIMO_PORT", "/dev/ttyUSB0")  # hardware endpoint of the LIMO bridge
+    env.setenv("RISKFIELD_JOYSTICK_DEVICE", "/dev/input/event3")
+    env.setenv("RISKFIELD_MAVLINK_URL", "udpin:127.0.0.1:14550")
+    env.setenv("RISKFIELD_SERVER", "tcp/10.0.0.2:7447")  # compose interpolation
+    env.setenv("RISKFIELD_ROBOT_RADIUS", "0.3")
+    s = FilterSettings()
+    assert s.robot_radius == 0.3
+    check_environment(FilterSettings, {"HOME": "/root", "PATH": "/usr/bin"})
+
+
+def test_nested_env_typo(env):
+    from riskfield.services.navigator.node import NavigatorSettings
+
+    env.setenv("RISKFIELD_NAV__K_RHO", "0.5")
+    assert NavigatorSettings().nav.k_rho == 0.5
+    env.setenv("RISKFIELD_NAV__K_RHOO", "0.5")
+    with pytest.raises(UnknownSetting, match="did you mean 'RISKFIELD_NAV__K_RHO'"):
+        NavigatorSettings()
+
+
+def test_file_typos_in_own_section_and_top_level(env, tmp_path):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("robot: r1\nsafety-filter:\n  robot_raduis: 0.5\n")
+    with pytest.raises(UnknownSetting, match=r"'robot_raduis' \(section 'safety-filter' of .*cfg.yaml\).*"
+                                             r"did you mean 'robot_radius'"):
+        FilterSettings(config=cfg)
+    cfg.write_text("robt: r1\n")
+    with pytest.raises(UnknownSetting, match=r"'robt' \(top level of .*\).*did you mean 'robot'"):
+        FilterSettings(config=cfg)
+
+
+def test_file_sections_and_keys_of_other_services_are_not_errors(env, tmp_path):
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text('robot = "r2"\nvoxel_size = 0.1\n[mapping]\nvoxel_sise = 0.1\n[safety_filter]\nrate_hz = 40\n')
+    s = FilterSettings(config=cfg)
+    assert (s.robot, s.rate_hz) == ("r2", 40.0)
+
+
+def test_cli_set_typo_exits_2_without_traceback(env):
+    r = subprocess.run([sys.executable, "-m", "riskfield", "run", "safety-filter", "--set", "robot_raduis=0.5"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "unknown setting 'robot_raduis' for safety-filter; did you mean 'robot_radius'?" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_cli_env_typo_exits_2_without_traceback(env):
+    import os
+
+    r = subprocess.run([sys.executable, "-m", "riskfield", "run", "relay"], capture_output=True, text=True,
+                       timeout=60, env={**os.environ, "RISKFIELD_SCHEMA_NAM": "VelocityCommand/1"})
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "did you mean 'RISKFIELD_SCHEMA_NAME'?" in r.stderr
