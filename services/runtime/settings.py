@@ -27,9 +27,11 @@ else is not an error:
 from __future__ import annotations
 
 import difflib
+import logging
 import os
 import tomllib
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -137,22 +139,41 @@ def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, wh
             check_keys(sub, value, service, where, f"{path}{key}.")
 
 
-@lru_cache(maxsize=1)
-def _all_services() -> tuple[frozenset[str], frozenset[str], frozenset[str]]:
-    """(service section names, setting keys, env variables) of every service that imports
-    here. Loaded only when a key is not this node's own, so a node normally imports nobody else."""
-    from .service import SERVICES, ServiceUnavailable, load_service  # service.py imports this module
+@dataclass(frozen=True)
+class _Known:
+    sections: frozenset[str]  # every service's config-file section name
+    keys: frozenset[str]  # every setting key of the services that load here
+    env: frozenset[str]  # every RISKFIELD_* variable of those services
+    missing: tuple[str, ...]  # services that do not load here (extras not installed)
 
-    sections, keys, env = set(), set(), set()
+
+@lru_cache(maxsize=1)
+def _all_services() -> _Known:
+    """What every service of the registry accepts. Loaded only when a key is not this node's
+    own, so a node normally imports no other service."""
+    from .service import SERVICES, load_service  # service.py imports this module
+
+    sections, keys, env, missing = set(), set(), set(), []
     for name in SERVICES:
         sections.update({name, name.replace("-", "_")})
         try:
             cls = load_service(name).settings
-        except (ServiceUnavailable, ImportError):  # pragma: no cover - depends on the installed extras
+        except Exception:  # a missing extra, or a native library that fails to load
+            missing.append(name)
             continue
         keys.update(setting_names(cls))
         env.update(env_names(cls))
-    return frozenset(sections), frozenset(keys), frozenset(env)
+    return _Known(frozenset(sections), frozenset(keys), frozenset(env), tuple(missing))
+
+
+def _unknown(error: UnknownSetting) -> None:
+    """Raise ``error``, unless a service that does not load here might own the key: then the
+    node must still start (a robot image lacks the server's extras), so only warn."""
+    missing = _all_services().missing
+    if not missing:
+        raise error
+    logging.getLogger("riskfield.settings").warning(
+        "%s (ignored: it may belong to %s, not installed here)", error, ", ".join(missing))
 
 
 def check_environment(model: type[NodeSettings], environ: Mapping[str, str] | None = None) -> None:
@@ -174,9 +195,9 @@ def check_environment(model: type[NodeSettings], environ: Mapping[str, str] | No
                     raise UnknownSetting(upper, service, "environment variable",
                                          [f"{head}__{n.upper()}" for n in sub.model_fields])
             continue
-        if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _all_services()[2]:
+        if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _all_services().env:
             continue
-        raise UnknownSetting(upper, service, "environment variable", [*own, *_all_services()[2]])
+        _unknown(UnknownSetting(upper, service, "environment variable", [*own, *_all_services().env]))
 
 
 class _FileSource(PydanticBaseSettingsSource):
@@ -205,10 +226,10 @@ class _FileSource(PydanticBaseSettingsSource):
                 continue
             if key in own_sections:
                 continue
-            sections, others, _ = _all_services()
-            if key in sections or key in others:
+            known = _all_services()
+            if key in known.sections or key in known.keys:
                 continue  # another service's section or setting: theirs to check
-            raise UnknownSetting(key, service, f"top level of {path}", [*fields, *sections])
+            _unknown(UnknownSetting(key, service, f"top level of {path}", [*fields, *known.sections]))
         for name in own_sections:
             section = data.get(name)
             if section is None:

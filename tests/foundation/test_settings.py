@@ -100,3 +100,35 @@ def test_cli_env_typo_exits_2_without_traceback(env):
                        timeout=60, env={**os.environ, "RISKFIELD_SCHEMA_NAM": "VelocityCommand/1"})
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "did you mean 'RISKFIELD_SCHEMA_NAME'?" in r.stderr
+
+
+def test_core_parameters_are_composed_of_per_stage_structs():
+    from riskfield.services.mapping.config import EsdfParams, MapperConfig, OccupancyParams, TsdfParams, VolumeParams
+    from riskfield.services.safety_filter.config import BarrierParams, BoundsParams, FilterConfig, QpParams
+
+    m = MapperConfig.compose(volume=VolumeParams(voxel_size=0.1), tsdf=TsdfParams(truncation=0.3),
+                             esdf=EsdfParams(output="3d"))
+    assert (m.voxel_size, m.truncation, m.output, m.min_weight) == (0.1, 0.3, "3d", OccupancyParams().min_weight)
+    assert m.tsdf == TsdfParams(truncation=0.3) and m.volume.shape == m.shape
+    parts = [VolumeParams, TsdfParams, OccupancyParams, EsdfParams]
+    assert sum(len(p.model_fields) for p in parts) == len(MapperConfig.model_fields)  # no field left out
+    f = FilterConfig.compose(barrier=BarrierParams(robot_radius=0.3), bounds=BoundsParams(v_max=0.5))
+    assert (f.robot_radius, f.v_max, f.rate_hz) == (0.3, 0.5, QpParams().rate_hz)
+    assert f.barrier.robot_radius == 0.3 and f.qp == QpParams()
+    assert sum(len(p.model_fields) for p in (BarrierParams, BoundsParams, QpParams)) == len(FilterConfig.model_fields)
+    with pytest.raises(ValueError, match="robot_raduis"):  # the cores are strict too
+        FilterConfig(robot_raduis=0.5)
+    with pytest.raises(ValueError, match="min_depth must be below max_depth"):  # a stage's own check still runs
+        MapperConfig(min_depth=7.0)
+
+
+def test_an_unknown_variable_only_warns_when_a_service_cannot_load_here(env, monkeypatch, caplog):
+    """A robot image lacks the server's extras: the key might be mapping's, so the filter starts."""
+    from riskfield.services.runtime import settings as rs
+
+    known = rs._all_services()
+    monkeypatch.setattr(rs, "_all_services", lambda: rs._Known(known.sections, frozenset(), frozenset(), ("mapping",)))
+    env.setenv("RISKFIELD_VOXEL_SIZE", "0.1")
+    with caplog.at_level("WARNING", "riskfield.settings"):
+        FilterSettings()
+    assert "RISKFIELD_VOXEL_SIZE" in caplog.text and "mapping, not installed here" in caplog.text
