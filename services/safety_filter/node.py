@@ -102,6 +102,7 @@ class FilterNode:
     def _step(self) -> None:
         now = time.monotonic()
         cmd, status = self.supervisor.tick(now)
+        status.risk_errors = int(self.node.stats.get("risk_errors", 0))
         self.node.publish(self.node.keys.cmd_safe, cmd)
         self.node.publish(self.node.keys.safety_status, status)
         self._last_pub = now

@@ -208,6 +208,7 @@ def test_risk_configuration_hot_reloads_from_key_and_file(router_endpoint, tmp_p
             os.utime(risk_file, ns=(time.time_ns(), time.time_ns() + 2 * 10**9))
             assert wait_until(lambda: "not loaded" in proc.output, 10), proc.output[-1500:]
             assert speed() == pytest.approx(before, abs=0.02)
+            assert wait_until(lambda: status.items and status.items[-1].risk_errors == 1, 5)  # counted once
         cmds.close()
         status.close()
         assert proc.stop() == 0
