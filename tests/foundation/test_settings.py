@@ -132,3 +132,42 @@ def test_an_unknown_variable_only_warns_when_a_service_cannot_load_here(env, mon
     with caplog.at_level("WARNING", "riskfield.settings"):
         FilterSettings()
     assert "RISKFIELD_VOXEL_SIZE" in caplog.text and "mapping, not installed here" in caplog.text
+
+
+def _env_file(path) -> dict[str, str]:
+    out = {}
+    for line in path.read_text().splitlines():
+        if line.strip() and not line.lstrip().startswith("#"):
+            key, _, value = line.partition("=")
+            out[key.strip()] = value.strip()
+    return out
+
+
+@pytest.mark.parametrize("overlay", [None, "deploy/compose.secure.yml"])
+def test_every_shipped_container_environment_is_accepted_by_its_service(overlay):
+    """The env files are shared by several services: each container must start with its own."""
+    from pathlib import Path
+
+    import yaml
+
+    from riskfield.services.runtime import load_service
+
+    root = Path(__file__).resolve().parents[2]
+    services = yaml.safe_load((root / "docker-compose.yml").read_text())["services"]
+    if overlay:  # compose replaces env_file and merges environment; the command comes from the base
+        for name, extra in yaml.safe_load((root / overlay).read_text())["services"].items():
+            base = services.setdefault(name, {})
+            base["environment"] = {**(base.get("environment") or {}), **(extra.get("environment") or {})}
+            base["env_file"] = extra.get("env_file", base.get("env_file"))
+    checked = 0
+    for svc in services.values():
+        cmd = svc.get("command") or []
+        if len(cmd) < 2 or cmd[0] != "run":
+            continue
+        files = svc.get("env_file") or []
+        environ = {k: v for f in ([files] if isinstance(files, str) else files) if "$" not in f
+                   for k, v in _env_file(root / f).items()}
+        environ.update({k: str(v) for k, v in (svc.get("environment") or {}).items()})
+        check_environment(load_service(cmd[1]).settings, environ)  # raises on a key nobody owns
+        checked += 1
+    assert checked >= 6
