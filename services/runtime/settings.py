@@ -59,12 +59,23 @@ NOT_SETTINGS: frozenset[str] = frozenset({
 })
 
 
+#: Settings that were renamed: the old name's error points at the new one.
+RENAMED: dict[str, str] = {"risk_config": "risk_file", "risk_config_file": "risk_file"}
+
+
 class UnknownSetting(ValueError):
     """A key no setting answers to: names the key, where it came from and the nearest valid one."""
 
     def __init__(self, key: str, service: str, where: str, candidates: Iterable[str]):
         self.key, self.service, self.where = key, service, where
-        close = difflib.get_close_matches(key, sorted(set(candidates)), n=1, cutoff=0.6)
+        candidates = sorted(set(candidates))
+        head, _, leaf = key.rpartition(".")
+        renamed = RENAMED.get(leaf.lower().removeprefix(ENV_PREFIX.lower()))
+        if renamed is not None:  # old spelling of a setting that exists here, in the same form
+            new = f"{head}.{renamed}" if head else (ENV_PREFIX + renamed.upper() if key.isupper() else renamed)
+            close = [new] if new in candidates else []
+        else:
+            close = difflib.get_close_matches(key, candidates, n=1, cutoff=0.6)
         self.suggestion = close[0] if close else None
         hint = f"; did you mean {self.suggestion!r}?" if self.suggestion else ""
         origin = f" ({where})" if where else ""

@@ -171,3 +171,15 @@ def test_every_shipped_container_environment_is_accepted_by_its_service(overlay)
         check_environment(load_service(cmd[1]).settings, environ)  # raises on a key nobody owns
         checked += 1
     assert checked >= 6
+
+
+def test_renamed_settings_point_at_the_new_name(env):
+    from riskfield.services.mapping.settings import MappingSettings
+
+    with pytest.raises(UnknownSetting, match="'risk_config' for safety-filter; did you mean 'risk_file'"):
+        FilterSettings(risk_config="/tmp/risk.yaml")
+    with pytest.raises(UnknownSetting, match="'risk_config_file' for mapping; did you mean 'risk_file'"):
+        MappingSettings(risk_config_file="/tmp/risk.yaml")
+    env.setenv("RISKFIELD_RISK_CONFIG", "/tmp/risk.yaml")
+    with pytest.raises(UnknownSetting, match="did you mean 'RISKFIELD_RISK_FILE'"):
+        FilterSettings()
