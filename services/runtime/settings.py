@@ -54,7 +54,7 @@ ENV_PREFIX = "RISKFIELD_"
 #: (shared/DESIGN.md, "Runtime conventions"; read by the bridges, harmless elsewhere) and the
 #: variables docker compose interpolates (image, tag, router address, secrets, volumes).
 NOT_SETTINGS: frozenset[str] = frozenset({
-    "LIMO_PORT", "JOYSTICK_DEVICE", "MAVLINK_URL", "CONFIG",
+    "LIMO_PORT", "JOYSTICK_DEVICE", "MAVLINK_URL",
     "SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME",
 })
 
