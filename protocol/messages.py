@@ -228,6 +228,8 @@ class SafetyStatus(Message):
     fallback: str | None
     solve_us: NonNegFloat
     esdf_age_ms: FiniteFloat
+    # Additive: risk-file changes refused since start (the configuration in force was kept).
+    risk_errors: Annotated[int, Field(ge=0)] = 0
 
 
 class NavGoal(Message):

@@ -67,12 +67,12 @@ def run(
     """Start one node in this process; Ctrl-C or SIGTERM stops it cleanly (exit code 0)."""
     from pydantic import ValidationError
 
-    from riskfield.services.runtime import ServiceUnavailable, run_service
+    from riskfield.services.runtime import ServiceUnavailable, UnknownSetting, run_service
 
     try:
         code = run_service(service, _overrides(connect, listen, mode, robot, prefix, config, log_level, set_),
                            duration_s=duration)
-    except ServiceUnavailable as exc:
+    except (ServiceUnavailable, UnknownSetting) as exc:
         console.print(f"[red]{exc}[/red]")
         raise typer.Exit(2) from None
     except (ValidationError, ValueError, FileNotFoundError) as exc:

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from rich.console import Console
 from rich.text import Text
 
+from riskfield.services.runtime.signals import catch_stop_signals
+
 COLOURS = ["cyan", "magenta", "green", "yellow", "blue", "bright_red", "bright_cyan", "bright_magenta"]
 
 
@@ -117,10 +119,7 @@ class Launcher:
     def wait(self, duration_s: float | None = None) -> int:
         """Block until a signal, ``duration_s``, or a child's death; stop all; exit code."""
         stop_signal = threading.Event()
-        old = {}
-        if threading.current_thread() is threading.main_thread():
-            for s in (signal.SIGINT, signal.SIGTERM):
-                old[s] = signal.signal(s, lambda *_: stop_signal.set())
+        restore = catch_stop_signals(lambda _name: stop_signal.set())
         end = None if duration_s is None else time.monotonic() + duration_s
         try:
             while not stop_signal.is_set() and (end is None or time.monotonic() < end):
@@ -134,8 +133,7 @@ class Launcher:
                 time.sleep(0.1)
         finally:
             self.stop()
-            for s, h in old.items():
-                signal.signal(s, h)
+            restore()
         if self.failed:
             return 1
         bad = [c for c in self.children if c.proc is not None and c.proc.returncode not in (0, -signal.SIGINT)]

@@ -12,7 +12,6 @@ process that holds a Zenoh session.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import signal
 import socket
@@ -27,6 +26,7 @@ from typing import Any
 import zenoh
 
 from riskfield.protocol import ENCODING, Message, decode, encode
+from riskfield.services.runtime.session import endpoint_config
 
 
 def free_port() -> int:
@@ -36,11 +36,7 @@ def free_port() -> int:
 
 
 def client_config(endpoint: str, mode: str = "client") -> zenoh.Config:
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", json.dumps(mode))
-    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    return cfg
+    return endpoint_config(mode, [endpoint])
 
 
 class ZenohRouter:
@@ -52,11 +48,7 @@ class ZenohRouter:
         self.session: zenoh.Session | None = None
 
     def __enter__(self) -> ZenohRouter:
-        cfg = zenoh.Config()
-        cfg.insert_json5("mode", '"router"')
-        cfg.insert_json5("listen/endpoints", json.dumps([self.endpoint]))
-        cfg.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(cfg)
+        self.session = zenoh.open(endpoint_config("router", listen=[self.endpoint]))
         return self
 
     def __exit__(self, *exc: object) -> None:

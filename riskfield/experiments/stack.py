@@ -19,7 +19,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from riskfield.protocol import Message, decode
+from riskfield.protocol import Keys, Message, decode
 from riskfield.testing import ServiceProcess, ZenohRouter, client_session, wait_alive
 
 #: The safety filter as the benchmarks run it (50 Hz control).
@@ -61,7 +61,7 @@ class Stack:
         proc = ServiceProcess(service, self.router.endpoint, ["--robot", self.robot, *args])
         proc.__enter__()
         self.procs[label] = proc
-        if wait and not wait_alive(self.session, f"rf/{self.robot}/alive/{service}", timeout_s):
+        if wait and not wait_alive(self.session, self.keys.alive(service), timeout_s):
             out = proc.output
             self.stop(label)
             raise RuntimeError(f"{label} ({service}) did not come up:\n{out[-3000:]}")
@@ -75,8 +75,12 @@ class Stack:
         proc.__exit__(None, None, None)
         return code
 
+    @property
+    def keys(self) -> Keys:
+        return Keys(robot=self.robot)
+
     def key(self, relative: str) -> str:
-        return f"rf/{self.robot}/{relative}"
+        return self.keys.key(relative)
 
 
 class Recorder:

@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 import math
-import os
-import time
 
 import numpy as np
 import pytest
 
-from riskfield.protocol import RiskConfig, RiskGroup, RobotState, VelocityCommand, ade20k, decode, encode
+from riskfield.protocol import RiskConfig, RiskGroup, RobotState, VelocityCommand, encode
 from riskfield.services.safety_filter.analytic import Plane, Sphere, to_esdf, to_grid_message
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
-from riskfield.services.safety_filter.risk_file import RiskFileWatcher, load_risk_file
 from riskfield.services.safety_filter.supervisor import FilterSupervisor
 
 GROUPS = ["high", "mid", "low"]
@@ -123,47 +120,6 @@ def test_status_reports_the_intervention_and_a_braking_status_is_always_finite()
 
 
 # -- risk file ----------------------------------------------------------------------------------
-
-RISK_YAML = """
-risk:
-  groups:
-    - {name: high, labels: [person, animal], margin: 0.2, alpha: 0.5, alpha1: 1.0, alpha2: 0.2}
-    - {name: low, labels: [wall, 119], margin: 0.0, alpha: 2.0}
-  default_group: low
-"""
-
-
-def test_risk_file_accepts_class_names_and_indices(tmp_path):
-    path = tmp_path / "risk.yaml"
-    path.write_text(RISK_YAML)
-    risk = load_risk_file(path)
-    assert risk.group_names == ["high", "low"]
-    assert risk.groups[0].labels == [ade20k.index("person"), ade20k.index("animal")]
-    assert risk.groups[1].labels == [0, 119]
-    decode(encode(risk), RiskConfig)
-
-
-@pytest.mark.parametrize("text", ["groups: [{name: a, labels: [not a class]}]", "groups: []", "- 1", "groups: [{"])
-def test_bad_risk_files_raise_value_errors(tmp_path, text):
-    path = tmp_path / "risk.yaml"
-    path.write_text(text)
-    with pytest.raises(ValueError):
-        load_risk_file(path)
-
-
-def test_watcher_reports_each_change_once(tmp_path):
-    path = tmp_path / "risk.toml"
-    path.write_text('default_group = "a"\n[[groups]]\nname = "a"\nalpha = 1.0\n')
-    w = RiskFileWatcher(path)
-    first = w.poll()
-    assert first is not None and first.groups[0].alpha == 1.0
-    assert w.poll() is None
-    path.write_text('default_group = "a"\n[[groups]]\nname = "a"\nalpha = 2.5\n')
-    os.utime(path, ns=(time.time_ns(), time.time_ns() + 10**9))
-    second = w.poll()
-    assert second is not None and second.groups[0].alpha == 2.5
-    assert RiskFileWatcher(tmp_path / "missing.yaml").poll() is None
-
 
 def test_supervisor_hot_swaps_risk():
     sup = make()

@@ -20,11 +20,9 @@ from riskfield.protocol import EsdfGrid, PerceptionFrame, VelocityCommand, decod
 app = typer.Typer(add_completion=False)
 
 ECHO = """
-import sys, zenoh, json
-cfg = zenoh.Config()
-cfg.insert_json5("mode", '"client"'); cfg.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
-cfg.insert_json5("scouting/multicast/enabled", "false")
-with zenoh.open(cfg) as s:
+import sys, zenoh
+from riskfield.services.runtime.session import endpoint_config
+with zenoh.open(endpoint_config("client", [sys.argv[1]])) as s:
     pub = s.declare_publisher("bench/pong")
     sub = s.declare_subscriber("bench/ping", lambda smp: pub.put(smp.payload))
     print("ready", flush=True)

@@ -82,7 +82,7 @@ def run_lap(stack: Stack, rec, timeout_s: float) -> dict:
     rec.clear()
     seq = WaypointSequencer(planar=True)
     seq.set_goal(CORNERS, TOLERANCE, loop=False)
-    put(stack.session, stack.key("nav/goal"), NavGoal(waypoints=CORNERS, tolerance=TOLERANCE, loop=False))
+    put(stack.session, stack.keys.nav_goal, NavGoal(waypoints=CORNERS, tolerance=TOLERANCE, loop=False))
     t0 = time.monotonic()
     seen = 0
     while time.monotonic() - t0 < timeout_s and not seq.finished:
@@ -147,7 +147,7 @@ def navigation(
     t_start = time.perf_counter()
     keys = {"state": (None, RobotState), "status": (None, SafetyStatus)}
     with Stack(robot="nav_loop") as stack:
-        keys = {"state": (stack.key("state"), RobotState), "status": (stack.key("safety/status"), SafetyStatus)}
+        keys = {"state": (stack.keys.state, RobotState), "status": (stack.keys.safety_status, SafetyStatus)}
         service, args = perception_args(perception)
         stack.start("sim", "simulator", ["--set", f"scenario={scenario_path}", "--set", "camera_hz=10"])
         stack.start("perception", service, args)
@@ -158,7 +158,7 @@ def navigation(
         with recording(stack.session, keys) as rec:
             time.sleep(2.0)  # first frames into the map
             laps.append(run_lap(stack, rec, lap_timeout))
-            put(stack.session, stack.key("sim/spawn"), json.dumps(UNSEEN).encode())
+            put(stack.session, stack.keys.sim_spawn, json.dumps(UNSEEN).encode())
             time.sleep(2.5)  # the navigator's stop hold ends; the new obstacle is in view of nothing yet
             laps.append(run_lap(stack, rec, lap_timeout))
     clearance = clearance_fn(scenario_path, [UNSEEN])

@@ -117,8 +117,9 @@ def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, 
     stack.start("mapping", "mapping", ["--set", "esdf_rate_hz=10"])
     stack.start("filter", "safety-filter", FAST_FILTER)
     traces = []
-    keys = {"state": (stack.key("state"), RobotState), "ref": (stack.key("cmd/ref"), VelocityCommand),
-            "safe": (stack.key("cmd/safe"), VelocityCommand), "status": (stack.key("safety/status"), SafetyStatus)}
+    k = stack.keys
+    keys = {"state": (k.state, RobotState), "ref": (k.cmd_ref, VelocityCommand),
+            "safe": (k.cmd_safe, VelocityCommand), "status": (k.safety_status, SafetyStatus)}
     for run in range(runs):
         stack.start("sim", "simulator", ["--set", f"scenario={scenario}", "--set", "camera_hz=10"])
         with recording(stack.session, keys) as rec:

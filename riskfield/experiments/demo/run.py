@@ -132,7 +132,7 @@ class Demo:
             st = self._status(s, "navigator", 1.0)
             reached = int(st.extra.get("reached", 0)) if st else 0
             if not spawned and reached >= len(LOOP):
-                s.put(self.keys.key("sim/spawn"), json.dumps(UNSEEN).encode())
+                s.put(self.keys.sim_spawn, json.dumps(UNSEEN).encode())
                 spawned = True
                 self._mark("unseen_obstacle_placed")
             if reached >= len(wps):
@@ -168,7 +168,7 @@ def _clearances(cfg: DemoConfig, t: np.ndarray, xy: np.ndarray, placed_at: float
 
 
 def make_report(cfg: DemoConfig, console: Console) -> dict:
-    root = f"rf/{cfg.robot}"
+    root = Keys(robot=cfg.robot).root
     st = rp.load_streams(cfg.out / "recording.mcap", root)
     t0 = st.t0_ns / 1e9
     ph = {k: v - t0 for k, v in cfg.phases.items()}
