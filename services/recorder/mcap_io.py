@@ -224,8 +224,10 @@ def read_records(path: str | Path, *, raw_only: bool = False,
 
     Raw channels give the wire bytes. Unless ``raw_only``, a key recorded only as a JSON view
     (commands and statuses in a default recording) is rebuilt into a wire payload when its
-    message has no arrays, marked ``raw=False``. A cut or corrupt file raises
-    :class:`RecordingError` after its last readable record, or calls ``on_error`` and stops.
+    message has no arrays, and a key recorded only as a Foxglove view comes with the view's
+    protobuf bytes and schema name (``foxglove.PointCloud``); both are marked ``raw=False``.
+    A cut or corrupt file raises :class:`RecordingError` after its last readable record, or
+    calls ``on_error`` and stops.
     """
     raw_keys: set[str] = set()
     try:
@@ -235,7 +237,13 @@ def read_records(path: str | Path, *, raw_only: bool = False,
                 raw_keys.add(key)
                 yield Record(key, schema.name if schema else UNKNOWN_SCHEMA, message.data, message.log_time)
                 continue
-            if raw_only or channel.message_encoding != "json" or channel.topic in raw_keys:
+            if raw_only or channel.topic in raw_keys:
+                continue
+            if channel.message_encoding != "json":
+                # a Foxglove view of a key kept only as a view (camera, pointmaps): counted by readers
+                # such as the demo report, never decodable as a riskfield message
+                yield Record(channel.topic, schema.name if schema else UNKNOWN_SCHEMA, message.data,
+                             message.log_time, raw=False)
                 continue
             rebuilt = _rebuild(message.data)
             if rebuilt is not None:

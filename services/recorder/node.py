@@ -185,14 +185,14 @@ class Recording:
         """Every ``flush_s``: end the open chunk (crash safety), rotate or stop on size, report."""
         self._rec.flush()
         s = self.s
-        if s.split_mb and self._rec.size >= s.split_mb * MB:
+        if s.max_mb and self.total_bytes >= s.max_mb * MB and not self.stopped_for_size:
+            self.stopped_for_size = True
+            self._node.log.warning("size limit of %g MB reached: recording stopped", s.max_mb)
+            self._node.stop(f"size limit of {s.max_mb:g} MB reached")
+        elif s.split_mb and self._rec.size >= s.split_mb * MB:
             self._close_file()
             self._open_file()
             self._node.log.info("continuing in %s", self.path)
-        if s.max_mb and self.total_bytes >= s.max_mb * MB and not self.stopped_for_size:
-            self.stopped_for_size = True
-            self._node.log.warning("size limit of %.0f MB reached: recording stopped", s.max_mb)
-            self._node.stop(f"size limit of {s.max_mb:.0f} MB reached")
         self._status()
 
     def _status(self) -> None:

@@ -400,3 +400,35 @@ def test_flipped_bytes_in_a_compressed_chunk_never_hang_or_traceback(tmp_path):
                        capture_output=True, text=True, stdin=subprocess.DEVNULL)
     assert r.returncode in (1, 2) and "Traceback" not in r.stderr, r.stderr
     assert "corrupt" in r.stderr or "CRC" in r.stderr or "truncated" in r.stderr, r.stderr
+
+
+def test_size_limit_and_file_splitting(router_endpoint, tmp_path):
+    robot = "t_split"
+    rng = np.random.default_rng(1)
+    big = encode(EsdfGrid(origin=(0, 0, 0), voxel_size=0.1, distance=rng.random((64, 64, 1), np.float32),
+                          risk_group=np.zeros((64, 64, 1), np.uint8), groups=["high"], max_distance=2.0,
+                          unknown_is_occupied=False))  # ≈ 20 kB raw and 20 kB as a Grid, incompressible
+    args = ["--robot", robot, "--set", f"out={tmp_path}", "--set", "status_period_s=0.1", "--set", "flush_s=0.2",
+            "--set", "split_mb=0.15", "--set", "max_mb=0.5"]
+    with client_session(router_endpoint) as session:
+        status = Collector(session, f"rf/{robot}/status/record", NodeStatus)
+        with ServiceProcess("record", router_endpoint, args) as rec:
+            assert wait_alive(session, f"rf/{robot}/alive/record"), rec.output
+            status.wait(1, timeout_s=20)
+            # publish until the recorder stops by itself at its size limit
+            assert wait_until(lambda: put(session, f"rf/{robot}/map/esdf", big) or not rec.alive(), 60,
+                              period_s=0.01), rec.output
+            assert rec.proc.wait(10) == 0, rec.output
+            assert "size limit" in rec.output
+        status.close()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["stopped_for_size"]
+    files = [Path(f) for f in summary["files"]]
+    assert files[0].name == "recording.mcap" and files[1].name == "recording-001.mcap" and len(files) >= 3
+    sizes = [f.stat().st_size for f in files]
+    assert 0.5e6 <= sum(sizes) < 0.5e6 + 0.3e6  # stops within about one flush period past the limit
+    assert all(s >= 0.15e6 for s in sizes[:-1]) and all(s < 0.15e6 + 0.3e6 for s in sizes)
+    for f in files:  # every part is a complete MCAP file of its own
+        keys, err = scan(f)
+        assert err is None and keys[f"rf/{robot}/map/esdf"].raw > 0
+    assert any(s.extra.get("record_mb_per_s", 0) > 0 for s in status.items)  # the live rate is published
