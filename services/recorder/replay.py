@@ -99,7 +99,7 @@ def plan(keys: dict[str, KeyInfo], remap: Remap, *, include_commands: bool = Fal
                          f"{', '.join(known) or 'none'})")
     for k, info in keys.items():
         if not info.raw:
-            if info.views and _is_key_view(k, keys):
+            if info.views and _is_key_view(k, keys) and not (skip_status and is_status(k)):
                 p.not_reproducible.append(k)
         elif skip_status and is_status(k):
             p.status.append(k)
