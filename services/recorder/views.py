@@ -102,7 +102,7 @@ class ImageView:
             return [_proto(topic, out)]
         try:
             from PIL import Image as PILImage  # the `sim` extra; optional for the recorder
-        except ModuleNotFoundError:
+        except ImportError:
             self.pillow_missing = True
             raw = RawImage(frame_id=m.header.frame_id, width=m.width, height=m.height, encoding="rgb8",
                            step=3 * m.width, data=np.ascontiguousarray(m.data, np.uint8).tobytes())

@@ -432,3 +432,35 @@ def test_size_limit_and_file_splitting(router_endpoint, tmp_path):
         keys, err = scan(f)
         assert err is None and keys[f"rf/{robot}/map/esdf"].raw > 0
     assert any(s.extra.get("record_mb_per_s", 0) > 0 for s in status.items)  # the live rate is published
+
+
+# -- views, unit level -----------------------------------------------------------------------------
+
+
+def test_views_without_pillow_fall_back_to_raw_image(monkeypatch):
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    from riskfield.services.recorder.views import ImageView
+
+    monkeypatch.setitem(sys.modules, "PIL", None)  # as if pillow were not installed
+    view = ImageView()
+    (v,) = view("rf/a/camera/image", _image())
+    assert view.pillow_missing and v.schema == "foxglove.RawImage"
+    raw = RawImage.FromString(v.data)
+    assert (raw.width, raw.height, raw.encoding, raw.step) == (32, 24, "rgb8", 96)
+    assert raw.data == _image().data.tobytes()
+
+
+def test_voxel_grid_layout_is_x_fastest_then_y_then_z():
+    from foxglove_schemas_protobuf.VoxelGrid_pb2 import VoxelGrid
+
+    from riskfield.services.recorder.views import esdf_view
+
+    g = _esdf(nz=3)
+    g.distance[4, 3, 2] = 0.125
+    (v,) = esdf_view("rf/a/map/esdf3d", g)
+    vox = VoxelGrid.FromString(v.data)
+    cells = np.frombuffer(vox.data, np.dtype([("d", "<f4"), ("g", "u1")]))
+    at = 2 * vox.slice_stride + 3 * vox.row_stride + 4 * vox.cell_stride  # z=2, y=3, x=4
+    assert cells["d"][at // vox.cell_stride] == pytest.approx(0.125)
+    assert vox.pose.position.z == pytest.approx(0.05) and vox.cell_size.z == pytest.approx(0.1)
