@@ -119,7 +119,11 @@ class McapRecorder:
         self.count += 1
 
     def flush(self) -> None:
-        """End the chunk in progress and hand it to the OS: a crash after this loses nothing before it."""
+        """End the chunk in progress and hand it to the OS: a crash after this loses nothing before it.
+
+        ``mcap.writer.Writer.flush`` (mcap ≥ 1.6) finalises the open chunk with its CRC and message
+        indexes and flushes the stream; no fsync, since a killed process leaves the OS's page cache
+        intact (a power cut is not covered)."""
         self._writer.flush()
 
     @property
