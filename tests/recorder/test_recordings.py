@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -40,6 +41,13 @@ from riskfield.services.recorder.replay import COMMAND_KEYS, Remap, plan
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
 
 PY = sys.executable
+
+
+@pytest.fixture(autouse=True)
+def _delete_recordings(tmp_path):
+    """Recordings can be large: nothing a test wrote outlives it."""
+    yield
+    shutil.rmtree(tmp_path, ignore_errors=True)
 
 
 def _esdf(nz: int = 1, v: float = 1.25) -> EsdfGrid:

@@ -3,15 +3,24 @@
 from __future__ import annotations
 
 import json
+import shutil
 import time
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from riskfield.protocol import EsdfGrid, NodeStatus, VelocityCommand, decode, encode
 from riskfield.services.recorder.mcap_io import McapRecorder, peek_schema, read_records
 from riskfield.services.recorder.replay import Remap, schedule
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+
+
+@pytest.fixture(autouse=True)
+def _delete_recordings(tmp_path):
+    """Recordings can be large: nothing a test wrote outlives it."""
+    yield
+    shutil.rmtree(tmp_path, ignore_errors=True)
 
 
 def _grid(v: float) -> EsdfGrid:
