@@ -105,6 +105,7 @@ class Recording:
         self.expr = s.keys or f"{self.root}/**"
         node.subscribe(self.expr, None, self._on_payload, queue="fifo", maxlen=s.max_queue)
         node.every(s.flush_s, self._tick)
+        node.on_close(self._end_line)
         node.log.info("recording %s into %s (%s)", self.expr, self.path,
                       "raw: every key" if s.raw else "viewable; raw: " + ", ".join(FILTER_INPUTS))
 
@@ -210,10 +211,14 @@ class Recording:
             self._last_log = now
             self._node.log.info(line)
 
+    def _end_line(self) -> None:
+        if self._tty:  # the node's last log lines start on a line of their own
+            self._tty = False
+            sys.stderr.write("\n")
+
     def close(self) -> None:
         self._close_file()
-        if self._tty:
-            sys.stderr.write("\n")
+        self._end_line()
         dur = time.time() - self._t0
         total = self._closed_bytes
         summary = {"files": [str(p) for p in self.files], "file": str(self.files[0]), "key_expr": self.expr,
