@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 import msgpack
-from mcap.exceptions import EndOfFile, InvalidMagic, McapError
+from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Footer
 from mcap.records import Message as McapMessage
 from mcap.records import Schema as McapSchema
@@ -168,11 +168,8 @@ def check_recording(path: str | Path) -> None:
 def _describe(exc: BaseException, offset: int) -> str:
     if isinstance(exc, CRCValidationError):
         return f"CRC mismatch in a chunk after byte {offset} (the file is corrupt): {exc}"
-    if isinstance(exc, (McapError, EOFError, ValueError, KeyError, IndexError)) or exc.__class__.__name__ in (
-            "ZstdError", "LZ4FrameError", "RuntimeError", "error"):
-        what = str(exc) or exc.__class__.__name__
-        return f"unreadable data after byte {offset} ({what}); the file is truncated or corrupt"
-    return f"unreadable data after byte {offset} ({exc!r})"
+    what = str(exc) or exc.__class__.__name__
+    return f"unreadable data after byte {offset} ({what}); the file is corrupt"
 
 
 def iter_mcap(path: str | Path) -> Iterator[tuple[McapSchema | None, Channel, McapMessage]]:
