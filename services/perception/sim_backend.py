@@ -27,11 +27,11 @@ import numpy as np
 from riskfield.protocol import Image, PerceptionFrame
 from riskfield.protocol.messages import Header
 
+from ..geometry.transforms import inverse as _inv
+from ..geometry.transforms import transform_points
 from .backend import Labeller, image_rgb
 from .degrade import DegradationConfig, Degrader, Observation
 from .fusion import Q_CONF, KeyframeFusion, scatter_to_frame
-from .geometry import inverse as _inv
-from .geometry import transform_points
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,8 @@ from typing import Protocol
 
 import numpy as np
 
+from ..geometry.transforms import yaw_quaternion
+
 
 @dataclass(frozen=True)
 class KinematicState:
@@ -66,10 +68,6 @@ LIMO = PlanarLimits()
 LIMO_MECANUM = PlanarLimits(vy_max=1.0)
 LIMO_WHEELBASE = 0.2
 LIMO_MAX_STEER = 0.488
-
-
-def yaw_quaternion(yaw: float) -> np.ndarray:
-    return np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
 
 
 def wrap_angle(a: float) -> float:
