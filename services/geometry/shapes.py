@@ -138,7 +138,7 @@ class Box:
 
     def intersect(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         lo, hi = np.asarray(self.lo), np.asarray(self.hi)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # an axis-parallel ray: ±inf slabs
             inv = 1.0 / d
             ta, tb = (lo - o) * inv, (hi - o) * inv
         ta = np.nan_to_num(ta, nan=-np.inf)
