@@ -94,6 +94,8 @@ class Render:
 
 def _rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     # Not ``v @ R.T``: a BLAS gemm with a 3-wide inner dimension stalls on a busy machine.
+    # (geometry.transforms.transform_points is the same product plus a translation, in float64;
+    # this one keeps the rays' float32 and skips the translation, once per pixel per frame.)
     out = np.empty_like(v)
     for i in range(3):
         out[..., i] = R[i, 0] * v[..., 0] + R[i, 1] * v[..., 1] + R[i, 2] * v[..., 2]

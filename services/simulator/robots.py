@@ -29,7 +29,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..geometry.transforms import yaw_quaternion
+from ..geometry.transforms import yaw_matrix, yaw_of, yaw_quaternion
 
 
 @dataclass(frozen=True)
@@ -43,8 +43,7 @@ class KinematicState:
 
     @property
     def yaw(self) -> float:
-        x, y, z, w = self.orientation
-        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        return yaw_of(self.orientation)
 
 
 class Robot(Protocol):
@@ -214,8 +213,7 @@ class _Spatial:
         self.v = np.asarray(self.v, np.float64).copy()
 
     def _rot(self) -> np.ndarray:
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return yaw_matrix(self.yaw)
 
     def _turn(self, w_cmd: float, dt: float) -> None:
         self.w = float(np.clip(w_cmd, -self.w_max, self.w_max))
