@@ -67,7 +67,8 @@ def test_exact_field_keeps_clearance_through_a_blocked_path(case):
 
 
 def test_pointcloud_map_from_renders_matches_ground_truth(case):
-    from riskfield.services.simulator.camera import PinholeCamera, Renderer
+    from riskfield.services.geometry.camera import PinholeCamera
+    from riskfield.services.simulator.camera import Renderer
 
     perceive = gt_perception(Renderer(PinholeCamera.from_fov(128, 96, 90.0)))
     stream = [perceive(case.scene.at(0.0), T) for T in camera_poses(case, 12)]
