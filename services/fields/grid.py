@@ -24,12 +24,14 @@ z-gradient and the z rows of the Hessian are zero.
 ``outside_map`` brake and the ``in_map`` flag of ``map/esdf/query`` all use it): a point is
 *inside* when it lies within the hull of voxel centres, ``origin ≤ p ≤ origin + voxel_size ·
 (shape − 1)`` per axis (x and y only for a slice), with a 1e-9 voxel tolerance. That is the
-region where the distance is an *interpolation* of measured voxels; the half voxel beyond the
-outer centres (the outer voxels' cubes) could only be answered by extrapolating the border
-layer — the 4-point stencil there already has to invent its outer layer for the derivatives —
-so it is not claimed as map. Outside points are evaluated at the nearest point of the hull and
-flagged; the filter brakes on them and the query service answers them with the value of
-unknown space (:func:`answer_query`).
+region where the distance is an *interpolation* of stored voxels. In the half voxel beyond the
+outer centres (the rest of the outer voxels' cubes, which the query service used to count as
+map) the interpolant has no data on the far side: a value there would be the border layer
+clamped or extrapolated — and the 4-point stencil already has to invent its outer layer for the
+derivatives at the border. So the conservative rule is kept: nothing invented is called map,
+and a client is never told "in map" where the filter brakes. Outside points are evaluated at
+the nearest point of the hull and flagged; the filter brakes on them and the query service
+answers them with the value of unknown space (:func:`answer_query`).
 
 The risk group of a query is the ``risk_group`` of the nearest voxel (the mapper stores there
 the group of that voxel's nearest obstacle).
