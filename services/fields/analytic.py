@@ -24,14 +24,18 @@ from .grid import EsdfField
 
 
 class AnalyticField:
-    """The nearest of several shapes: distance, derivatives and group (``label``) of the argmin.
+    """The nearest of several shapes: distance, derivatives and group (``label``) of the argmin,
 
-    Spheres and planes are evaluated together as arrays (this is the hot loop of the rollouts);
-    boxes one by one.
+        d(x) = min_i d_i(x),   ∇d(x) = ∇d_k(x),   ∇²d(x) = ∇²d_k(x),   k = argmin_i d_i(x)
+
+    (exact away from the ties where two shapes are equally near). Spheres and planes are
+    evaluated together as arrays (this is the hot loop of the rollouts); boxes one by one.
     """
 
     def __init__(self, shapes: Shape | Sequence[Shape], groups: Sequence[str] = ()):
         self.shapes: list[Shape] = [shapes] if isinstance(shapes, Plane | Box | Sphere) else list(shapes)
+        if not self.shapes:
+            raise ValueError("an analytic field needs at least one shape")
         self._groups = tuple(groups)
         spheres = [p for p in self.shapes if isinstance(p, Sphere)]
         planes = [p for p in self.shapes if isinstance(p, Plane)]
