@@ -174,7 +174,8 @@ def demo(
     with an unseen obstacle; ends with a summary table and a report folder."""
     import json
 
-    from riskfield.experiments.demo.run import Demo, DemoConfig, make_report
+    from riskfield.experiments.demo.report import make_report
+    from riskfield.experiments.demo.run import Demo, DemoConfig
 
     cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose)
     if report_only:

@@ -74,8 +74,12 @@ class Stack:
             return None
         return self.runner.stop(label)
 
+    @property
+    def keys(self) -> Keys:
+        return self.runner.keys
+
     def key(self, relative: str) -> str:
-        return self.runner.keys.key(relative)
+        return self.keys.key(relative)
 
 
 def publish(session: Any, key: str, msg: Message | bytes) -> None:
