@@ -38,7 +38,7 @@ def send_goal(session: Any, keys: Keys, waypoints: np.ndarray, tolerance: float)
 
 def place_unseen(session: Any, keys: Keys, spec: dict[str, Any]) -> None:
     """Drop an object into the running simulation (``sim/spawn``): the unseen obstacle."""
-    publish(session, keys.key("sim/spawn"), json.dumps(spec).encode())
+    publish(session, keys.sim_spawn, json.dumps(spec).encode())
 
 
 @dataclass
