@@ -153,7 +153,7 @@ class Child:
         if self.proc is not None:
             raise RuntimeError(f"{self.label} was started already")
         self.proc = subprocess.Popen(
-            self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=self.env, stdin=subprocess.DEVNULL,
+            self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=self.env,
             start_new_session=True,  # a terminal's Ctrl-C reaches us only; we stop children in order
         )
         self._reader = threading.Thread(target=self._pump, name=f"output:{self.label}", daemon=True)
