@@ -76,10 +76,8 @@ class Stack:
 
     @property
     def keys(self) -> Keys:
+        """The keys of this stack's robot."""
         return self.runner.keys
-
-    def key(self, relative: str) -> str:
-        return self.keys.key(relative)
 
 
 def publish(session: Any, key: str, msg: Message | bytes) -> None:

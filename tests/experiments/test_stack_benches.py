@@ -85,11 +85,11 @@ def test_navigator_drives_the_full_stack_round_a_ball():
         stack.start("mapping", "mapping", ["--set", "esdf_rate_hz=10"])
         stack.start("filter", "safety-filter", FAST_FILTER)
         stack.start("navigator", "navigator", ["--set", "nav.v_max=0.5"])
-        keys = {"state": (stack.key("state"), RobotState), "status": (stack.key("safety/status"), SafetyStatus)}
+        keys = {"state": (stack.keys.state, RobotState), "status": (stack.keys.safety_status, SafetyStatus)}
         goal = np.array([[1.5, 0.0, 0.0]])  # the ball sits at (0.5, 0) on the straight line from (-3, 0)
         with recording(stack.session, keys) as rec:
             time.sleep(1.0)
-            put(stack.session, stack.key("nav/goal"), NavGoal(waypoints=goal, tolerance=0.2, loop=False))
+            put(stack.session, stack.keys.nav_goal, NavGoal(waypoints=goal, tolerance=0.2, loop=False))
 
             def arrived() -> bool:
                 s = rec.snapshot("state")
