@@ -112,7 +112,7 @@ def up(
     try:  # the robot whose liveliness tokens say "ready", resolved as the services resolve it
         ident = NodeSettings(**{k: v for k, v in dict(robot=robot, prefix=prefix, config=config).items() if v})
         keys = Keys(robot=ident.robot, prefix=ident.prefix)
-    except Exception:  # a broken config: the services will say so and exit, and so will we
+    except (ValueError, OSError):  # a broken config: the services will say so and exit, and so will we
         keys = Keys(robot=robot or "limo1", prefix=prefix or "rf")
     runner = ProcessRunner(listen, keys, echo=True, console=console)
     if router:

@@ -127,7 +127,7 @@ def _clearances(cfg: DemoConfig, t: np.ndarray, xy: np.ndarray, placed_at: float
     objs = _scene_objects()
     scenes = {name: Scene([o]) for name, o in objs.items()}
     clear = clearance_series(lambda name, ts: scenes[name].at(ts), list(objs), t, xy, cfg.robot_radius,
-                                t_sim0=float(t[0]))
+                             t_sim0=float(t[0]))
     clear[UNSEEN["name"]] = np.where(t >= placed_at, clear[UNSEEN["name"]], np.inf)
     clear["all"] = np.min(np.vstack([clear[n] for n in objs]), axis=0)
     return clear
