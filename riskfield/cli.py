@@ -94,9 +94,11 @@ def up(
     config: Annotated[Path | None, typer.Option("--config", "-c")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop everything after this many seconds.")] = None,
 ) -> None:
-    """Start the router and services as separate processes; logs are prefixed by service."""
-    from riskfield.launcher import Launcher
-    from riskfield.services.runtime import SERVICES
+    """Start the router and services as separate processes; logs are prefixed by service.
+    Ctrl-C or SIGTERM stops them all; if a service dies, the rest are stopped and the exit code is 1."""
+    from riskfield.protocol import Keys
+    from riskfield.services.runtime import SERVICES, NodeSettings
+    from riskfield.services.runtime.processes import ProcessRunner
 
     names = services or []
     unknown = [n for n in names if n not in SERVICES or n == "router"]
@@ -107,13 +109,17 @@ def up(
     for flag, value in (("--robot", robot), ("--prefix", prefix), ("--config", config)):
         if value:
             common += [flag, str(value)]
-    launcher = Launcher()
+    try:  # the robot whose liveliness tokens say "ready", resolved as the services resolve it
+        ident = NodeSettings(**{k: v for k, v in dict(robot=robot, prefix=prefix, config=config).items() if v})
+        keys = Keys(robot=ident.robot, prefix=ident.prefix)
+    except (ValueError, OSError):  # a broken config: the services will say so and exit, and so will we
+        keys = Keys(robot=robot or "limo1", prefix=prefix or "rf")
+    runner = ProcessRunner(listen, keys, echo=True, console=console)
     if router:
-        launcher.add("router", ["--listen", listen, *common])
+        runner.add("router", "router", common)
     for name in names:
-        launcher.add(name, ["--connect", listen, *common])
-    launcher.start()
-    raise typer.Exit(launcher.wait(duration))
+        runner.add(name, name, common)
+    raise typer.Exit(runner.watch(duration))
 
 
 def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
@@ -222,7 +228,8 @@ def demo(
     with an unseen obstacle; ends with a summary table and a report folder."""
     import json
 
-    from riskfield.experiments.demo.run import Demo, DemoConfig, make_report
+    from riskfield.experiments.demo.report import make_report
+    from riskfield.experiments.demo.run import Demo, DemoConfig
 
     cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose)
     if report_only:
