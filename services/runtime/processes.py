@@ -35,9 +35,9 @@ import zenoh
 
 from riskfield.protocol import Keys
 
-from .signals import catch_stop_signals
 from .session import open_session, zenoh_config
 from .settings import NodeSettings
+from .signals import catch_stop_signals
 
 if TYPE_CHECKING:
     from rich.console import Console
