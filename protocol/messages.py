@@ -172,7 +172,8 @@ class DistanceQuery(Message):
 
 class DistanceReply(Message):
     """Answer to a ``DistanceQuery``, row for row. ``in_map`` (optional) is False where a
-    point lies outside the map; its distance is then ``-max_distance`` if unknown space is
+    point lies outside the map (beyond the hull of the ESDF's voxel centres, where the safety
+    filter brakes with ``outside_map``); its distance is then ``-max_distance`` if unknown space is
     occupied, else ``max_distance``."""
 
     SCHEMA: ClassVar[str] = "DistanceReply/1"
@@ -247,6 +248,8 @@ class SafetyStatus(Message):
     fallback: str | None
     solve_us: NonNegFloat
     esdf_age_ms: FiniteFloat
+    # Additive: risk-file changes refused since start (the configuration in force was kept).
+    risk_errors: Annotated[int, Field(ge=0)] = 0
 
 
 class NavGoal(Message):

@@ -12,7 +12,8 @@ reference at 30 Hz), and ``probe`` records what the robot side hears: the arriva
 (CLOCK_MONOTONIC, shared by every namespace of the machine) of each ESDF, each ``cmd/safe``
 with its velocities, each ``safety/status`` with its fallback, one JSON object per line.
 
-They use the wire contract (``riskfield.protocol``) and a plain Zenoh client session; each
+They use the wire contract (``riskfield.protocol``) and a plain Zenoh client session (built by
+the runtime's ``endpoint_config``); each
 stops cleanly on SIGINT/SIGTERM.
 """
 
@@ -20,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import threading
 import time
 from collections.abc import Callable
@@ -40,26 +40,16 @@ from riskfield.protocol import (
     decode,
     encode,
 )
+from riskfield.services.runtime.session import endpoint_config
+from riskfield.services.runtime.signals import stop_event
 
 _ENC = zenoh.Encoding(ENCODING)
 
 
 def open_session(endpoint: str) -> zenoh.Session:
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"client"')
-    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
     # Keep retrying the first connection: the router may still be starting.
-    cfg.insert_json5("connect/timeout_ms", "-1")
-    cfg.insert_json5("connect/exit_on_failure", "false")
-    return zenoh.open(cfg)
-
-
-def stop_event() -> threading.Event:
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
+    return zenoh.open(endpoint_config("client", [endpoint],
+                                      extra={"connect/timeout_ms": -1, "connect/exit_on_failure": False}))
 
 
 def every(period_s: float, stop: threading.Event, fn: Callable[[], None]) -> None:

@@ -23,12 +23,13 @@ import contextlib
 import math
 import os
 import select
-import signal
 import threading
 import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass
+
+from riskfield.services.runtime.signals import stop_event
 
 from .kinematics import MotionMode, wrap_angle
 from .protocol import (
@@ -260,9 +261,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rate", type=float, default=50.0, help="feedback rate (Hz)")
     args = ap.parse_args(argv)
     model = ChassisModel(motion_mode=MotionMode.parse(args.mode))
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_event()
     with ChassisEmulator(model, rate_hz=args.rate, link=args.link) as emu:
         print(f"LIMO emulator ({model.motion_mode.name.lower()}) on {emu.path}"
               + (f" (link {args.link})" if args.link else ""), flush=True)

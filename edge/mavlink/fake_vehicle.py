@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import threading
 import time
 from dataclasses import dataclass, field
 
 from pymavlink import mavutil
+
+from riskfield.services.runtime.signals import stop_event
 
 from .convert import MAV_FRAME_BODY_NED, MAV_FRAME_LOCAL_NED, VELOCITY_YAWRATE_MASK
 
@@ -139,9 +140,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--url", default="udpout:127.0.0.1:14550")
     ap.add_argument("--autopilot", choices=["px4", "ardupilot"], default="px4")
     args = ap.parse_args(argv)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_event()
     with FakeVehicle(args.url, args.autopilot) as v:
         print(f"fake {args.autopilot} vehicle → {args.url}", flush=True)
         while not stop.wait(1.0):

@@ -1,5 +1,13 @@
 """The mapping core's configuration: one object the ``Mapper`` is built from.
 
+As in nvblox (``nvblox/mapper/mapper_params.h``: ``MapperParams`` holds the
+``ProjectiveIntegratorParams``, ``OccupancyIntegratorParams``, ``EsdfIntegratorParams``, ...),
+each stage has its own parameter struct — ``VolumeParams``, ``TsdfParams``,
+``OccupancyParams``, ``EsdfParams`` — and ``MapperConfig`` composes them. The composition is
+flat (``MapperConfig`` is each of them), so a setting keeps one short name everywhere
+(``--set truncation=0.2``, ``RISKFIELD_TRUNCATION``, ``config.truncation``); ``config.tsdf``
+etc. give one stage its own struct, and ``MapperConfig.compose`` builds one from the parts.
+
 Defaults follow the authors' release: a rolling local volume of radius 2.5 m at 5 cm voxels
 (101³ voxels) that follows the robot. Distances are metres, weights are sums of per-pixel
 confidences (the pointmap's confidence is the observation weight).
@@ -7,7 +15,7 @@ confidences (the pointmap's confidence is the observation weight).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -16,13 +24,11 @@ NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
-class MapperConfig(BaseModel):
-    """Everything that shapes the map. Group names, labels and margins come from the
-    ``RiskConfig`` instead (hot-reloadable), not from here."""
+class VolumeParams(BaseModel):
+    """The rolling volume: voxel size, extent and how it follows the robot."""
 
-    model_config = ConfigDict(extra="ignore")
+    model_config = ConfigDict(extra="forbid")
 
-    # -- volume ---------------------------------------------------------------------------
     voxel_size: Annotated[float, Field(gt=0.005, le=2.0)] = 0.05
     half_extent: tuple[Pos, Pos, Pos] = (2.5, 2.5, 2.5)
     """Half size (m) of the rolling volume along x, y, z; 2.5 m at 5 cm gives 101 voxels an axis."""
@@ -32,7 +38,26 @@ class MapperConfig(BaseModel):
     """The volume shifts (keeping the overlap) once the robot is this far from its centre."""
     max_voxels: Annotated[int, Field(gt=0)] = 16_000_000
 
-    # -- TSDF integration --------------------------------------------------------------------
+    @model_validator(mode="after")
+    def _voxel_count(self) -> VolumeParams:
+        n = 1
+        for h in self.half_extent:
+            n *= 2 * round(h / self.voxel_size) + 1
+        if n > self.max_voxels:
+            raise ValueError(f"the volume has {n} voxels, over max_voxels = {self.max_voxels}")
+        return self
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Voxels per axis: an odd count so the robot sits on a voxel centre."""
+        return tuple(2 * round(h / self.voxel_size) + 1 for h in self.half_extent)  # type: ignore[return-value]
+
+
+class TsdfParams(BaseModel):
+    """TSDF integration of a pointmap (projective, weighted by confidence; free-space carving)."""
+
+    model_config = ConfigDict(extra="forbid")
+
     truncation: Pos = 0.15
     """TSDF truncation distance (m); the band updated around each observed surface point."""
     max_weight: Pos = 50.0
@@ -55,7 +80,18 @@ class MapperConfig(BaseModel):
     max_pixels: Annotated[int, Field(gt=0)] = 4_000_000
     """Frames with more pixels than this are rejected as absurd."""
 
-    # -- occupancy ----------------------------------------------------------------------------
+    @model_validator(mode="after")
+    def _depth_range(self) -> TsdfParams:
+        if self.min_depth >= self.max_depth:
+            raise ValueError("min_depth must be below max_depth")
+        return self
+
+
+class OccupancyParams(BaseModel):
+    """Which voxels are obstacles: TSDF surface support, semantic labels' band, unknown space."""
+
+    model_config = ConfigDict(extra="forbid")
+
     min_weight: NonNeg = 0.5
     """Surface support needs at least this TSDF weight."""
     surface_band_vox: Annotated[float, Field(gt=0, le=3.0)] = 0.75
@@ -65,7 +101,12 @@ class MapperConfig(BaseModel):
     unknown_group: str | None = None
     """Risk group of unknown voxels; ``None`` → the risk config's default group, else its last group."""
 
-    # -- ESDF ---------------------------------------------------------------------------------
+
+class EsdfParams(BaseModel):
+    """The risk-inflated ESDF: clipping, inflation rule, output form and EDT threads."""
+
+    model_config = ConfigDict(extra="forbid")
+
     max_distance: Annotated[float, Field(gt=0, le=100.0)] = 2.0
     """Distances are clipped to [-max_distance, max_distance]."""
     inflation: Literal["exact", "dilate"] = "exact"
@@ -79,22 +120,36 @@ class MapperConfig(BaseModel):
     threads: Annotated[int, Field(ge=1, le=64)] = 2
 
     @model_validator(mode="after")
-    def _consistent(self) -> MapperConfig:
+    def _band_order(self) -> EsdfParams:
         if self.band[0] > self.band[1]:
             raise ValueError(f"band {list(self.band)}: the lower height must not exceed the upper")
-        if self.min_depth >= self.max_depth:
-            raise ValueError("min_depth must be below max_depth")
-        n = 1
-        for h in self.half_extent:
-            n *= 2 * round(h / self.voxel_size) + 1
-        if n > self.max_voxels:
-            raise ValueError(f"the volume has {n} voxels, over max_voxels = {self.max_voxels}")
         return self
 
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        """Voxels per axis: an odd count so the robot sits on a voxel centre."""
-        return tuple(2 * round(h / self.voxel_size) + 1 for h in self.half_extent)  # type: ignore[return-value]
+
+P = TypeVar("P", bound=BaseModel)
+
+
+class MapperConfig(EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
+    """Everything that shapes the map: the stages' parameter structs, composed (see the module
+    doc). Group names, labels and margins come from the ``RiskConfig`` instead (hot-reloadable),
+    not from here."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    @classmethod
+    def compose(cls, volume: VolumeParams | None = None, tsdf: TsdfParams | None = None,
+                occupancy: OccupancyParams | None = None, esdf: EsdfParams | None = None) -> MapperConfig:
+        parts = (volume, tsdf, occupancy, esdf)
+        return cls.model_validate({k: v for p in parts if p is not None for k, v in p.model_dump().items()})
+
+    def part(self, params: type[P]) -> P:
+        """One stage's own struct, with this configuration's values."""
+        return params.model_validate({k: getattr(self, k) for k in params.model_fields})
+
+    volume = property(lambda self: self.part(VolumeParams), doc="The ``VolumeParams`` part.")
+    tsdf = property(lambda self: self.part(TsdfParams), doc="The ``TsdfParams`` part.")
+    occupancy = property(lambda self: self.part(OccupancyParams), doc="The ``OccupancyParams`` part.")
+    esdf = property(lambda self: self.part(EsdfParams), doc="The ``EsdfParams`` part.")
 
     @property
     def surface_band(self) -> float:

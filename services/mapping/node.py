@@ -15,34 +15,26 @@ Serves
 The ESDF header carries the stamp of the newest integrated frame, so its age seen by the
 safety filter includes perception latency. A rejected frame (non-rigid pose, absurd size)
 is counted (``rejected_frames``) and logged at most once per period; the node keeps serving.
-A risk config file (``risk_config_file``) is loaded at start and re-read when it changes.
+A risk file (``risk_file``, see ``runtime.risk_file``) is loaded at start and re-read when it
+changes; a bad change keeps the configuration in force and is counted (``risk_errors``).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from pathlib import Path
 
 import numpy as np
 
 from riskfield.protocol import DistanceQuery, DistanceReply, Header, Limits, PerceptionFrame, RiskConfig, RobotState
 
 from ..runtime.node import Node
+from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
-from ..runtime.settings import read_config_file
 from .mapper import FrameRejected, Mapper
 from .settings import MappingSettings
 
 MAX_QUERY_POINTS = 1_000_000
-
-
-def load_risk_file(path: Path) -> RiskConfig:
-    """A RiskConfig from a YAML/TOML/JSON file (top level, or under a ``risk`` key)."""
-    data = read_config_file(path)
-    if isinstance(data.get("risk"), dict):
-        data = data["risk"]
-    return RiskConfig.model_validate(data)
 
 
 class MappingNode:
@@ -51,10 +43,8 @@ class MappingNode:
     def __init__(self, node: Node, settings: MappingSettings):
         self.node, self.s = node, settings
         risk = None
-        self._risk_mtime: float | None = None
-        if settings.risk_config_file is not None:
-            risk = load_risk_file(settings.risk_config_file)
-            self._risk_mtime = settings.risk_config_file.stat().st_mtime
+        if settings.risk_file is not None:  # a bad file at start is a configuration error
+            risk = watch_risk_file(node, settings.risk_file, settings.risk_poll_s, self._set_risk_from_file)
         self.mapper = Mapper(settings.mapper_config(), risk)
         self.mapper.warm_up()
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)
@@ -74,8 +64,6 @@ class MappingNode:
                        limits=Limits(max_array_bytes=24 * MAX_QUERY_POINTS))
         # Frames publish at once when the rate allows; the timer catches what the rate deferred.
         node.every(self._period / 2, self.publish_esdf)
-        if settings.risk_config_file is not None:
-            node.every(settings.risk_poll_s, self.poll_risk_file)
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_frame(self, frame: PerceptionFrame) -> None:
@@ -107,19 +95,8 @@ class MappingNode:
             return
         self.node.log.info("risk config updated: groups %s", risk.group_names)
 
-    def poll_risk_file(self) -> None:
-        path = self.s.risk_config_file
-        assert path is not None
-        try:
-            mtime = path.stat().st_mtime
-            if mtime == self._risk_mtime:
-                return
-            self._risk_mtime = mtime
-            self.mapper.set_risk_config(load_risk_file(path))
-        except Exception as exc:  # a half-written or invalid file must not stop the map
-            self.node.ratelog(logging.WARNING, "risk-file", f"could not reload {path}: {exc}")
-            return
-        self.node.log.info("risk config reloaded from %s", path)
+    def _set_risk_from_file(self, risk: RiskConfig) -> None:
+        self.mapper.set_risk_config(risk)  # a ValueError keeps the configuration in force
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_esdf(self) -> None:
@@ -147,7 +124,7 @@ class MappingNode:
             raise ValueError(f"a query of {query.points.shape[0]} points is over {MAX_QUERY_POINTS}")
         ans = self.mapper.query(query.points)
         return DistanceReply(header=Header(frame_id=self.mapper.frame_id), distance=ans.distance, gradient=ans.gradient,
-                             risk_group=ans.risk_group, in_map=ans.in_map)
+                             risk_group=ans.risk_group.astype(np.uint8), in_map=ans.inside)
 
 
 def setup(node: Node, settings: MappingSettings) -> MappingNode:

@@ -23,7 +23,7 @@ class MappingSettings(NodeSettings, MapperConfig):
     """The ESDF is rebuilt and published at most this often, and only after new data."""
     esdf3d_key: str = "map/esdf3d"
     """Where the 3-D grid goes when ``output = both`` (relative to ``{prefix}/{robot}/``)."""
-    risk_config_file: Path | None = None
+    risk_file: Path | None = None
     """A RiskConfig YAML/TOML/JSON file, polled for changes; the ``config/risk`` key overrides it."""
     risk_poll_s: Annotated[float, Field(gt=0)] = 1.0
 

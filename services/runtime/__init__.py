@@ -4,11 +4,11 @@ from .inbox import Inbox
 from .logs import RateLimitedLog, setup_logging
 from .node import Node
 from .service import SERVICES, ServiceSpec, ServiceUnavailable, build_settings, load_service, run_service
-from .session import open_session, zenoh_config
-from .settings import DEFAULT_ENDPOINT, NodeSettings, parse_overrides, read_config_file
+from .session import endpoint_config, open_session, zenoh_config
+from .settings import DEFAULT_ENDPOINT, NodeSettings, UnknownSetting, parse_overrides, read_config_file
 
 __all__ = [
     "DEFAULT_ENDPOINT", "SERVICES", "Inbox", "Node", "NodeSettings", "RateLimitedLog", "ServiceSpec",
-    "ServiceUnavailable", "build_settings", "load_service", "open_session", "parse_overrides",
-    "read_config_file", "run_service", "setup_logging", "zenoh_config",
+    "ServiceUnavailable", "UnknownSetting", "build_settings", "endpoint_config", "load_service", "open_session",
+    "parse_overrides", "read_config_file", "run_service", "setup_logging", "zenoh_config",
 ]

@@ -13,7 +13,6 @@ import heapq
 import itertools
 import logging
 import os
-import signal
 import threading
 import time
 from collections import deque
@@ -29,6 +28,7 @@ from .inbox import Inbox, QueueKind, Slot
 from .logs import RateLimitedLog, setup_logging
 from .session import open_session
 from .settings import NodeSettings
+from .signals import catch_stop_signals
 
 M = TypeVar("M", bound=Message)
 _ENC = zenoh.Encoding(ENCODING)
@@ -171,7 +171,7 @@ class Node:
 
     def run(self, duration_s: float | None = None) -> int:
         """Serve until SIGINT/SIGTERM, ``stop()`` or ``duration_s``; close; return 0."""
-        restore = self._install_signals()
+        restore = catch_stop_signals(self.stop)
         end = None if duration_s is None else time.monotonic() + duration_s
         self.log.info("%s up as %s on %s (robot %s)", self.service, self.settings.mode,
                       ", ".join(self.settings.connect or self.settings.listen), self.settings.robot)
@@ -280,19 +280,6 @@ class Node:
         self.publish(self.keys.status(self.service), self.status())
 
     # -- shutdown -----------------------------------------------------------------------------
-    def _install_signals(self) -> Callable[[], None]:
-        if threading.current_thread() is not threading.main_thread():
-            return lambda: None
-        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-        for s in old:
-            signal.signal(s, lambda signum, _frame: self.stop(signal.Signals(signum).name))
-
-        def restore() -> None:
-            for s, h in old.items():
-                signal.signal(s, h)
-
-        return restore
-
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent)."""
         if self._closed:

@@ -8,7 +8,6 @@ return an object with ``close()`` (called after the loop ends).
 from __future__ import annotations
 
 import importlib
-import signal
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,6 +15,7 @@ from typing import Any
 
 from .node import Node
 from .settings import NodeSettings
+from .signals import catch_stop_signals
 
 #: Service name → "module:attribute" of its ServiceSpec, imported only when started.
 SERVICES: dict[str, str] = {
@@ -85,15 +85,6 @@ def build_settings(spec: ServiceSpec, overrides: dict[str, Any] | None = None) -
     return spec.settings(**{k: v for k, v in (overrides or {}).items() if v is not None})
 
 
-def _catch_stop_signals(flag: threading.Event) -> Callable[[], None]:
-    if threading.current_thread() is not threading.main_thread():
-        return lambda: None
-    old = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    for sig in old:
-        signal.signal(sig, lambda *_: flag.set())
-    return lambda: [signal.signal(sig, h) for sig, h in old.items()] and None
-
-
 def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_s: float | None = None) -> int:
     """Start one service in this process and serve until a signal; the exit code."""
     spec = load_service(name)
@@ -101,7 +92,7 @@ def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_
     # A stop asked for while the session is still opening (a router being dialled) is honoured
     # as soon as the node exists, with the same clean exit as later on.
     early = threading.Event()
-    restore = _catch_stop_signals(early)
+    restore = catch_stop_signals(lambda _name: early.set())
     try:
         node = Node(spec.name, settings)
     finally:

@@ -1,10 +1,16 @@
-"""Zenoh session from node settings: mode, endpoints, scouting, TLS, user/password."""
+"""Zenoh session from node settings: mode, endpoints, scouting, TLS, user/password.
+
+``endpoint_config`` is the one Zenoh config builder: nodes (``zenoh_config``), the test
+helpers (``riskfield.testing``), the fault-drill agents and the codec bench all use it.
+"""
 
 from __future__ import annotations
 
 import json
 import logging
 import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import zenoh
 
@@ -13,21 +19,34 @@ from .settings import NodeSettings
 log = logging.getLogger("riskfield.session")
 
 
+def endpoint_config(mode: str = "client", connect: Sequence[str] = (), listen: Sequence[str] = (), *,
+                    multicast_scouting: bool = False, base: Path | None = None,
+                    extra: Mapping[str, object] | None = None) -> zenoh.Config:
+    """A Zenoh config: mode, endpoints and scouting, on top of ``base`` (a JSON5 file) and
+    followed by ``extra`` (config path → value). Multicast scouting stays off unless asked
+    for: sessions connect to the endpoints they are given, which is what works across
+    containers and in tests."""
+    cfg = zenoh.Config.from_file(str(base)) if base else zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    connect = [e for e in connect if e not in listen]  # a router never dials itself
+    if connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    cfg.insert_json5("scouting/multicast/enabled", json.dumps(multicast_scouting))
+    for path, value in (extra or {}).items():
+        cfg.insert_json5(path, json.dumps(value))
+    return cfg
+
+
 def zenoh_config(s: NodeSettings) -> zenoh.Config:
-    """Build the Zenoh config. Multicast scouting stays off unless asked for: nodes connect
-    to the endpoints they are given, which is what works across containers and in tests."""
-    cfg = zenoh.Config.from_file(str(s.zenoh_config)) if s.zenoh_config else zenoh.Config()
+    """The Zenoh config of a node: ``endpoint_config`` plus TLS and user/password."""
+    cfg = endpoint_config(s.mode, s.connect, s.listen, multicast_scouting=s.multicast_scouting,
+                          base=s.zenoh_config)
 
     def put(path: str, value: object) -> None:
         cfg.insert_json5(path, json.dumps(value))
 
-    put("mode", s.mode)
-    connect = [e for e in s.connect if e not in s.listen]  # a router never dials itself
-    if connect:
-        put("connect/endpoints", connect)
-    if s.listen:
-        put("listen/endpoints", s.listen)
-    put("scouting/multicast/enabled", s.multicast_scouting)
     if s.tls_root_ca:
         put("transport/link/tls/root_ca_certificate", str(s.tls_root_ca))
     if s.tls_cert and s.tls_key:

@@ -10,17 +10,34 @@ The file holds keys shared by every node at the top level and one section per se
 
 Environment variables are ``RISKFIELD_<FIELD>`` (``RISKFIELD_CONNECT`` takes a
 comma-separated list); nested fields use ``__``. CLI flags are passed as init keywords.
+
+Settings are strict (``extra="forbid"``): a key nobody knows is an ``UnknownSetting`` error
+that names the key and the nearest valid one. One file and one environment are shared by
+every service of a stack (``riskfield up``, compose env files), so what belongs to someone
+else is not an error:
+
+- the service's own section and ``--set`` / init keywords: every key must be a setting of
+  this service;
+- top-level file keys: a setting of this service is applied, a setting of another known
+  service or a service's section is skipped, anything else is an error;
+- ``RISKFIELD_*`` variables: likewise, plus ``NOT_SETTINGS`` (hardware endpoints and the
+  deployment's compose variables); variables without the prefix are not ours and ignored.
 """
 
 from __future__ import annotations
 
+import difflib
+import logging
 import os
 import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
 
 import yaml
-from pydantic import Field, field_validator
+from pydantic import AliasChoices, BaseModel, Field, field_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import (
     BaseSettings,
@@ -31,6 +48,38 @@ from pydantic_settings import (
 )
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+ENV_PREFIX = "RISKFIELD_"
+
+#: ``RISKFIELD_*`` variables that are not settings of the node reading them: hardware endpoints
+#: (shared/DESIGN.md, "Runtime conventions"; read by the bridges, harmless elsewhere) and the
+#: variables docker compose interpolates (image, tag, router address, secrets, volumes).
+NOT_SETTINGS: frozenset[str] = frozenset({
+    "LIMO_PORT", "JOYSTICK_DEVICE", "MAVLINK_URL",
+    "SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME",
+})
+
+
+#: Settings that were renamed: the old name's error points at the new one.
+RENAMED: dict[str, str] = {"risk_config": "risk_file", "risk_config_file": "risk_file"}
+
+
+class UnknownSetting(ValueError):
+    """A key no setting answers to: names the key, where it came from and the nearest valid one."""
+
+    def __init__(self, key: str, service: str, where: str, candidates: Iterable[str]):
+        self.key, self.service, self.where = key, service, where
+        candidates = sorted(set(candidates))
+        head, _, leaf = key.rpartition(".")
+        renamed = RENAMED.get(leaf.lower().removeprefix(ENV_PREFIX.lower()))
+        if renamed is not None:  # old spelling of a setting that exists here, in the same form
+            new = f"{head}.{renamed}" if head else (ENV_PREFIX + renamed.upper() if key.isupper() else renamed)
+            close = [new] if new in candidates else []
+        else:
+            close = difflib.get_close_matches(key, candidates, n=1, cutoff=0.6)
+        self.suggestion = close[0] if close else None
+        hint = f"; did you mean {self.suggestion!r}?" if self.suggestion else ""
+        origin = f" ({where})" if where else ""
+        super().__init__(f"unknown setting {key!r}{origin} for {service or 'this node'}{hint}")
 
 
 def read_config_file(path: str | Path) -> dict[str, Any]:
@@ -50,6 +99,118 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
     return data
 
 
+# -- which keys exist -------------------------------------------------------------------------
+
+def _model_of(field: FieldInfo) -> type[BaseModel] | None:
+    ann = field.annotation
+    return ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+
+
+def _aliases(name: str, field: FieldInfo) -> list[str]:
+    alias = field.validation_alias
+    if isinstance(alias, str):
+        return [alias]
+    if isinstance(alias, AliasChoices):
+        return [a for a in alias.choices if isinstance(a, str)]
+    return []
+
+
+def setting_names(model: type[BaseModel]) -> dict[str, FieldInfo]:
+    """Every key a model accepts (field names and string aliases) → its field."""
+    out: dict[str, FieldInfo] = {}
+    for name, field in model.model_fields.items():
+        out[name] = field
+        for a in _aliases(name, field):
+            out[a] = field
+    return out
+
+
+def _env_vars(name: str, field: FieldInfo) -> list[str]:
+    """The variables (upper case) that set one field: its aliases if it has any (a hardware
+    endpoint such as ``RISKFIELD_LIMO_PORT``), else ``RISKFIELD_<NAME>``."""
+    aliases = _aliases(name, field)
+    return [a.upper() for a in aliases] if aliases else [ENV_PREFIX + name.upper()]
+
+
+def env_names(model: type[BaseModel]) -> dict[str, FieldInfo]:
+    """``RISKFIELD_*`` variable (upper case, before any ``__``) → the field it sets."""
+    return {var: field for name, field in model.model_fields.items() for var in _env_vars(name, field)}
+
+
+def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, where: str, path: str = "") -> None:
+    """Raise ``UnknownSetting`` for the first key of ``data`` (recursing into nested models)
+    that ``model`` has no field for."""
+    names = setting_names(model)
+    for key, value in data.items():
+        field = names.get(key)
+        if field is None:
+            raise UnknownSetting(path + key, service, where, [path + n for n in names])
+        sub = _model_of(field)
+        if sub is not None and isinstance(value, Mapping):
+            check_keys(sub, value, service, where, f"{path}{key}.")
+
+
+@dataclass(frozen=True)
+class _Known:
+    sections: frozenset[str]  # every service's config-file section name
+    keys: frozenset[str]  # every setting key of the services that load here
+    env: frozenset[str]  # every RISKFIELD_* variable of those services
+    missing: tuple[str, ...]  # services that do not load here (extras not installed)
+
+
+@lru_cache(maxsize=1)
+def _all_services() -> _Known:
+    """What every service of the registry accepts. Loaded only when a key is not this node's
+    own, so a node normally imports no other service."""
+    from .service import SERVICES, load_service  # service.py imports this module
+
+    sections, keys, env, missing = set(), set(), set(), []
+    for name in SERVICES:
+        sections.update({name, name.replace("-", "_")})
+        try:
+            cls = load_service(name).settings
+        except Exception:  # a missing extra, or a native library that fails to load
+            missing.append(name)
+            continue
+        keys.update(setting_names(cls))
+        env.update(env_names(cls))
+    return _Known(frozenset(sections), frozenset(keys), frozenset(env), tuple(missing))
+
+
+def _unknown(error: UnknownSetting) -> None:
+    """Raise ``error``, unless a service that does not load here might own the key: then the
+    node must still start (a robot image lacks the server's extras), so only warn."""
+    missing = _all_services().missing
+    if not missing:
+        raise error
+    logging.getLogger("riskfield.settings").warning(
+        "%s (ignored: it may belong to %s, not installed here)", error, ", ".join(missing))
+
+
+def check_environment(model: type[NodeSettings], environ: Mapping[str, str] | None = None) -> None:
+    """Refuse ``RISKFIELD_*`` variables that set nothing anywhere (see the module doc)."""
+    environ = os.environ if environ is None else environ
+    own = env_names(model)
+    service = model.SERVICE
+    for var in environ:
+        upper = var.upper()
+        if not upper.startswith(ENV_PREFIX):
+            continue  # not ours
+        head, _, rest = upper.partition("__")
+        field = own.get(head)
+        if field is not None:
+            sub = _model_of(field)
+            if rest and sub is not None:  # RISKFIELD_NAV__K_RHO: one level of nesting is checked
+                key = rest.split("__")[0].lower()
+                if key not in setting_names(sub):
+                    raise UnknownSetting(upper, service, "environment variable",
+                                         [f"{head}__{n.upper()}" for n in sub.model_fields])
+            continue
+        if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _all_services().env:
+            continue
+        _unknown(UnknownSetting(upper, service, "environment variable", [*own, *_all_services().env]))
+
+
 class _FileSource(PydanticBaseSettingsSource):
     """Top-level keys plus the service's own section of the config file."""
 
@@ -65,14 +226,50 @@ class _FileSource(PydanticBaseSettingsSource):
         if not path:
             return {}
         data = read_config_file(path)
-        fields = self.settings_cls.model_fields
-        out = {k: v for k, v in data.items() if k in fields}
-        service = getattr(self.settings_cls, "SERVICE", "")
-        for name in {service, service.replace("-", "_")}:
-            section = data.get(name) if name else None
-            if isinstance(section, dict):
-                out.update(section)
+        cls: Any = self.settings_cls
+        fields = setting_names(cls)
+        service: str = getattr(cls, "SERVICE", "")
+        own_sections = {service, service.replace("-", "_")} - {""}
+        out: dict[str, Any] = {}
+        for key, value in data.items():
+            if key in fields:
+                out[key] = value
+                continue
+            if key in own_sections:
+                continue
+            known = _all_services()
+            if key in known.sections or key in known.keys:
+                continue  # another service's section or setting: theirs to check
+            _unknown(UnknownSetting(key, service, f"top level of {path}", [*fields, *known.sections]))
+        for name in own_sections:
+            section = data.get(name)
+            if section is None:
+                continue
+            if not isinstance(section, dict):
+                raise ValueError(f"config file {path}: section {name!r} must be a mapping")
+            check_keys(cls, section, service, f"section {name!r} of {path}")
+            out.update(section)
+        if out:  # top-level keys were checked by name; their nested keys are checked here
+            check_keys(cls, out, service, str(path))
         return out
+
+
+class _CheckedInit(PydanticBaseSettingsSource):
+    """The init keywords (CLI flags, ``--set``), checked key by key before pydantic sees them,
+    so a typo is named with its nearest valid key rather than as a bare "extra input"."""
+
+    def __init__(self, settings_cls: type[BaseSettings], init: InitSettingsSource):
+        super().__init__(settings_cls)
+        self._init = init
+
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:  # pragma: no cover
+        return None, field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        cls: Any = self.settings_cls
+        check_keys(cls, self._init.init_kwargs, getattr(cls, "SERVICE", ""), "")
+        check_environment(cls)
+        return self._init()
 
 
 def _split(value: Any) -> Any:
@@ -84,9 +281,8 @@ def _split(value: Any) -> Any:
 class NodeSettings(BaseSettings):
     """What every node needs: Zenoh connection, identity, logging and status period."""
 
-    model_config = SettingsConfigDict(env_prefix="RISKFIELD_", env_nested_delimiter="__", extra="ignore")
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid")
     SERVICE: ClassVar[str] = ""
-
     mode: Literal["peer", "client", "router"] = "client"
     connect: Annotated[list[str], NoDecode] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
     listen: Annotated[list[str], NoDecode] = Field(default_factory=list)
@@ -122,7 +318,7 @@ class NodeSettings(BaseSettings):
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         assert isinstance(init_settings, InitSettingsSource)
-        return init_settings, env_settings, _FileSource(settings_cls, init_settings)
+        return _CheckedInit(settings_cls, init_settings), env_settings, _FileSource(settings_cls, init_settings)
 
 
 def parse_overrides(pairs: list[str]) -> dict[str, Any]:

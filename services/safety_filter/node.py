@@ -5,8 +5,9 @@ and ``{robot}/config/risk``; publishes on every new reference and at ``rate_hz``
 skipped when a reference-triggered step went out less than half a period before). The map,
 state and reference are decoded here rather than by the runtime so that a bad message is
 not only counted and logged but also makes the filter brake (``invalid_*``) until a good one
-arrives. The risk configuration hot-reloads from the config key and from ``risk_config``
-(file polled every ``risk_poll_s``); a bad configuration is logged and the old one kept.
+arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
+(polled every ``risk_poll_s``, see ``runtime.risk_file``); a bad configuration is logged,
+counted (``risk_errors``) and the old one kept.
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ from typing import Any
 from riskfield.protocol import DecodeError, EsdfGrid, Limits, RiskConfig, RobotState, VelocityCommand, decode
 
 from ..runtime.node import Node
+from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
 from .filter import SafetyFilter
-from .risk_file import RiskFileWatcher
 from .settings import FilterSettings
 from .supervisor import FilterSupervisor
 
@@ -31,10 +32,8 @@ class FilterNode:
     def __init__(self, node: Node, s: FilterSettings):
         self.node = node
         self.settings = s
-        self.watcher = RiskFileWatcher(s.risk_config) if s.risk_config is not None else None
-        if s.risk_config is not None and not s.risk_config.is_file():
-            raise FileNotFoundError(f"risk config file {s.risk_config} does not exist")
-        risk = self.watcher.poll() if self.watcher is not None else None  # a bad file at start is fatal
+        # A bad file at start is a configuration error; later ones keep the configuration in force.
+        risk = watch_risk_file(node, s.risk_file, s.risk_poll_s, self._set_risk) if s.risk_file else None
         self.supervisor = FilterSupervisor(SafetyFilter(s.filter_config(), risk), s.map_timeout_s,
                                            s.state_timeout_s, s.ref_timeout_s)
         self.period = 1.0 / s.rate_hz
@@ -52,8 +51,6 @@ class FilterNode:
         node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
         node.every(self.period, self._on_timer)
-        if self.watcher is not None:
-            node.every(s.risk_poll_s, self._poll_risk_file)
         model = self.supervisor.filter.model
         node.log.info("safety filter: model %s, %d barrier row(s), δ = %.3f m, %.0f Hz", model.name, model.m,
                       self.supervisor.filter.delta, s.rate_hz)
@@ -94,18 +91,8 @@ class FilterNode:
         self.node.log.info("risk configuration updated from %s: groups %s", self.node.keys.risk_config,
                            ", ".join(risk.group_names))
 
-    def _poll_risk_file(self) -> None:
-        assert self.watcher is not None
-        try:
-            risk = self.watcher.poll()
-        except Exception as exc:  # any parse or validation error: keep the configuration in force
-            self.node.stats["risk_errors"] += 1
-            self.node.ratelog(logging.ERROR, "risk_file", f"risk file {self.watcher.path} not loaded: {exc}")
-            return
-        if risk is not None:
-            self.supervisor.set_risk(risk)
-            self.node.stats["risk_reloads"] += 1
-            self.node.log.info("risk configuration reloaded from %s", self.watcher.path)
+    def _set_risk(self, risk: RiskConfig) -> None:
+        self.supervisor.set_risk(risk)
 
     # -- output -----------------------------------------------------------------------------------
     def _on_timer(self) -> None:
@@ -115,6 +102,7 @@ class FilterNode:
     def _step(self) -> None:
         now = time.monotonic()
         cmd, status = self.supervisor.tick(now)
+        status.risk_errors = int(self.node.stats.get("risk_errors", 0))
         self.node.publish(self.node.keys.cmd_safe, cmd)
         self.node.publish(self.node.keys.safety_status, status)
         self._last_pub = now

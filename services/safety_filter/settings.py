@@ -1,5 +1,5 @@
 """Settings of the ``safety-filter`` node: the core's ``FilterConfig`` plus timeouts, the risk
-configuration file and input limits. Set them in the config file's ``safety-filter`` section,
+file (``risk_file``) and input limits. Set them in the config file's ``safety-filter`` section,
 as ``RISKFIELD_<FIELD>`` variables or with ``--set field=value``."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ class FilterSettings(NodeSettings, FilterConfig):
     map_timeout_s: Seconds = 0.3
     state_timeout_s: Seconds = 0.3
     ref_timeout_s: Seconds = 0.2
-    risk_config: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
+    risk_file: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
     risk_poll_s: Seconds = 1.0
     max_map_bytes: Annotated[int, Field(gt=0)] = 64 * 1024 * 1024
 

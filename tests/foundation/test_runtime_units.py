@@ -36,7 +36,7 @@ def test_precedence_defaults_file_env_cli(clean_env, tmp_path, suffix):
     path = tmp_path / f"cfg{suffix}"
     if suffix == ".yaml":
         path.write_text("robot: fromfile\nname: fromfile\nrate_hz: 10\n"
-                        "demo-svc:\n  rate_hz: 20\nother:\n  rate_hz: 99\n")
+                        "demo-svc:\n  rate_hz: 20\nmapping:\n  rate_hz: 99\n")
     else:
         path.write_text('robot = "fromfile"\nname = "fromfile"\nrate_hz = 10\n[demo_svc]\nrate_hz = 20\n')
     clean_env.setenv("RISKFIELD_CONFIG", str(path))
@@ -130,3 +130,57 @@ def test_rate_limited_log_suppresses_and_counts(caplog):
     with caplog.at_level(logging.WARNING):
         log(logging.WARNING, "topic", "again")
     assert "99 more like it suppressed" in caplog.records[-1].getMessage()
+
+
+def _old_builder(mode: str, connect: list[str], listen: list[str]):
+    """What testing.client_config / ZenohRouter / the fault agents / the codec bench each built by hand."""
+    import json
+
+    import zenoh
+
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    if connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return cfg
+
+
+@pytest.mark.parametrize(("mode", "connect", "listen"), [
+    ("client", ["tcp/127.0.0.1:7001"], []),  # client_config, agents, bench_codec's echo process
+    ("peer", ["tcp/127.0.0.1:7002"], []),  # client_config(mode="peer")
+    ("router", [], ["tcp/127.0.0.1:7003"]),  # ZenohRouter
+])
+def test_the_one_config_builder_matches_the_hand_built_ones(clean_env, mode, connect, listen):
+    from riskfield.services.runtime import endpoint_config
+    from riskfield.testing import client_config
+
+    new, old = endpoint_config(mode, connect, listen), _old_builder(mode, connect, listen)
+    for path in ("mode", "connect/endpoints", "listen/endpoints", "scouting/multicast/enabled"):
+        assert new.get_json(path) == old.get_json(path), path
+    if mode != "router":
+        assert client_config(connect[0], mode).get_json("connect/endpoints") == old.get_json("connect/endpoints")
+    node = zenoh_config(DemoSettings(mode=mode, connect=connect, listen=listen))
+    for path in ("mode", "connect/endpoints", "listen/endpoints", "scouting/multicast/enabled"):
+        assert node.get_json(path) == old.get_json(path), path
+    agent = endpoint_config("client", ["tcp/127.0.0.1:7004"],
+                            extra={"connect/timeout_ms": -1, "connect/exit_on_failure": False})
+    assert agent.get_json("connect/timeout_ms") == "-1" and agent.get_json("connect/exit_on_failure") == "false"
+
+
+def test_stop_signals_reach_the_handler_and_are_restored():
+    import os
+    import signal
+
+    from riskfield.services.runtime.signals import catch_stop_signals
+
+    before = signal.getsignal(signal.SIGTERM)
+    got: list[str] = []
+    restore = catch_stop_signals(got.append)
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+    finally:
+        restore()
+    assert got == ["SIGTERM"] and signal.getsignal(signal.SIGTERM) is before

@@ -20,14 +20,15 @@ from riskfield.protocol import (
     SafetyStatus,
     VelocityCommand,
 )
-from riskfield.services.safety_filter.analytic import Sphere, to_esdf, to_grid_message
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Sphere
 from riskfield.testing import Collector, ServiceProcess, client_session, hostile_payloads, put, wait_alive, wait_until
 
 GROUPS = ["high", "mid", "low"]
 
 
 def grid(center=(1.0, 0.0), group=1) -> EsdfGrid:
-    sphere = Sphere([*center, 0.0], 0.3, group=group, groups=GROUPS, planar=True)
+    sphere = AnalyticField(Sphere([*center, 0.0], 0.3, planar=True, label=group), groups=GROUPS)
     return to_grid_message(to_esdf(sphere, [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 
@@ -180,7 +181,7 @@ def test_risk_configuration_hot_reloads_from_key_and_file(router_endpoint, tmp_p
     risk_file = tmp_path / "risk.yaml"
     risk_file.write_text("groups: [{name: high, labels: [person], alpha: 0.6}, {name: low, alpha: 1.5}]\n"
                          "default_group: low\n")
-    args = ["--robot", robot, "--set", f"risk_config={risk_file}", "--set", "risk_poll_s=0.2"]
+    args = ["--robot", robot, "--set", f"risk_file={risk_file}", "--set", "risk_poll_s=0.2"]
     with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/safety-filter"), proc.output
         cmds = Collector(session, f"rf/{robot}/cmd/safe", VelocityCommand)
@@ -208,6 +209,7 @@ def test_risk_configuration_hot_reloads_from_key_and_file(router_endpoint, tmp_p
             os.utime(risk_file, ns=(time.time_ns(), time.time_ns() + 2 * 10**9))
             assert wait_until(lambda: "not loaded" in proc.output, 10), proc.output[-1500:]
             assert speed() == pytest.approx(before, abs=0.02)
+            assert wait_until(lambda: status.items and status.items[-1].risk_errors == 1, 5)  # counted once
         cmds.close()
         status.close()
         assert proc.stop() == 0
@@ -217,7 +219,7 @@ def test_risk_configuration_hot_reloads_from_key_and_file(router_endpoint, tmp_p
 def test_a_bad_risk_file_at_start_is_a_configuration_error(router_endpoint, tmp_path):
     bad = tmp_path / "risk.yaml"
     bad.write_text("groups: []\n")
-    with ServiceProcess("safety-filter", router_endpoint, ["--robot", "t_sf_bad", "--set", f"risk_config={bad}"]) as p:
+    with ServiceProcess("safety-filter", router_endpoint, ["--robot", "t_sf_bad", "--set", f"risk_file={bad}"]) as p:
         assert wait_until(lambda: not p.alive(), 20)
         assert p.proc.returncode == 2, p.output
         assert "invalid configuration" in p.output

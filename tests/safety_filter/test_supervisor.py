@@ -3,24 +3,22 @@
 from __future__ import annotations
 
 import math
-import os
-import time
 
 import numpy as np
 import pytest
 
-from riskfield.protocol import RiskConfig, RiskGroup, RobotState, VelocityCommand, ade20k, decode, encode
-from riskfield.services.safety_filter.analytic import Plane, Sphere, to_esdf, to_grid_message
+from riskfield.protocol import RiskConfig, RiskGroup, RobotState, VelocityCommand, encode
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
-from riskfield.services.safety_filter.risk_file import RiskFileWatcher, load_risk_file
 from riskfield.services.safety_filter.supervisor import FilterSupervisor
 
 GROUPS = ["high", "mid", "low"]
 
 
 def grid():
-    return to_grid_message(to_esdf(Sphere([1.0, 0.0, 0.0], 0.3, group=1, groups=GROUPS, planar=True),
+    return to_grid_message(to_esdf(AnalyticField(Sphere([1.0, 0.0, 0.0], 0.3, planar=True, label=1), groups=GROUPS),
                                    [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 
@@ -102,8 +100,8 @@ def test_outside_map_and_the_double_integrator_through_the_supervisor():
     cmd, st = sup.tick(0.0)
     assert st.fallback == "outside_map" and cmd.linear == (0.0, 0.0, 0.0) and st.h == 0.0
     dbl = make("double3d")
-    dbl.on_map(to_grid_message(to_esdf(Plane([3, 0, 0], [-1, 0, 0], group=3, groups=GROUPS), [-1, -1, -1],
-                                       [2, 1, 1], 0.1)), 0.0)
+    wall = AnalyticField(Plane.through([3, 0, 0], [-1, 0, 0], label=3), groups=GROUPS)
+    dbl.on_map(to_grid_message(to_esdf(wall, [-1, -1, -1], [2, 1, 1], 0.1)), 0.0)
     moving = state().model_copy(update={"linear_velocity": (0.4, 0.0, 0.0)})
     dbl.on_state(moving, 0.0)
     dbl.on_ref(ref(1.0), 0.0)
@@ -123,47 +121,6 @@ def test_status_reports_the_intervention_and_a_braking_status_is_always_finite()
 
 
 # -- risk file ----------------------------------------------------------------------------------
-
-RISK_YAML = """
-risk:
-  groups:
-    - {name: high, labels: [person, animal], margin: 0.2, alpha: 0.5, alpha1: 1.0, alpha2: 0.2}
-    - {name: low, labels: [wall, 119], margin: 0.0, alpha: 2.0}
-  default_group: low
-"""
-
-
-def test_risk_file_accepts_class_names_and_indices(tmp_path):
-    path = tmp_path / "risk.yaml"
-    path.write_text(RISK_YAML)
-    risk = load_risk_file(path)
-    assert risk.group_names == ["high", "low"]
-    assert risk.groups[0].labels == [ade20k.index("person"), ade20k.index("animal")]
-    assert risk.groups[1].labels == [0, 119]
-    decode(encode(risk), RiskConfig)
-
-
-@pytest.mark.parametrize("text", ["groups: [{name: a, labels: [not a class]}]", "groups: []", "- 1", "groups: [{"])
-def test_bad_risk_files_raise_value_errors(tmp_path, text):
-    path = tmp_path / "risk.yaml"
-    path.write_text(text)
-    with pytest.raises(ValueError):
-        load_risk_file(path)
-
-
-def test_watcher_reports_each_change_once(tmp_path):
-    path = tmp_path / "risk.toml"
-    path.write_text('default_group = "a"\n[[groups]]\nname = "a"\nalpha = 1.0\n')
-    w = RiskFileWatcher(path)
-    first = w.poll()
-    assert first is not None and first.groups[0].alpha == 1.0
-    assert w.poll() is None
-    path.write_text('default_group = "a"\n[[groups]]\nname = "a"\nalpha = 2.5\n')
-    os.utime(path, ns=(time.time_ns(), time.time_ns() + 10**9))
-    second = w.poll()
-    assert second is not None and second.groups[0].alpha == 2.5
-    assert RiskFileWatcher(tmp_path / "missing.yaml").poll() is None
-
 
 def test_supervisor_hot_swaps_risk():
     sup = make()

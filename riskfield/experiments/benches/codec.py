@@ -19,12 +19,11 @@ from riskfield.protocol import EsdfGrid, PerceptionFrame, VelocityCommand, decod
 
 app = typer.Typer(add_completion=False)
 
+# The echo is a fresh interpreter (spawn model: this process holds a router session).
 ECHO = """
-import sys, zenoh, json
-cfg = zenoh.Config()
-cfg.insert_json5("mode", '"client"'); cfg.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
-cfg.insert_json5("scouting/multicast/enabled", "false")
-with zenoh.open(cfg) as s:
+import sys
+from riskfield.services.runtime.processes import client_session
+with client_session(sys.argv[1]) as s:
     pub = s.declare_publisher("bench/pong")
     sub = s.declare_subscriber("bench/ping", lambda smp: pub.put(smp.payload))
     print("ready", flush=True)
@@ -59,9 +58,9 @@ def _round_trips(payload: bytes, repeat: int) -> np.ndarray:
 
     import zenoh
 
-    from riskfield.testing import ZenohRouter, client_session
+    from riskfield.services.runtime.processes import EmbeddedRouter, client_session
 
-    with ZenohRouter() as router:
+    with EmbeddedRouter() as router:
         echo = subprocess.Popen([sys.executable, "-c", ECHO, router.endpoint], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, text=True)
         try:

@@ -1,0 +1,185 @@
+"""Strict settings: a typo in a file, ``--set`` or a ``RISKFIELD_*`` variable is an error that
+names the key and the nearest valid one; what belongs to another service is not."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from riskfield.services.runtime import UnknownSetting
+from riskfield.services.runtime.settings import check_environment
+from riskfield.services.safety_filter.settings import FilterSettings
+
+
+@pytest.fixture
+def env(monkeypatch):
+    import os
+
+    for var in list(os.environ):
+        if var.upper().startswith("RISKFIELD_"):
+            monkeypatch.delenv(var)
+    return monkeypatch
+
+
+def test_set_typo_names_key_and_suggestion(env):
+    with pytest.raises(UnknownSetting, match=r"unknown setting 'robot_raduis' for safety-filter; "
+                                             r"did you mean 'robot_radius'\?"):
+        FilterSettings(robot_raduis=0.5)
+
+
+def test_nested_typo_names_the_dotted_key(env):
+    from riskfield.services.navigator.node import NavigatorSettings
+
+    with pytest.raises(UnknownSetting, match=r"'nav.k_rhoo'.*did you mean 'nav.k_rho'"):
+        NavigatorSettings(nav={"k_rhoo": 1.0})
+
+
+def test_env_typo_names_variable_and_suggestion(env):
+    env.setenv("RISKFIELD_ROBOT_RADUIS", "0.5")
+    with pytest.raises(UnknownSetting, match=r"'RISKFIELD_ROBOT_RADUIS' \(environment variable\) for "
+                                             r"safety-filter; did you mean 'RISKFIELD_ROBOT_RADIUS'\?"):
+        FilterSettings()
+
+
+def test_env_of_other_services_hardware_and_foreign_variables_are_ignored(env):
+    env.setenv("PATH_LIKE_THING", "x")
+    env.setenv("robot_raduis", "1")  # no prefix: not ours
+    env.setenv("RISKFIELD_VOXEL_SIZE", "0.1")  # a mapping setting
+    env.setenv("RISKFIELD_LIMO_PORT", "/dev/ttyUSB0")  # hardware endpoint of the LIMO bridge
+    env.setenv("RISKFIELD_JOYSTICK_DEVICE", "/dev/input/event3")
+    env.setenv("RISKFIELD_MAVLINK_URL", "udpin:127.0.0.1:14550")
+    env.setenv("RISKFIELD_SERVER", "tcp/10.0.0.2:7447")  # compose interpolation
+    env.setenv("RISKFIELD_ROBOT_RADIUS", "0.3")
+    s = FilterSettings()
+    assert s.robot_radius == 0.3
+    check_environment(FilterSettings, {"HOME": "/root", "PATH": "/usr/bin"})
+
+
+def test_nested_env_typo(env):
+    from riskfield.services.navigator.node import NavigatorSettings
+
+    env.setenv("RISKFIELD_NAV__K_RHO", "0.5")
+    assert NavigatorSettings().nav.k_rho == 0.5
+    env.setenv("RISKFIELD_NAV__K_RHOO", "0.5")
+    with pytest.raises(UnknownSetting, match="did you mean 'RISKFIELD_NAV__K_RHO'"):
+        NavigatorSettings()
+
+
+def test_file_typos_in_own_section_and_top_level(env, tmp_path):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("robot: r1\nsafety-filter:\n  robot_raduis: 0.5\n")
+    with pytest.raises(UnknownSetting, match=r"'robot_raduis' \(section 'safety-filter' of .*cfg.yaml\).*"
+                                             r"did you mean 'robot_radius'"):
+        FilterSettings(config=cfg)
+    cfg.write_text("robt: r1\n")
+    with pytest.raises(UnknownSetting, match=r"'robt' \(top level of .*\).*did you mean 'robot'"):
+        FilterSettings(config=cfg)
+
+
+def test_file_sections_and_keys_of_other_services_are_not_errors(env, tmp_path):
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text('robot = "r2"\nvoxel_size = 0.1\n[mapping]\nvoxel_sise = 0.1\n[safety_filter]\nrate_hz = 40\n')
+    s = FilterSettings(config=cfg)
+    assert (s.robot, s.rate_hz) == ("r2", 40.0)
+
+
+def test_cli_set_typo_exits_2_without_traceback(env):
+    r = subprocess.run([sys.executable, "-m", "riskfield", "run", "safety-filter", "--set", "robot_raduis=0.5"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "unknown setting 'robot_raduis' for safety-filter; did you mean 'robot_radius'?" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_cli_env_typo_exits_2_without_traceback(env):
+    import os
+
+    r = subprocess.run([sys.executable, "-m", "riskfield", "run", "relay"], capture_output=True, text=True,
+                       timeout=60, env={**os.environ, "RISKFIELD_SCHEMA_NAM": "VelocityCommand/1"})
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "did you mean 'RISKFIELD_SCHEMA_NAME'?" in r.stderr
+
+
+def test_core_parameters_are_composed_of_per_stage_structs():
+    from riskfield.services.mapping.config import EsdfParams, MapperConfig, OccupancyParams, TsdfParams, VolumeParams
+    from riskfield.services.safety_filter.config import BarrierParams, BoundsParams, FilterConfig, QpParams
+
+    m = MapperConfig.compose(volume=VolumeParams(voxel_size=0.1), tsdf=TsdfParams(truncation=0.3),
+                             esdf=EsdfParams(output="3d"))
+    assert (m.voxel_size, m.truncation, m.output, m.min_weight) == (0.1, 0.3, "3d", OccupancyParams().min_weight)
+    assert m.tsdf == TsdfParams(truncation=0.3) and m.volume.shape == m.shape
+    parts = [VolumeParams, TsdfParams, OccupancyParams, EsdfParams]
+    assert sum(len(p.model_fields) for p in parts) == len(MapperConfig.model_fields)  # no field left out
+    f = FilterConfig.compose(barrier=BarrierParams(robot_radius=0.3), bounds=BoundsParams(v_max=0.5))
+    assert (f.robot_radius, f.v_max, f.rate_hz) == (0.3, 0.5, QpParams().rate_hz)
+    assert f.barrier.robot_radius == 0.3 and f.qp == QpParams()
+    assert sum(len(p.model_fields) for p in (BarrierParams, BoundsParams, QpParams)) == len(FilterConfig.model_fields)
+    with pytest.raises(ValueError, match="robot_raduis"):  # the cores are strict too
+        FilterConfig(robot_raduis=0.5)
+    with pytest.raises(ValueError, match="min_depth must be below max_depth"):  # a stage's own check still runs
+        MapperConfig(min_depth=7.0)
+
+
+def test_an_unknown_variable_only_warns_when_a_service_cannot_load_here(env, monkeypatch, caplog):
+    """A robot image lacks the server's extras: the key might be mapping's, so the filter starts."""
+    from riskfield.services.runtime import settings as rs
+
+    known = rs._all_services()
+    monkeypatch.setattr(rs, "_all_services", lambda: rs._Known(known.sections, frozenset(), frozenset(), ("mapping",)))
+    env.setenv("RISKFIELD_VOXEL_SIZE", "0.1")
+    with caplog.at_level("WARNING", "riskfield.settings"):
+        FilterSettings()
+    assert "RISKFIELD_VOXEL_SIZE" in caplog.text and "mapping, not installed here" in caplog.text
+
+
+def _env_file(path) -> dict[str, str]:
+    out = {}
+    for line in path.read_text().splitlines():
+        if line.strip() and not line.lstrip().startswith("#"):
+            key, _, value = line.partition("=")
+            out[key.strip()] = value.strip()
+    return out
+
+
+@pytest.mark.parametrize("overlay", [None, "deploy/compose.secure.yml"])
+def test_every_shipped_container_environment_is_accepted_by_its_service(overlay):
+    """The env files are shared by several services: each container must start with its own."""
+    from pathlib import Path
+
+    import yaml
+
+    from riskfield.services.runtime import load_service
+
+    root = Path(__file__).resolve().parents[2]
+    services = yaml.safe_load((root / "docker-compose.yml").read_text())["services"]
+    if overlay:  # compose replaces env_file and merges environment; the command comes from the base
+        for name, extra in yaml.safe_load((root / overlay).read_text())["services"].items():
+            base = services.setdefault(name, {})
+            base["environment"] = {**(base.get("environment") or {}), **(extra.get("environment") or {})}
+            base["env_file"] = extra.get("env_file", base.get("env_file"))
+    checked = 0
+    for svc in services.values():
+        cmd = svc.get("command") or []
+        if len(cmd) < 2 or cmd[0] != "run":
+            continue
+        files = svc.get("env_file") or []
+        environ = {k: v for f in ([files] if isinstance(files, str) else files) if "$" not in f
+                   for k, v in _env_file(root / f).items()}
+        environ.update({k: str(v) for k, v in (svc.get("environment") or {}).items()})
+        check_environment(load_service(cmd[1]).settings, environ)  # raises on a key nobody owns
+        checked += 1
+    assert checked >= 6
+
+
+def test_renamed_settings_point_at_the_new_name(env):
+    from riskfield.services.mapping.settings import MappingSettings
+
+    with pytest.raises(UnknownSetting, match="'risk_config' for safety-filter; did you mean 'risk_file'"):
+        FilterSettings(risk_config="/tmp/risk.yaml")
+    with pytest.raises(UnknownSetting, match="'risk_config_file' for mapping; did you mean 'risk_file'"):
+        MappingSettings(risk_config_file="/tmp/risk.yaml")
+    env.setenv("RISKFIELD_RISK_CONFIG", "/tmp/risk.yaml")
+    with pytest.raises(UnknownSetting, match="did you mean 'RISKFIELD_RISK_FILE'"):
+        FilterSettings()
