@@ -27,8 +27,9 @@ import numpy as np
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState
 from riskfield.protocol.messages import Header
 
+from ..geometry.camera import PinholeCamera
+from ..geometry.transforms import euler_zyx_matrix, quat_to_matrix
 from .backend import Labeller, image_rgb
-from .mast3r_backend import sim3_pose
 
 #: Base (x forward, y left, z up) ← optical (x right, y down, z forward), looking straight ahead.
 R_BASE_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -37,34 +38,24 @@ R_BASE_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 def T_base_camera(position: tuple[float, float, float] = (0.15, 0.0, 0.1),
                   rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Camera (optical) → base: ``[R_z(yaw)·R_y(pitch)·R_x(roll)·R_base_optical | position]``."""
-    r, p, y = (math.radians(a) for a in rpy_deg)
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
     T = np.eye(4)
-    T[:3, :3] = Rz @ Ry @ Rx @ R_BASE_OPTICAL
+    T[:3, :3] = euler_zyx_matrix(*(math.radians(a) for a in rpy_deg)) @ R_BASE_OPTICAL
     T[:3, 3] = position
     return T
 
 
 def state_pose(state: RobotState) -> np.ndarray:
     """4x4 base → world of a ``RobotState`` (quaternion xyzw)."""
-    T, _ = sim3_pose(np.array([*state.position, *state.orientation, 1.0]))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = quat_to_matrix(state.orientation), state.position
     return T
 
 
 def back_project(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
-    """(H, W) depth → (H, W, 3) camera-frame points (zero where the depth is 0)."""
+    """(H, W) depth → (H, W, 3) camera-frame points, ``depth · ray`` (zero where the depth is 0)."""
     h, w = depth.shape
-    z = np.asarray(depth, np.float32)
-    u = ((np.arange(w, dtype=np.float32) - cx) / fx)[None, :]
-    v = ((np.arange(h, dtype=np.float32) - cy) / fy)[:, None]
-    out = np.empty((h, w, 3), np.float32)
-    out[..., 0] = z * u
-    out[..., 1] = z * v
-    out[..., 2] = z
-    return out
+    rays = PinholeCamera(w, h, fx, fy, cx, cy).rays(np.float32)
+    return rays * np.asarray(depth, np.float32)[..., None]
 
 
 @dataclass(frozen=True)

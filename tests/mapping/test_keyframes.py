@@ -6,11 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from riskfield.protocol import Header, PerceptionFrame
+from riskfield.services.geometry.camera import PinholeCamera as Camera
+from riskfield.services.geometry.shapes import render
+from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.keyframes import ContributionIntegrator, KeyframeMap
 from riskfield.services.mapping.layers import TsdfLayer
 from riskfield.services.mapping.mapper import Mapper
-from riskfield.services.mapping.synthetic import Camera, look_at, render
 from riskfield.services.mapping.volume import Volume
 
 V = 0.05

@@ -13,10 +13,10 @@ from pydantic import ValidationError
 
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, ade20k
 from riskfield.protocol.messages import Header
+from riskfield.services.geometry.transforms import transform_points
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.perception.degrade import DegradationConfig
-from riskfield.services.perception.geometry import transform_points
 from riskfield.services.perception.node import PerceptionSettings
 from riskfield.services.perception.rgbd_backend import RgbdBackend, RgbdConfig, T_base_camera, back_project
 from riskfield.services.perception.sim_backend import SimBackend, SimBackendConfig
