@@ -38,6 +38,10 @@ main loop wait for them), driven one camera image at a time:
   (``mast3r_slam/lietorch_utils.py`` ``as_SE3`` splits it [3, 4, 1]) acting as ``p_W = s·R·X + t``;
   the wire contract wants a rigid camera → world transform, so the scale goes into the points:
   ``points = s · X_canon`` and ``T_WC = [R | t]``.
+* **map frame** — SLAM's world is its first keyframe's camera (identity at INIT, optical axes).
+  ``anchor(stamp_ns)``, when given, returns ``T_map_slam`` at that first image (the node passes
+  the robot's odometry pose there times the camera extrinsic), so poses land in the robot's z-up
+  map; every published pose is ``T_map_slam · T_WC``.
 * **image geometry** — MASt3R resizes the long side to 512 and centre-crops to multiples of 16
   (``mast3r_utils.resize_img``); ``mast3r_crop`` computes the same box so labels computed on the
   original image are carried onto the keyframe grid (``labels_to_grid``).
@@ -302,8 +306,9 @@ class Mast3rSlam:
 
     def __init__(self, m: dict[str, Any], model: Any, retriever: Any, labeller: Labeller, device: str = "cuda:0",
                  Q_conf: float = Q_CONF, c_conf: float = C_CONF, update_every: int = 5, frame_id: str = "map",
-                 T_map_slam: np.ndarray | None = None):
+                 T_map_slam: np.ndarray | None = None, anchor: Callable[[int], np.ndarray] | None = None):
         self.m, self.model, self.retriever, self.labeller = m, model, retriever, labeller
+        self.anchor = anchor
         self.cfg: dict[str, Any] = m["mast3r_slam.config"].config
         self.device, self.Q_conf, self.c_conf, self.frame_id = device, Q_conf, c_conf, frame_id
         self.update_every = max(1, int(update_every))
@@ -439,6 +444,8 @@ class Mast3rSlam:
         new: set[int] = set()
         with self.m["torch"].inference_mode():
             if self.mode == INIT:
+                if self.anchor is not None:
+                    self.T_map_slam = np.asarray(self.anchor(stamp_ns), np.float64)
                 X, C = utils.mast3r_inference_mono(self.model, frame)
                 frame.update_pointmap(X, C)
                 self.keyframes.append(frame)
@@ -485,7 +492,7 @@ class Mast3rBackend:
     def __init__(self, labeller: Labeller, checkpoint_dir: str | Path = "checkpoints", config: str | Path | None = None,
                  device: str = "cuda:0", Q_conf: float = Q_CONF, frame_id: str = "map", c_conf: float = C_CONF,
                  overrides: dict[str, Any] | None = None, update_every: int = 5,
-                 T_map_slam: np.ndarray | None = None):
+                 T_map_slam: np.ndarray | None = None, anchor: Callable[[int], np.ndarray] | None = None):
         m, cfg_path = startup_check(checkpoint_dir, config, device)
         assert cfg_path is not None
         load_config(m["mast3r_slam.config"], cfg_path, AUTHORS_OVERRIDES if overrides is None else overrides)
@@ -494,7 +501,7 @@ class Mast3rBackend:
         model = utils.load_mast3r(str(ckpt / CHECKPOINT), device=device)
         retriever = utils.load_retriever(model, str(ckpt / RETRIEVER), device=device)
         self.slam = Mast3rSlam(m, model, retriever, labeller, device, Q_conf, c_conf, update_every, frame_id,
-                               T_map_slam)
+                               T_map_slam, anchor)
 
     def process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
         return self.slam.process(image, truth, stamp_ns)

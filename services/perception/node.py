@@ -128,10 +128,24 @@ def build_backend(s: PerceptionSettings) -> PerceptionBackend:
 
         if labeller is None:
             raise MissingBackend("geometry=mast3r needs labels=efficientvit (a real camera has no ground truth)")
+        from .rgbd_backend import Odometry, T_base_camera
+
         c_conf = C_CONF if s.confidence_threshold is None else s.confidence_threshold
-        return Mast3rBackend(labeller, s.mast3r_checkpoints, s.mast3r_config, s.mast3r_device, s.q_conf,
-                             c_conf=c_conf, overrides={"dataset": {"subsample": s.mast3r_subsample}},
-                             update_every=s.update_every)
+        odometry, T_BC = Odometry(), T_base_camera(s.camera_position, s.camera_rpy_deg)
+
+        def anchor(stamp_ns: int) -> np.ndarray:
+            # SLAM's world is its first camera: put it where odometry says the camera was (the
+            # base at the origin without odometry).
+            try:
+                return odometry.pose_at(stamp_ns) @ T_BC
+            except ValueError:
+                return T_BC
+
+        backend = Mast3rBackend(labeller, s.mast3r_checkpoints, s.mast3r_config, s.mast3r_device, s.q_conf,
+                                c_conf=c_conf, overrides={"dataset": {"subsample": s.mast3r_subsample}},
+                                update_every=s.update_every, anchor=anchor)
+        backend.odometry = odometry  # type: ignore[attr-defined]  # fed from the state key by setup()
+        return backend
     if s.geometry == "rgbd":
         from .rgbd_backend import RgbdBackend, RgbdConfig
 
@@ -220,6 +234,8 @@ def setup(node: Node, s: PerceptionSettings) -> Perception:
     if backend.needs_truth:
         node.subscribe(node.keys.key(s.truth_key), PerceptionFrame, p.on_truth, queue="fifo", maxlen=4)
         node.every(0.1, p.expire)
+    if hasattr(backend, "odometry") and not getattr(backend, "needs_depth", False):  # mast3r: the map anchor
+        node.subscribe(node.keys.state, RobotState, backend.odometry.on_state, queue="fifo", maxlen=64)
     if getattr(backend, "needs_depth", False):
         node.subscribe(node.keys.key(s.depth_key), DepthImage, p.on_truth, queue="fifo", maxlen=4)
         node.subscribe(node.keys.state, RobotState, backend.on_state, queue="fifo", maxlen=64)  # type: ignore[attr-defined]

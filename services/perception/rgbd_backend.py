@@ -69,6 +69,26 @@ class RgbdConfig:
     frame_id: str = "map"
 
 
+class Odometry:
+    """The last robot states (``state``), and the base pose nearest in time to an image."""
+
+    def __init__(self, max_age_s: float = 0.2, keep: int = 64):
+        self.max_age_s = max_age_s
+        self.states: deque[tuple[int, np.ndarray]] = deque(maxlen=keep)
+
+    def on_state(self, state: RobotState) -> None:
+        self.states.append((int(state.header.stamp_ns), state_pose(state)))
+
+    def pose_at(self, stamp_ns: int) -> np.ndarray:
+        """The base pose of the state nearest in time to ``stamp_ns``."""
+        if not self.states:
+            raise ValueError("no robot state yet (odometry on the state key poses the camera)")
+        t, T = min(self.states, key=lambda s: abs(s[0] - stamp_ns))
+        if abs(t - stamp_ns) > self.max_age_s * 1e9:
+            raise ValueError(f"the nearest robot state is {abs(t - stamp_ns) / 1e6:.0f} ms from the image")
+        return T
+
+
 class RgbdBackend:
     needs_truth = False
     needs_depth = True
@@ -77,20 +97,14 @@ class RgbdBackend:
         self.config = config or RgbdConfig()
         self.labeller = labeller
         self.T_BC = T_base_camera(self.config.camera_position, self.config.camera_rpy_deg)
-        self.states: deque[tuple[int, np.ndarray]] = deque(maxlen=64)
+        self.odometry = Odometry(self.config.max_state_age_s)
         self.frames = 0
 
     def on_state(self, state: RobotState) -> None:
-        self.states.append((int(state.header.stamp_ns), state_pose(state)))
+        self.odometry.on_state(state)
 
     def pose_at(self, stamp_ns: int) -> np.ndarray:
-        """The base pose of the state nearest in time to ``stamp_ns``."""
-        if not self.states:
-            raise ValueError("no robot state yet (odometry on the state key poses the depth camera)")
-        t, T = min(self.states, key=lambda s: abs(s[0] - stamp_ns))
-        if abs(t - stamp_ns) > self.config.max_state_age_s * 1e9:
-            raise ValueError(f"the nearest robot state is {abs(t - stamp_ns) / 1e6:.0f} ms from the image")
-        return T
+        return self.odometry.pose_at(stamp_ns)
 
     def process(self, image: Image | None, depth: DepthImage | None, stamp_ns: int) -> list[PerceptionFrame]:
         if image is None or depth is None:

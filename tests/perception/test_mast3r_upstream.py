@@ -442,3 +442,18 @@ def test_subsampling_keeps_every_nth_image() -> None:
     slam, _fx = make_slam(["ok"] * 3, subsample=3)
     produced = [bool(slam.process(image(), None, i)) for i in range(7)]
     assert produced == [True, False, False, True, False, False, True] and slam.i == 3
+
+
+def test_slam_world_is_anchored_where_odometry_put_the_first_camera() -> None:
+    slam, _ = make_slam(["ok"])
+    A = np.eye(4)
+    A[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical axes in a z-up map
+    A[:3, 3] = (2.0, 1.0, 0.1)
+    stamps: list[int] = []
+    slam.anchor = lambda stamp: (stamps.append(stamp), A)[1]
+    (first,) = slam.process(image(), None, 42)
+    assert stamps == [42]
+    np.testing.assert_allclose(first.T_WC, A)
+    out = slam.process(image(), None, 43)  # tracked 0.1 along SLAM's x (the camera's right)
+    np.testing.assert_allclose(out[0].T_WC[:3, 3], [2.0, 0.9, 0.1], atol=1e-12)
+    assert stamps == [42]  # anchored once
