@@ -124,9 +124,6 @@ class ContributionIntegrator:
         elif (self.wsum_origin != volume.origin_index).any():
             shift_array(self.wsum, volume.origin_index - self.wsum_origin, 0.0)
         self.wsum_origin = volume.origin_index.copy()
-        # Anything else that wrote the layer (frames without ``kind``) counts with its capped weight.
-        stale = (layer.weight < self.config.max_weight) & (self.wsum != layer.weight)
-        self.wsum[stale] = layer.weight[stale]
         return self.wsum
 
     def apply(self, volume: Volume, layer: TsdfLayer, c: Contribution, sign: float,
@@ -136,6 +133,10 @@ class ContributionIntegrator:
         ijk, inside = self._local(volume, c.index)
         d, w = c.d[inside].astype(np.float64), c.w[inside].astype(np.float64)
         W = wsum[ijk]
+        # Anything else that wrote these voxels (frames without ``kind``, a reset) counts with the
+        # layer's own, capped weight.
+        Wl = layer.weight[ijk].astype(np.float64)
+        W = np.where((Wl < self.config.max_weight) & (np.abs(W - Wl) > 1e-3 * np.maximum(Wl, 1.0)), Wl, W)
         D = layer.tsdf[ijk].astype(np.float64)
         tau = layer.truncation
         if sign > 0:
