@@ -70,10 +70,12 @@ class Contribution:
     label_index: np.ndarray  # (m, 3) int32, global voxel index of the net votes
     label: np.ndarray  # (m,) uint16
     vote: np.ndarray  # (m,) float32
+    view: np.ndarray | None = None  # (n, 3) int8: the layer's per-voxel viewing direction, if it keeps one
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.index, self.d, self.w, self.label_index, self.label, self.vote))
+        arrays = (self.index, self.d, self.w, self.label_index, self.label, self.vote, self.view)
+        return sum(a.nbytes for a in arrays if a is not None)
 
 
 class ContributionIntegrator:
@@ -102,9 +104,13 @@ class ContributionIntegrator:
         votes = self.semantic.integrate(volume, sem, points, confidence, labels, T_WC)
         flat = np.flatnonzero(s.weight.reshape(-1))
         lflat = np.flatnonzero(sem.vote.reshape(-1))
+        # A layer that keeps a per-voxel viewing direction (``view``, written by the integrator's
+        # rays behind surfaces) gets the keyframe's directions too.
+        view = getattr(s, "view", None)
         c = Contribution(self._global(volume, flat), s.tsdf.reshape(-1)[flat].copy(), s.weight.reshape(-1)[flat].copy(),
                          self._global(volume, lflat), sem.label.reshape(-1)[lflat].copy(),
-                         sem.vote.reshape(-1)[lflat].copy())
+                         sem.vote.reshape(-1)[lflat].copy(),
+                         view.reshape(-1, view.shape[-1])[flat].copy() if view is not None else None)
         return c, rays, votes
 
     @staticmethod
@@ -151,6 +157,13 @@ class ContributionIntegrator:
             layer.tsdf[ijk] = np.where(gone, tau, D1)
         wsum[ijk] = W1
         layer.weight[ijk] = np.minimum(W1, self.config.max_weight)
+        view = getattr(layer, "view", None)
+        if view is not None and c.view is not None:
+            if sign > 0:  # the newest rays' direction wins, as in the integrator
+                seen = c.view[inside].any(axis=1)
+                view[tuple(a[seen] for a in ijk)] = c.view[inside][seen]
+            else:  # a voxel left without evidence has no direction either
+                view[tuple(a[gone] for a in ijk)] = 0
         if semantic is not None:
             self._vote(volume, semantic, c, sign)
         return int(inside.sum())
