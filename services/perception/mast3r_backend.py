@@ -331,13 +331,10 @@ class Mast3rSlam:
 
     def _start(self, h: int, w: int) -> None:
         frame_mod = self.m["mast3r_slam.frame"]
-        self._manager = None
-        try:
-            import torch.multiprocessing as mp
-
-            self._manager = mp.Manager()
-        except ImportError:  # the fakes need no manager
-            pass
+        # SharedKeyframes takes a multiprocessing manager for its lock and counters (upstream main.py
+        # passes torch.multiprocessing's); the fakes need none.
+        mp = getattr(self.m["torch"], "multiprocessing", None)
+        self._manager = mp.Manager() if mp is not None else None
         self.keyframes = frame_mod.SharedKeyframes(self._manager, h, w)
         self.tracker = self.m["mast3r_slam.tracker"].FrameTracker(self.model, self.keyframes, self.device)
         self.graph = self.m["mast3r_slam.global_opt"].FactorGraph(self.model, self.keyframes, None, self.device)
