@@ -2,7 +2,7 @@
 
     integrate(frame)   pointmap + pose + confidence → TSDF layer      (TsdfIntegrator)
                        labels + confidence          → semantic layer  (SemanticIntegrator, vote rule)
-    update_esdf()      TSDF surface support + labels → semantic occupancy (occupancy.py)
+    update_esdf()      TSDF surface + solid interior + labels → semantic occupancy (occupancy.py)
                        → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator)
     query(points)      distance, gradient, risk group of the latest field (DistanceField)
 
@@ -167,7 +167,8 @@ class Mapper:
         """Per-voxel obstacle risk group (0 = not an obstacle) of the current map."""
         c = self.config
         return semantic_occupancy(self.tsdf, self.semantic, self.label_to_group, c.min_weight, c.surface_band,
-                                  self.unknown_group_id if c.unknown_is_occupied else 0)
+                                  self.unknown_group_id if c.unknown_is_occupied else 0,
+                                  interior=c.obstacle_interior, fill_steps=c.fill_steps)
 
     def band_indices(self) -> tuple[int, int, float]:
         """z-voxel range [k_lo, k_hi) whose centres lie in the height band, and the slice's z."""
