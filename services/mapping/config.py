@@ -72,9 +72,10 @@ class MapperConfig(BaseModel):
     negative inside; ``free`` leaves them free (an obstacle is then only ``truncation`` deep)."""
     behind_surface_depth: Annotated[float, Field(ge=0, le=5.0, allow_inf_nan=False)] = 0.5
     """Depth (m) of the ``solid`` fill. 0.5 m (with the 0.15 m truncation) makes objects up to
-    0.65 m deep solid when one side is seen; the price: never-observed gaps narrower than this
-    next to an obstacle (a doorway's part hidden by its jamb) read closed until the camera looks
-    into them. Deeper closes more gaps, shallower leaves big objects hollow at the back."""
+    0.65 m through along the line of sight solid when one side is seen; the price: never-observed
+    gaps narrower than this behind an obstacle (a doorway's part hidden by its jamb) read closed
+    until the camera looks into them. Deeper closes more gaps, shallower leaves big objects hollow
+    at the back."""
     unknown_is_occupied: bool = False
     """Treat never-observed voxels as obstacles (of ``unknown_group``)."""
     unknown_group: str | None = None

@@ -51,8 +51,8 @@ leaves the rest of an object's inside never observed (weight < min_weight):
   two filled ones along an axis).
 
 The default D = 0.5 m makes the inside of the obstacles a small robot meets read negative after
-one side is seen: a box or a chair up to τ + D = 0.65 m deep, a person (a cylinder of about
-0.5 m), and a wall of any thickness (it becomes at least 0.65 m thick in the map, which costs
+one side is seen: a box or a chair up to τ + D = 0.65 m through along the line of sight, a person
+(a cylinder of about 0.5 m), and a wall of any thickness (it becomes at least 0.65 m thick in the map, which costs
 nothing: the far side is not seen either). The trade-off: the fill also closes never-observed
 gaps narrower than D next to an obstacle — the part of a doorway hidden behind its jamb when
 seen obliquely, or the space behind a thin pole — until the camera looks into them; the free
@@ -179,8 +179,10 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
         buf = np.empty((shape.sum() + 4, 3), dtype=np.int64)
         o = np.empty(3)
         d = np.empty(3)
-        for f in range(n):
-            if state[f] != 3 or g[f] == _FREE or w[f] < min_w or not t[f] < 0.0:
+        n_marked = 0  # ``cand`` now lists the marked voxels
+        for m in range(tail):  # the queue holds every voxel the wavefront assigned
+            f = queue[m]
+            if g[f] == _FREE or w[f] < min_w or not t[f] < 0.0:
                 continue
             k = f % nz
             j = (f // nz) % ny
@@ -205,34 +207,41 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
                     if not filled[nb]:
                         filled[nb] = True
                         g[nb] = g[f]
+                        cand[n_marked] = nb
+                        n_marked += 1
                 elif st == 0 or g[nb] == _FREE:
                     break  # observed free space, or a free-labelled surface: the obstacle ends
         # Close the pinholes the diverging marches leave: twice, a never-observed voxel between
-        # two filled ones along an axis.
-        closed = np.zeros(n, np.bool_)
+        # two filled ones along an axis. Only neighbours of filled voxels can qualify.
+        n_filled = n_marked
         for _ in range(2):
-            for f in range(n):
-                if state[f] != 2 or filled[f]:
-                    continue
-                k = f % nz
-                j = (f // nz) % ny
-                i = f // sx
-                if 0 < i < nx - 1 and filled[f - sx] and filled[f + sx]:
-                    g[f] = g[f - sx]
-                elif 0 < j < ny - 1 and filled[f - sy] and filled[f + sy]:
-                    g[f] = g[f - sy]
-                elif 0 < k < nz - 1 and filled[f - 1] and filled[f + 1]:
-                    g[f] = g[f - 1]
-                else:
-                    continue
-                closed[f] = True
-            for f in range(n):
-                if closed[f]:
-                    filled[f] = True
-                    closed[f] = False
-        for f in range(n):
-            if filled[f]:
-                state[f] = 3
+            n_old = n_filled
+            for m in range(n_old):
+                f0 = cand[m]
+                for a in range(6):
+                    f = f0 + (sx, -sx, sy, -sy, 1, -1)[a]
+                    if f < 0 or f >= n or state[f] != 2 or filled[f]:
+                        continue
+                    k = f % nz
+                    j = (f // nz) % ny
+                    i = f // sx
+                    if abs(i - f0 // sx) + abs(j - (f0 // nz) % ny) + abs(k - f0 % nz) != 1:
+                        continue  # wrapped around a grid edge
+                    if 0 < i < nx - 1 and filled[f - sx] and filled[f + sx]:
+                        g[f] = g[f - sx]
+                    elif 0 < j < ny - 1 and filled[f - sy] and filled[f + sy]:
+                        g[f] = g[f - sy]
+                    elif 0 < k < nz - 1 and filled[f - 1] and filled[f + 1]:
+                        g[f] = g[f - 1]
+                    else:
+                        continue
+                    state[f] = 3  # taken now, so it is not appended twice; filled after the pass
+                    cand[n_filled] = f
+                    n_filled += 1
+            for m in range(n_old, n_filled):
+                filled[cand[m]] = True
+        for m in range(n_filled):
+            state[cand[m]] = 3
     for f in range(n):
         if g[f] == _FREE:
             g[f] = 0

@@ -196,7 +196,8 @@ def layouts(draw: st.DrawFn) -> list[Box | Sphere]:
         x = draw(st.floats(1.1, 1.7))
         lab = draw(st.sampled_from(labels))
         if draw(st.booleans()):
-            hx, hy, hz = draw(st.floats(0.12, 0.3)), draw(st.floats(0.12, 0.3)), draw(st.floats(0.15, 0.4))
+            # at most τ + D = 0.65 m along any line of sight (the fill's documented reach)
+            hx, hy, hz = draw(st.floats(0.12, 0.22)), draw(st.floats(0.12, 0.22)), draw(st.floats(0.15, 0.4))
             z = draw(st.floats(0.0, 0.3))
             shapes.append(Box((x, y - hy, z), (x + 2 * hx, y + hy, z + 2 * hz), lab))
         else:
