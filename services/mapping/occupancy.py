@@ -101,6 +101,12 @@ def _enqueue_by_priority(cand: np.ndarray, n_cand: int, g: np.ndarray, queue: np
 
 
 @njit(cache=True, nogil=True)
+def _solid_at(f: int, state: np.ndarray, filled: np.ndarray, g: np.ndarray) -> bool:
+    """Voxel ``f`` is part of an obstacle: filled, or observed interior / surface of an obstacle group."""
+    return filled[f] or (state[f] == 3 and g[f] != _FREE and g[f] != 0)
+
+
+@njit(cache=True, nogil=True)
 def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.ndarray, lut: np.ndarray, min_w: float,
            band: float, fill_steps: int, unknown_group: int, groups: np.ndarray) -> None:
     """Fill ``groups`` (all zero on entry) with the solid semantic occupancy; see the module docstring."""
@@ -212,7 +218,8 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
                 elif st == 0 or g[nb] == _FREE:
                     break  # observed free space, or a free-labelled surface: the obstacle ends
         # Close the pinholes the diverging marches leave: twice, a never-observed voxel between
-        # two filled ones along an axis. Only neighbours of filled voxels can qualify.
+        # two obstacle voxels (filled or observed interior) along an axis. Only neighbours of
+        # filled voxels can qualify.
         n_filled = n_marked
         for _ in range(2):
             n_old = n_filled
@@ -227,19 +234,20 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
                     i = f // sx
                     if abs(i - f0 // sx) + abs(j - (f0 // nz) % ny) + abs(k - f0 % nz) != 1:
                         continue  # wrapped around a grid edge
-                    if 0 < i < nx - 1 and filled[f - sx] and filled[f + sx]:
+                    if 0 < i < nx - 1 and _solid_at(f - sx, state, filled, g) and _solid_at(f + sx, state, filled, g):
                         g[f] = g[f - sx]
-                    elif 0 < j < ny - 1 and filled[f - sy] and filled[f + sy]:
+                    elif 0 < j < ny - 1 and _solid_at(f - sy, state, filled, g) and _solid_at(f + sy, state, filled, g):
                         g[f] = g[f - sy]
-                    elif 0 < k < nz - 1 and filled[f - 1] and filled[f + 1]:
+                    elif 0 < k < nz - 1 and _solid_at(f - 1, state, filled, g) and _solid_at(f + 1, state, filled, g):
                         g[f] = g[f - 1]
                     else:
                         continue
-                    state[f] = 3  # taken now, so it is not appended twice; filled after the pass
+                    state[f] = 4  # closed in this pass: counted as solid from the next pass on
                     cand[n_filled] = f
                     n_filled += 1
             for m in range(n_old, n_filled):
                 filled[cand[m]] = True
+                state[cand[m]] = 2
         for m in range(n_filled):
             state[cand[m]] = 3
     for f in range(n):

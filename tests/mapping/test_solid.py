@@ -235,7 +235,9 @@ def test_random_layouts_are_negative_inside_and_positive_outside(scene: list) ->
     c = grid_points(up.grid3d)
     sdf = scene_distance(scene, c.reshape(-1, 3)).reshape(c.shape[:3])
     d3 = up.grid3d.distance
-    inside = sdf < -V
+    # The never-seen back is reached by discrete marches along the lines of sight: its surface
+    # is resolved to within 1.5 voxels (the seen front to within one).
+    inside = sdf < -1.5 * V
     assert inside.any()
     assert np.all(d3[inside] < 0), (int((d3[inside] >= 0).sum()), int(inside.sum()))
     # Exempt beside an edge, within τ behind the front of a shape: the rays that hit the edge
@@ -254,6 +256,6 @@ def test_random_layouts_are_negative_inside_and_positive_outside(scene: list) ->
     # the 2-D slice: negative inside any shape's footprint in the band, positive over seen columns
     k_lo, k_hi, _ = m.band_indices()
     d2 = up.slice2d.distance[:, :, 0]
-    assert np.all(d2[(sdf[:, :, k_lo:k_hi] < -V).any(axis=2)] < 0)
+    assert np.all(d2[(sdf[:, :, k_lo:k_hi] < -1.5 * V).any(axis=2)] < 0)
     seen_columns = seen.reshape(sdf.shape)[:, :, k_lo:k_hi].all(axis=2)
     assert np.all(d2[seen_columns] > 0)
