@@ -149,7 +149,7 @@ class Mapper:
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel before serving, on a scratch volume,
-        for writable and read-only (decoded, zero-copy) arrays alike."""
+        for writable and read-only (decoded, zero-copy) arrays alike, and the occupancy's."""
         scratch = Volume(self.config.voxel_size, (3, 3, 3))
         tsdf, sem = TsdfLayer(scratch.shape, self.config.truncation), SemanticLayer(scratch.shape)
         pts = np.zeros((2, 2, 3), np.float32)
@@ -161,6 +161,9 @@ class Mapper:
                 a.flags.writeable = not readonly
             self.tsdf_integrator.integrate(scratch, tsdf, arrays[0], arrays[1], arrays[3])
             self.semantic_integrator.integrate(scratch, sem, arrays[0], arrays[1], arrays[2], arrays[3])
+        c = self.config
+        semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
+                           fill_steps=1)
 
     # -- outputs --------------------------------------------------------------------------------
     def occupancy(self) -> np.ndarray:
