@@ -40,21 +40,22 @@ leaves the rest of an object's inside never observed (weight < min_weight):
 * ``"solid"`` (default): never-observed voxels up to ``behind_surface_depth`` D behind the
   observed interior of an obstacle join it (same group). The TSDF layer keeps, for every voxel
   seen behind a surface, the direction u of the (last) ray that saw it so. From every such voxel
-  of an obstacle group that borders never-observed space, a march of length D in half-voxel
-  steps goes on along u: exactly the shadow the surface casts, along the viewing direction.
+  of an obstacle group that borders never-observed space, a march of length D goes on along u:
+  into the shadow the surface casts, along the viewing direction.
   The march only marks never-observed voxels; observed free space or a free-labelled surface
   (the floor) ends it, so the fill never enters space seen free, and never grows sideways or
   towards the camera where the view simply ended (an isotropic fill, or one along −∇tsdf, which
   the free space seen past an edge or the floor at an object's foot tilts, would grow obstacles
   out of the field of view towards the robot). Each march marks every voxel its segment crosses;
   the pinholes left between diverging marches are closed (twice: a never-observed voxel between
-  two filled ones along an axis).
+  two obstacle voxels along an axis). The never-seen back of an object is thus resolved to
+  about a voxel and a half.
 
 The default D = 0.5 m makes the inside of the obstacles a small robot meets read negative after
-one side is seen: a box or a chair up to τ + D = 0.65 m through along the line of sight, a person
-(a cylinder of about 0.5 m), and a wall of any thickness (it becomes at least 0.65 m thick in the map, which costs
-nothing: the far side is not seen either). The trade-off: the fill also closes never-observed
-gaps narrower than D next to an obstacle — the part of a doorway hidden behind its jamb when
+one side is seen: a box or a chair up to τ + D = 0.65 m through along the line of sight, a
+person (a cylinder of about 0.5 m), and a wall of any thickness (it becomes at least 0.65 m thick
+in the map, which costs nothing: its far side is not seen either). The trade-off: the fill also
+closes never-observed gaps narrower than D behind an obstacle — the part of a doorway hidden behind its jamb when
 seen obliquely, or the space behind a thin pole — until the camera looks into them; the free
 space carved by any ray through them reopens them at once (observed voxels stop the fill). A
 deeper fill closes more such gaps; a shallower one leaves bigger objects hollow at the back.
@@ -62,6 +63,10 @@ deeper fill closes more such gaps; a shallower one leaves bigger objects hollow 
 
 **Unknown space.** With ``unknown_is_occupied`` every never-observed voxel (weight 0) that the
 fill did not claim is also an obstacle, of the ``unknown_group``.
+
+Cost: two passes over the grid, and work in proportion to the obstacle voxels (the wavefront, the
+marches from the interior's border and the closing around the filled voxels); about 2 ms for
+the benchmark room in 101³ voxels.
 
 ``obstacle_interior = "shell"`` keeps the former behaviour (only the surface band is occupied;
 the inside of an obstacle reads as free space), for comparison.
