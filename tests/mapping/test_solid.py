@@ -259,3 +259,18 @@ def test_random_layouts_are_negative_inside_and_positive_outside(scene: list) ->
     assert np.all(d2[(sdf[:, :, k_lo:k_hi] < -1.5 * V).any(axis=2)] < 0)
     seen_columns = seen.reshape(sdf.shape)[:, :, k_lo:k_hi].all(axis=2)
     assert np.all(d2[seen_columns] > 0)
+
+
+def test_the_filled_shadow_rolls_with_the_volume() -> None:
+    """The viewing directions shift with the TSDF: after the volume recentres, the never-observed
+    shadow behind a wall is filled exactly as before."""
+    m = fuse([Plane((1, 0, 0), 1.2, WALL)], [front()], output="3d", repeat=5)
+    behind = np.array([[1.55, 0.0, 0.3], [1.55, 0.3, 0.5], [1.3, -0.2, 0.2]])
+    m.update_esdf()
+    before = m.query(behind).distance
+    assert np.all(before < 0)
+    assert m.tsdf.weight[tuple(m.volume.to_index(behind[:1])[0])] == 0  # never observed: filled
+    m.set_robot_position(np.array([0.6, 0.35, 0.1]))
+    assert m.shifts == 1
+    m.update_esdf()
+    assert np.allclose(m.query(behind).distance, before, atol=1e-6)
