@@ -12,17 +12,19 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from riskfield.protocol import EsdfGrid, RiskConfig, ade20k
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, Plane, Sphere, render
+from riskfield.services.geometry.transforms import look_at, orbit
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
-from riskfield.services.mapping.synthetic import Box, Camera, Plane, Sphere, look_at, orbit, render, scene_distance
 from riskfield.services.mapping.volume import Volume
 
 V = 0.05
 WALL, FLOOR = ade20k.index("wall"), ade20k.index("floor")
 PERSON, CHAIR = ade20k.index("person"), ade20k.index("chair")
-CAM = Camera(160, 120, 125.0, 125.0)
+CAM = PinholeCamera.centred(160, 120, 125.0, 125.0)
 BACK = Plane((1, 0, 0), 2.3, WALL)  # a room's far wall: the rays past an object hit it and carve
-WIDE = Camera(160, 120, 80.0, 80.0)  # 90° field of view: several objects side by side
+WIDE = PinholeCamera.centred(160, 120, 80.0, 80.0)  # 90° field of view: several objects side by side
 
 
 def no_margins() -> RiskConfig:
@@ -32,7 +34,7 @@ def no_margins() -> RiskConfig:
     return risk
 
 
-def fuse(scene: list, poses: list[np.ndarray], camera: Camera = CAM, risk: RiskConfig | None = None,
+def fuse(scene: list, poses: list[np.ndarray], camera: PinholeCamera = CAM, risk: RiskConfig | None = None,
          output: str = "both", repeat: int = 1, **kw) -> Mapper:
     m = Mapper(MapperConfig(output=output, pixel_stride=1, max_distance=1.5, **kw), risk)
     m.set_robot_position(np.zeros(3))
@@ -90,7 +92,7 @@ def test_a_box_and_a_sphere_seen_from_one_side_are_negative_inside(shape: Box | 
     up = m.update_esdf()
     assert up is not None and up.grid3d is not None and up.slice2d is not None
     c3 = grid_points(up.grid3d)
-    sdf = shape.sdf(c3)
+    sdf = shape.distance(c3)
     inside = sdf < -V
     assert inside.sum() > 200
     d3 = up.grid3d.distance
@@ -167,13 +169,14 @@ def test_margins_and_groups_cover_the_whole_solid_obstacle() -> None:
     g0, g1 = bare.update_esdf(), inflated.update_esdf()
     assert g0 is not None and g1 is not None and g0.grid3d is not None and g1.grid3d is not None
     c = grid_points(g0.grid3d)
-    in_person, in_chair = person.sdf(c) < -V, chair.sdf(c) < -V
+    in_person, in_chair = person.distance(c) < -V, chair.distance(c) < -V
     assert np.all(g1.grid3d.risk_group[in_person] == 1) and np.all(g1.grid3d.risk_group[in_chair] == 2)
     # the whole person, back half included, is shifted by exactly its margin
     d0, d1 = g0.grid3d.distance, g1.grid3d.distance
     assert np.allclose(d1[in_person], d0[in_person] - 0.15, atol=1e-5)
     # around the person (not nearer the chair), within range: the margin applies outside too
-    near = (person.sdf(c) > V) & (person.sdf(c) < 0.4) & (chair.sdf(c) > 0.6) & (d0 < 1.0) & (g0.grid3d.risk_group == 1)
+    dp = person.distance(c)
+    near = (dp > V) & (dp < 0.4) & (chair.distance(c) > 0.6) & (d0 < 1.0) & (g0.grid3d.risk_group == 1)
     assert near.sum() > 100
     assert np.allclose(d1[near], d0[near] - 0.15, atol=1e-5)
     assert np.all(g1.grid3d.risk_group[near] == 1)
@@ -206,7 +209,7 @@ def layouts(draw: st.DrawFn) -> list[Box | Sphere]:
     return shapes
 
 
-def visible(points: np.ndarray, scene: list, poses: list[np.ndarray], camera: Camera) -> np.ndarray:
+def visible(points: np.ndarray, scene: list, poses: list[np.ndarray], camera: PinholeCamera) -> np.ndarray:
     """Points on some pixel's ray to a surface, clear of its truncation band: space the camera saw free."""
     out = np.zeros(points.shape[0], dtype=bool)
     for T in poses:
@@ -215,8 +218,8 @@ def visible(points: np.ndarray, scene: list, poses: list[np.ndarray], camera: Ca
         pc = (points - T[:3, 3]) @ T[:3, :3]
         z = pc[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.floor(camera.fx * pc[:, 0] / z + camera.width / 2).astype(np.int64)
-            v = np.floor(camera.fy * pc[:, 1] / z + camera.height / 2).astype(np.int64)
+            u = np.floor(camera.fx * pc[:, 0] / z + camera.cx + 0.5).astype(np.int64)
+            v = np.floor(camera.fy * pc[:, 1] / z + camera.cy + 0.5).astype(np.int64)
         ok = (z > 0.1) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
         r = np.linalg.norm(pc, axis=-1)
         seen = np.zeros_like(ok)
@@ -233,7 +236,7 @@ def test_random_layouts_are_negative_inside_and_positive_outside(scene: list) ->
     up = m.update_esdf()
     assert up is not None and up.grid3d is not None and up.slice2d is not None
     c = grid_points(up.grid3d)
-    sdf = scene_distance(scene, c.reshape(-1, 3)).reshape(c.shape[:3])
+    sdf = np.min([s.distance(c.reshape(-1, 3)) for s in scene], axis=0).reshape(c.shape[:3])
     d3 = up.grid3d.distance
     # The never-seen back is reached by discrete marches along the lines of sight: its surface
     # is resolved to within 1.5 voxels (the seen front to within one).
@@ -246,8 +249,8 @@ def test_random_layouts_are_negative_inside_and_positive_outside(scene: list) ->
     pts = c.reshape(-1, 3)
     smear = np.zeros(pts.shape[0], dtype=bool)
     for shape in scene:
-        front_x = shape.lo[0] if isinstance(shape, Box) else shape.centre[0] - shape.radius
-        smear |= (shape.sdf(pts) <= 0.15 + V) & (pts[:, 0] >= front_x)
+        front_x = shape.lo[0] if isinstance(shape, Box) else shape.center[0] - shape.radius
+        smear |= (shape.distance(pts) <= 0.15 + V) & (pts[:, 0] >= front_x)
     outside = (sdf > V).ravel() & ~smear
     seen = np.zeros_like(outside)
     seen[outside] = visible(pts[outside], [*scene, BACK], poses, WIDE)
