@@ -21,13 +21,18 @@ as the integrator's cap wants, but the cap would make subtraction remove evidenc
 counted, so the mean is kept against the true sum. Contributions are
 stored sparsely in *global* voxel indices (the volume's ``origin_index`` + local index), so they
 stay valid when the rolling volume recentres; voxels that left the volume are simply skipped.
+The layer's viewing direction behind surfaces (``view``, which the solid occupancy fills along)
+becomes, for keyframes, the weight-averaged direction of the keyframes that saw the voxel so,
+kept as a sum beside the weights: order-independent and removable like the rest.
 
-The semantic layer gets the same treatment with its vote rule (eq. 7–8): a keyframe's votes,
-cast alone into a scratch layer, leave a *net vote* (ℓ_k, v_k) per voxel; merging it is one vote of
-label ℓ_k with weight v_k, and removing it is the opposite vote (v ← v − v_k where ℓ = ℓ_k, the label
-dropped to "no label" once nothing is left; v ← v + v_k where the keyframe had voted against ℓ).
-That is exact unless the keyframe's vote flipped a label that had earlier evidence, which is then
-forgotten (the next observation relabels the voxel).
+The semantic layer: a keyframe's votes, cast alone into a scratch layer with the vote rule
+(eq. 7–8), leave a *net vote* (ℓ_k, v_k) per voxel. The vote rule's state (one label and a margin)
+cannot be taken back — removing a vote that flipped a label would forget what the label was — so
+for keyframes each voxel keeps the evidence of its ``LABEL_SLOTS`` strongest labels (label, summed
+net votes) beside the layer; adding or removing a keyframe adds or subtracts v_k in ℓ_k's slot, and
+the layer shows the label of the largest evidence with the margin over the runner-up as its vote
+(what the vote rule's weight measures). Order-independent and exactly removable; a fifth label
+replaces the weakest slot (its evidence is then lost).
 
 Memory is bounded: at most ``max_keyframes`` contributions and ``max_bytes`` in total; beyond that
 the least recently written keyframe is *frozen* (its contribution stays in the map, its record is
@@ -57,6 +62,7 @@ if TYPE_CHECKING:  # the mapper owns a KeyframeMap; no import cycle at run time
     from .mapper import FrameResult, Mapper
 
 NEW, UPDATE, TRACKING = "keyframe_new", "keyframe_update", "tracking"
+LABEL_SLOTS = 4
 _EPS = 1e-6
 
 
@@ -89,7 +95,11 @@ class ContributionIntegrator:
         self.scratch: TsdfLayer | None = None
         self.scratch_sem = SemanticLayer((1, 1, 1))
         self.wsum: np.ndarray | None = None
+        self.vsum: np.ndarray | None = None
         self.wsum_origin = np.zeros(3, np.int64)
+        self.slot_label: np.ndarray | None = None
+        self.slot_vote: np.ndarray | None = None
+        self.slot_origin = np.zeros(3, np.int64)
 
     def contribution(self, volume: Volume, points: np.ndarray, confidence: np.ndarray, labels: np.ndarray,
                      T_WC: np.ndarray) -> tuple[Contribution, int, int]:
@@ -124,11 +134,15 @@ class ContributionIntegrator:
         return tuple(local[inside].T), inside
 
     def _sums(self, volume: Volume, layer: TsdfLayer) -> np.ndarray:
-        """The uncapped weight sums, following the volume as it recentres."""
+        """The uncapped weight sums (and viewing-direction sums), following the volume as it recentres."""
+        view = getattr(layer, "view", None)
         if self.wsum is None or self.wsum.shape != volume.shape:
             self.wsum = layer.weight.astype(np.float64)
+            self.vsum = view.astype(np.float32) / 127.0 * self.wsum[..., None] if view is not None else None
         elif (self.wsum_origin != volume.origin_index).any():
             shift_array(self.wsum, volume.origin_index - self.wsum_origin, 0.0)
+            if self.vsum is not None:
+                shift_array(self.vsum, volume.origin_index - self.wsum_origin, 0.0)
         self.wsum_origin = volume.origin_index.copy()
         return self.wsum
 
@@ -158,32 +172,58 @@ class ContributionIntegrator:
         wsum[ijk] = W1
         layer.weight[ijk] = np.minimum(W1, self.config.max_weight)
         view = getattr(layer, "view", None)
-        if view is not None and c.view is not None:
-            if sign > 0:  # the newest rays' direction wins, as in the integrator
-                seen = c.view[inside].any(axis=1)
-                view[tuple(a[seen] for a in ijk)] = c.view[inside][seen]
-            else:  # a voxel left without evidence has no direction either
-                view[tuple(a[gone] for a in ijk)] = 0
+        if view is not None and c.view is not None and self.vsum is not None:
+            # The direction behind a surface: the weight-averaged direction of the keyframes that
+            # saw the voxel so (not the last ray's, which would depend on the order keyframes
+            # arrive and could not be taken back); it vanishes with the last of them.
+            seen = c.view[inside].any(axis=1)
+            sel = tuple(a[seen] for a in ijk)
+            v = self.vsum[sel] + np.float32(sign) * w[seen, None].astype(np.float32) * c.view[inside][seen] / 127.0
+            keep = np.linalg.norm(v, axis=1) > 1e-3 * np.maximum(W1[seen], 1.0)
+            v = np.where(keep[:, None], v, 0.0).astype(np.float32)
+            self.vsum[sel] = v
+            unit = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-30)
+            view[sel] = np.where(keep[:, None], np.rint(127.0 * unit), 0).astype(np.int8)
         if semantic is not None:
             self._vote(volume, semantic, c, sign)
         return int(inside.sum())
 
+    def _slots(self, volume: Volume, layer: SemanticLayer) -> tuple[np.ndarray, np.ndarray]:
+        """Per-voxel label evidence (labels, sums), following the volume; seeded from the layer."""
+        if self.slot_label is None or self.slot_label.shape[:3] != volume.shape:
+            self.slot_label = np.full((*volume.shape, LABEL_SLOTS), NO_LABEL, np.uint16)
+            self.slot_vote = np.zeros((*volume.shape, LABEL_SLOTS), np.float32)
+            self.slot_label[..., 0] = layer.label
+            self.slot_vote[..., 0] = np.where(layer.label != NO_LABEL, layer.vote, 0.0)
+        elif (self.slot_origin != volume.origin_index).any():
+            shift_array(self.slot_label, volume.origin_index - self.slot_origin, NO_LABEL)
+            shift_array(self.slot_vote, volume.origin_index - self.slot_origin, 0.0)
+        self.slot_origin = volume.origin_index.copy()
+        assert self.slot_vote is not None
+        return self.slot_label, self.slot_vote
+
     def _vote(self, volume: Volume, layer: SemanticLayer, c: Contribution, sign: float) -> None:
+        slot_label, slot_vote = self._slots(volume, layer)
         ijk, inside = self._local(volume, c.label_index)
-        lk, vk = c.label[inside], c.vote[inside].astype(np.float64)
-        L, v = layer.label[ijk], layer.vote[ijk].astype(np.float64)
-        same = L == lk
-        if sign > 0:  # one vote of ℓ_k with weight v_k (the rule of semantic_integrator.py)
-            v1 = np.where(same, v + vk, v - vk)
-            flip = v1 < 0
-            layer.label[ijk] = np.where(flip, lk, L)
-            layer.vote[ijk] = np.abs(v1)
+        lk, vk = c.label[inside], c.vote[inside]
+        L, E = slot_label[ijk], slot_vote[ijk]  # (m, K)
+        rows = np.arange(lk.size)
+        match = (L == lk[:, None]) & (E > 0)
+        has = match.any(axis=1)
+        if sign > 0:
+            slot = np.where(has, match.argmax(axis=1), E.argmin(axis=1))  # else the empty / weakest slot
+            E[rows, slot] = np.where(has, E[rows, slot] + vk, vk)
+            L[rows, slot] = lk
         else:
-            unlabelled = L == NO_LABEL
-            v1 = np.where(same, v - vk, v + vk)
-            gone = same & (v1 <= _EPS * np.maximum(vk, 1.0))
-            layer.label[ijk] = np.where(gone, NO_LABEL, L)
-            layer.vote[ijk] = np.where(gone | unlabelled, np.where(unlabelled, v, 0.0), v1)
+            slot = match.argmax(axis=1)
+            e = np.where(has, E[rows, slot] - vk, E[rows, slot])
+            E[rows, slot] = np.where(e <= _EPS * np.maximum(vk, 1.0), 0.0, e)
+        slot_label[ijk], slot_vote[ijk] = L, E
+        top = E.argmax(axis=1)
+        best = E[rows, top]
+        runner_up = np.partition(E, -2, axis=1)[:, -2] if E.shape[1] > 1 else np.zeros_like(best)
+        layer.label[ijk] = np.where(best > 0, L[rows, top], NO_LABEL)
+        layer.vote[ijk] = np.where(best > 0, best - runner_up, 0.0)
 
 
 class KeyframeMap:

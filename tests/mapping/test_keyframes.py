@@ -101,8 +101,9 @@ def test_contribution_equals_the_mappers_own_integration(room: list, small_camer
     np.testing.assert_array_equal(w_direct > 0, w_via > 0)
     below = (w_direct > 0) & (w_direct < direct.config.max_weight)
     np.testing.assert_allclose(via.tsdf.tsdf[below], direct.tsdf.tsdf[below], atol=1e-4)
-    if hasattr(direct.tsdf, "view"):  # a layer keeping viewing directions gets the keyframe's too
-        np.testing.assert_array_equal(via.tsdf.view, direct.tsdf.view)
+    # one keyframe alone: the viewing directions behind surfaces are its own rays' (±1 of 127: renormalised)
+    np.testing.assert_array_equal(via.tsdf.view.any(axis=-1), direct.tsdf.view.any(axis=-1))
+    assert np.abs(via.tsdf.view.astype(int) - direct.tsdf.view.astype(int)).max() <= 1
 
 
 def test_tracking_frames_stamp_the_map_without_integrating(room: list, small_camera: Camera) -> None:
