@@ -12,6 +12,7 @@ process that holds a Zenoh session.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -26,7 +27,7 @@ from typing import Any
 
 import zenoh
 
-from riskfield.protocol import ENCODING, Message, decode, encode
+from riskfield.protocol import ENCODING, Message, NodeStatus, decode, encode
 
 
 def free_port() -> int:
@@ -76,7 +77,7 @@ def client_session(endpoint: str, timeout_s: float = 15.0) -> Iterator[zenoh.Ses
         except zenoh.ZError:
             if time.monotonic() > end:
                 raise
-            time.sleep(0.1)
+            time.sleep(0.1)  # retry period while the router process starts
     try:
         yield session
     finally:
@@ -131,8 +132,62 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float = 10.0, period_s:
     while time.monotonic() < end:
         if predicate():
             return True
-        time.sleep(period_s)
+        time.sleep(period_s)  # the poll period, not a synchronisation: the predicate decides
     return bool(predicate())
+
+
+def wait_matched(session: zenoh.Session, key: str, timeout_s: float = 10.0) -> bool:
+    """Wait until ``session`` knows a subscriber matching ``key``, i.e. a put from it now reaches
+    that subscriber (declarations propagate through the router asynchronously; a put sent before
+    they arrive is not routed to the new subscriber). Uses the publisher's matching status."""
+    pub = session.declare_publisher(key)
+    try:
+        return wait_until(lambda: pub.matching_status.matching, timeout_s)
+    finally:
+        pub.undeclare()
+
+
+def query_barrier(sender: zenoh.Session, receiver: zenoh.Session, timeout_s: float = 10.0) -> bool:
+    """An ordering barrier from ``sender`` to ``receiver``: True once a query sent by ``sender``
+    reached a queryable of ``receiver``. Messages of one session travel its links in order, so
+    every put ``sender`` made before the call that was going to reach ``receiver`` has reached
+    it by then. This is how a test sees that a denied or dropped put never arrives, without
+    waiting for a fixed time."""
+    key = f"rf_test/barrier/{next(_BARRIER_IDS)}"
+    hits = threading.Event()
+    queryable = receiver.declare_queryable(key, lambda _query: hits.set())
+    try:
+        # Retried: the queryable's declaration reaches the sender asynchronously.
+        return wait_until(lambda: (sender.get(key, timeout=0.5), hits.is_set())[1], timeout_s, period_s=0.05)
+    finally:
+        queryable.undeclare()
+
+
+_BARRIER_IDS = itertools.count()
+
+
+class StatusWatch:
+    """Keeps the ``NodeStatus`` a service publishes on ``{prefix}/{robot}/status/{service}`` and
+    waits on its counters (run the service with ``--set status_period_s=0.1`` to hear it often)."""
+
+    def __init__(self, session: zenoh.Session, key: str):
+        self._collector = Collector(session, key, NodeStatus)
+
+    @property
+    def latest(self) -> NodeStatus | None:
+        items = self._collector.items
+        return items[-1] if items else None
+
+    def wait(self, predicate: Callable[[NodeStatus], bool], timeout_s: float = 10.0) -> NodeStatus:
+        """The first status (from now on, or the latest one) for which ``predicate`` holds."""
+        if not wait_until(lambda: (st := self.latest) is not None and predicate(st), timeout_s):
+            raise TimeoutError(f"no status satisfied the condition in {timeout_s} s; last: {self.latest}")
+        status = self.latest
+        assert status is not None
+        return status
+
+    def close(self) -> None:
+        self._collector.close()
 
 
 class ServiceProcess:
@@ -187,7 +242,7 @@ def wait_alive(session: zenoh.Session, key: str, timeout_s: float = 20.0) -> boo
         replies = list(session.liveliness().get(key, timeout=0.5))
         if any(r.ok is not None for r in replies):
             return True
-        time.sleep(0.1)
+        time.sleep(0.1)  # poll period of the liveliness query
     return False
 
 
