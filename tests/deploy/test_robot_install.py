@@ -4,6 +4,7 @@ systemd would (EnvironmentFile lines, then ExecStart with %i) against a router e
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -22,6 +23,7 @@ import zenoh
 from riskfield import cli
 from riskfield.protocol import Keys, VelocityCommand
 from riskfield.services.runtime import SERVICES
+from riskfield.services.runtime.service import EXTRAS
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
 from riskfield.testing import Collector, ServiceProcess, client_session, free_port, put, wait_alive, wait_until
@@ -245,3 +247,62 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
                 assert wait_until(lambda: " up as router" in r.output, 20), r.output
                 assert r.stop() == 0 and relay.stop() == 0, (r.output, relay.output)
     assert srv.proc is not None and srv.proc.returncode == 0, srv.output
+
+
+# -- the robot image's install step -----------------------------------------------------------------
+
+#: The robot-side modules: the safety filter and the hardware bridges (what `riskfield run` loads).
+ROBOT_MODULES = ("riskfield.services.safety_filter.node", "riskfield.edge.limo.node", "riskfield.edge.joystick.node",
+                 "riskfield.edge.mavlink.node")
+
+
+def _build_context(dockerfile: Path, dest: Path) -> None:
+    """Copy what the Dockerfile's first (build) stage COPYs from the repository into ``dest``."""
+    for line in dockerfile.read_text().split("\nFROM ")[1].splitlines():
+        words = line.split()
+        if words[:1] == ["COPY"] and not any(w.startswith("--from") for w in words):
+            *sources, target = words[1:]
+            for src in sources:
+                to = dest / (src if target.endswith("/") or target == "./" else target)
+                if (REPO / src).is_dir():
+                    shutil.copytree(REPO / src, to, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+                else:
+                    to.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copy(REPO / src, to)
+
+
+@pytest.mark.slow
+def test_robot_image_install_step_works_in_a_clean_venv_without_open3d_or_torch(tmp_path: Path) -> None:
+    """deploy/Dockerfile.robot's build stage without Docker: its COPYs into a context, then
+    `pip install ".[robot]"` into a fresh venv. Every robot service loads from it, and neither
+    open3d nor torch is installed or imported."""
+    import venv
+
+    context, env_dir = tmp_path / "src", tmp_path / "venv"
+    try:
+        _build_context(REPO / "deploy" / "Dockerfile.robot", context)
+        assert (context / "pyproject.toml").is_file() and (context / "services").is_dir()
+        venv.create(env_dir, with_pip=True)
+        py = str(env_dir / "bin" / "python")
+        # Wheels come from pip's configured index and cache; nothing is fetched by the product.
+        proc = subprocess.run([py, "-m", "pip", "install", "-q", "--disable-pip-version-check", ".[robot]"],
+                              cwd=context, capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        robot_services = sorted(n for n, extra in EXTRAS.items() if extra == "robot")
+        code = (
+            "import importlib, importlib.util, json, sys\n"
+            "from riskfield.services.runtime.service import load_service\n"
+            f"for name in {robot_services!r}: load_service(name)\n"
+            f"for mod in {ROBOT_MODULES!r}: importlib.import_module(mod)\n"
+            "print(json.dumps({'imported': sorted(m for m in ('open3d', 'torch') if m in sys.modules),\n"
+            "                  'installed': sorted(m for m in ('open3d', 'torch') if importlib.util.find_spec(m)),\n"
+            "                  'file': importlib.import_module('riskfield').__file__}))\n"
+        )
+        out = subprocess.run([py, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                             env={k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")})
+        assert out.returncode == 0, out.stderr[-3000:]
+        report = json.loads(out.stdout.strip().splitlines()[-1])
+        assert report["imported"] == [] and report["installed"] == [], report
+        assert report["file"].startswith(str(env_dir)), report  # the installed copy, not this checkout
+    finally:
+        shutil.rmtree(tmp_path, ignore_errors=True)  # a venv is hundreds of MB

@@ -32,4 +32,3 @@ def test_latency_bench_runs_with_the_relay(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stdout + res.stderr
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["lost"] == 0 and summary["total"]["n"] == 10
-    assert 0 < summary["total"]["p50_ms"] < 1000

@@ -35,7 +35,7 @@ def diag(col: Collector) -> LimoDiagnostics:
 
 def start(robot: str, endpoint: str, port: str, *extra: str) -> ServiceProcess:
     return ServiceProcess("limo", endpoint, ["--robot", robot, "--set", f"port={port}",
-                                             "--set", "reconnect_s=0.1", *extra])
+                                             "--set", "reconnect_s=0.1", "--set", "status_period_s=0.2", *extra])
 
 
 def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_path: Path) -> None:
@@ -47,12 +47,14 @@ def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_pa
         with start(robot, router_endpoint, emu.port) as node:
             assert wait_alive(s, keys.alive("limo")), node.output
             assert wait_until(lambda: emu.model.control_mode == 1, 5.0), node.output
-            # Drive: commands at 25 Hz, one beyond the platform limit.
-            for i in range(15):
-                put(s, keys.cmd_safe, cmd(0.4, 0.3) if i < 14 else cmd(5.0))
-                time.sleep(0.04)
+            # Drive: a teleop-like stream at ~25 Hz (the period is the scenario: one command alone
+            # would expire in the watchdog) until the chassis moved and turned, then one command
+            # beyond the platform limit.
+            assert wait_until(lambda: (put(s, keys.cmd_safe, cmd(0.4, 0.3)), emu.model.x > 0.1 and
+                                       any(m == p.MotionCommand(0.4, 0.3) for m in motions(emu)))[1],
+                              10.0, period_s=0.04), node.output
+            put(s, keys.cmd_safe, cmd(5.0))
             assert wait_until(lambda: any(m.linear == 1.0 for m in motions(emu)), 2.0)
-            assert any(m == p.MotionCommand(0.4, 0.3) for m in motions(emu))
             assert all(abs(m.linear) <= 1.0 for m in motions(emu))
             # Watchdog: no more commands → a stop frame within the period (+ poll and transport).
             t_last = time.perf_counter()
@@ -93,8 +95,7 @@ def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str,
             assert wait_alive(s, keys.alive("limo")), node.output
             assert wait_until(lambda: emu.model.control_mode == 1, 5.0)
             for payload in bad_velocity_payloads:
-                put(s, keys.cmd_safe, payload)
-                time.sleep(0.02)  # a latest-value queue would otherwise skip some of them
+                put(s, keys.cmd_safe, payload)  # a burst: what the latest-value queue skips counts as dropped
             t0 = time.perf_counter()
             put(s, keys.cmd_safe, cmd(0.25))
             assert wait_until(lambda: any(m.linear == 0.25 for m in motions(emu, t0)), 3.0), node.output
@@ -106,8 +107,9 @@ def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str,
             emu.disconnect()
             assert wait_until(lambda: diags.items and not diag(diags).connected, 3.0), node.output
             n_states = len(states.items)
+            received = status.items[-1].received.get("cmd/safe", 0)
             put(s, keys.cmd_safe, cmd(0.3))  # nowhere to go: must not crash the node
-            time.sleep(0.3)
+            assert wait_until(lambda: status.items[-1].received.get("cmd/safe", 0) > received, 5.0), node.output
             assert node.alive()
             assert len(states.items) <= n_states + 1  # no state without feedback
             assert "LIMO serial link lost" in node.output

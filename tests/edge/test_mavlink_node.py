@@ -43,21 +43,19 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
         with ServiceProcess("mavlink", router_endpoint, args) as node, \
                 FakeVehicle(f"udpout:127.0.0.1:{port}", autopilot, VehicleModel(x=5.0, yaw=0.0)) as veh:
             assert wait_alive(s, keys.alive("mavlink")), node.output
-            # Streaming before any command: zero setpoints at >= 10 Hz, GCS heartbeat at 1 Hz.
-            assert wait_until(lambda: len(veh.setpoints()) >= 5, 10.0), node.output
-            t0, n0 = time.monotonic(), len(veh.setpoints())
-            time.sleep(1.0)
-            rate = (len(veh.setpoints()) - n0) / (time.monotonic() - t0)
-            assert rate >= 10, rate
+            # Streaming before any command: zero setpoints and a GCS heartbeat (their rates are the
+            # bench's business, not this test's).
+            assert wait_until(lambda: len(veh.setpoints()) >= 5 and len(veh.received.gcs_heartbeats) >= 1,
+                              10.0), node.output
             assert all(m.vx == 0 and m.yaw_rate == 0 for _, m in veh.setpoints())
-            assert len(veh.received.gcs_heartbeats) >= 1
             assert any(c.command == 511 and int(c.param1) in (30, 32) for c in veh.received.commands)
             _, sp = veh.setpoints()[-1]
             assert (sp.target_system, sp.target_component, sp.coordinate_frame, sp.type_mask) == (1, 1, 8, 0x5C7)
             # Drive: forward and turning left (CCW) → body FRD vx > 0 and a negative (clockwise) yaw rate.
-            for _ in range(20):
-                put(s, keys.cmd_safe, cmd(0.5, 0.2))
-                time.sleep(0.05)
+            # A teleop-like stream at ~20 Hz (the period is the scenario: a single command would
+            # expire in the node's watchdog) until the vehicle has moved.
+            assert wait_until(lambda: (put(s, keys.cmd_safe, cmd(0.5, 0.2)), veh.model.x > 5.2)[1], 10.0,
+                              period_s=0.05), node.output
             _, sp = veh.setpoints()[-1]
             assert (sp.vx, sp.vy, sp.yaw_rate) == pytest.approx((0.5, 0.0, -0.2))
             assert veh.model.x > 5.2  # moved north
@@ -74,8 +72,7 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
             assert all(np.isfinite(m.position).all() for m in states.items)
             # Bad input on both sides: Zenoh garbage and UDP garbage from the vehicle's address.
             for payload in bad_velocity_payloads:
-                put(s, keys.cmd_safe, payload)
-                time.sleep(0.02)
+                put(s, keys.cmd_safe, payload)  # a burst: what the queue skips is counted as dropped
             veh.conn.port.sendto(bytes(range(256)) * 2, ("127.0.0.1", port))
             put(s, keys.cmd_safe, cmd(0.3))
             t1 = time.perf_counter()
@@ -84,11 +81,11 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
             assert wait_until(lambda: status.items and rejected_or_skipped(status.items[-1]) >= n_bad, 5.0)
             assert node.alive()
             # Shutdown: the last word is a zero setpoint.
+            t2 = time.perf_counter()
             put(s, keys.cmd_safe, cmd(0.3))
-            time.sleep(0.1)
+            assert wait_until(lambda: any(t >= t2 and m.vx == pytest.approx(0.3) for t, m in veh.setpoints()), 3.0)
             assert node.stop() == 0
-            time.sleep(0.2)
-            _, last = veh.setpoints()[-1]
-            assert last.vx == 0 and last.yaw_rate == 0
+            # Nothing is sent after the process ended: wait for the final datagram to be read.
+            assert wait_until(lambda: veh.setpoints()[-1][1].vx == 0 and veh.setpoints()[-1][1].yaw_rate == 0, 2.0)
         states.close()
         status.close()
