@@ -236,7 +236,7 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
                 while session is None and time.monotonic() < deadline:
                     with contextlib.suppress(zenoh.ZError):
                         session = zenoh.open(zenoh_config(watcher))
-                    time.sleep(0.2)
+                    time.sleep(0.2)  # retry period while the server's router starts
                 assert session is not None, srv.output
                 try:
                     assert wait_alive(session, keys.alive("relay"), timeout_s=30), (r.output, relay.output)

@@ -70,11 +70,12 @@ def ready(session: zenoh.Session, keys: Keys, timeout_s: float = 30.0) -> bool:
                       timeout_s, 0.1)
 
 
-def feed(session: zenoh.Session, keys: Keys, msgs: list[PerceptionFrame]) -> None:
+def feed(session: zenoh.Session, keys: Keys, msgs: list[PerceptionFrame], grids: Collector) -> None:
     put(session, keys.state, state())
     for f in msgs:
+        n = len(grids.items)
         put(session, keys.perception_frame, f)
-        time.sleep(0.15)  # the frame queue keeps only the newest; give each its turn
+        grids.wait(n + 1)  # the frame queue keeps only the newest: the next goes once this one is in the map
 
 
 IN_FRONT = np.array([[0.5, -0.55, 0.3], [0.6, -0.55, 0.3]])
@@ -91,7 +92,7 @@ def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: s
         assert early.in_map is not None and not early.in_map.any()
         assert np.all(early.distance == 2.0)
         assert not grids.items
-        feed(s, keys, frames())
+        feed(s, keys, frames(), grids)
         g = grids.wait(1)[-1]
         g3 = grids3d.wait(1)[-1]
         assert g.shape == (101, 101, 1) and g3.shape == (101, 101, 101)
@@ -106,7 +107,7 @@ def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: s
         assert np.all(reply.gradient[:, 0] < -0.5)
         # no new data: no new grids (the filter must see the map age)
         n = len(grids.items)
-        time.sleep(0.4)
+        time.sleep(0.4)  # an absence over 8 ESDF periods (scenario): nothing to wait for
         assert len(grids.items) == n
         grids.close()
         grids3d.close()
@@ -171,7 +172,7 @@ def test_node_rejects_bad_input_on_every_key_and_keeps_serving(router_endpoint: 
         assert proc.alive(), proc.output
         assert not grids.items, "no map may come out of bad frames"
         # it still serves: a valid frame makes a valid map, a valid query gets an answer
-        feed(s, keys, frames(2))
+        feed(s, keys, frames(2), grids)
         g = grids.wait(1)[-1]
         assert np.isfinite(g.distance).all() and (g.distance < 0).any()
         reply = ask(s, keys, IN_FRONT)
@@ -210,9 +211,8 @@ def test_risk_config_hot_reload_from_key_and_file(router_endpoint: str, tmp_path
     with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
         assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
         grids = Collector(s, keys.esdf, EsdfGrid)
-        feed(s, keys, frames(3))
+        feed(s, keys, frames(3), grids)
         grids.wait(1)
-        time.sleep(0.2)
         d0 = ask(s, keys, IN_FRONT).distance
         # over the key: the high-risk margin grows by 0.25 m
         wider = RiskConfig()
@@ -226,16 +226,15 @@ def test_risk_config_hot_reload_from_key_and_file(router_endpoint: str, tmp_path
         narrow = RiskConfig()
         narrow.groups[0].margin = 0.05
         n = len(grids.items)
-        time.sleep(0.05)
+        time.sleep(0.05)  # a later modification time than the last write (file-system clock resolution)
         risk_file.write_text(yaml.safe_dump(narrow.model_dump(exclude={"header"})))
         grids.wait(n + 1)
         d2 = ask(s, keys, IN_FRONT).distance
         assert np.allclose(d0 - d2, -0.10, atol=1e-5)
         # a broken file is reported and ignored
         risk_file.write_text("groups: [")
-        time.sleep(0.6)
+        assert wait_until(lambda: "could not reload" in proc.output, 10), proc.output
         assert np.allclose(ask(s, keys, IN_FRONT).distance, d2, atol=1e-6)
-        assert "could not reload" in proc.output
         grids.close()
         assert proc.stop() == 0
 
