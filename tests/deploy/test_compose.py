@@ -194,9 +194,8 @@ def test_every_container_command_is_a_valid_riskfield_command(stack: dict[str, A
     nodes = _riskfield_services(stack)
     assert set(nodes) == set().union(*PROFILES.values()) - ROUTERS
     checked = {name: _check_riskfield_container(name, svc, monkeypatch) for name, svc in nodes.items()}
-    # The services that exist in this tree are fully checked; the report names the others.
-    print("\n".join(f"{n}: {c}" for n, c in sorted(checked.items())))
-    assert checked["robot-safety-filter"] == checked["safety-filter"]
+    # The dev install (`.[all,dev]`) imports every service: each one is fully checked.
+    assert all(c == "settings" for c in checked.values()), checked
 
 
 def test_robot_containers_use_the_robot_image_and_need_only_the_robot_extra(stack: dict[str, Any]) -> None:

@@ -164,11 +164,13 @@ def test_node_rejects_bad_input_on_every_key_and_keeps_serving(router_endpoint: 
         for key, name in ((keys.perception_frame, "frame"), (keys.state, "state"), (keys.risk_config, "risk")):
             for payload in bad[name]:
                 put(s, key, payload)
-                time.sleep(0.08)
+                ask(s, keys, IN_FRONT)  # served by the same loop after the put: the payload has been handled
         for payload in bad["query"]:
             replies = query(s, keys.esdf_query, payload)
             assert replies and all(r.ok is None for r in replies), "a bad query must get an error reply"
-        time.sleep(0.3)
+        # A map made of bad frames would go out at the next ESDF tick (20 Hz): two status periods later, none did.
+        n_status = len(status.items)
+        assert wait_until(lambda: len(status.items) >= n_status + 2, 5.0), proc.output
         assert proc.alive(), proc.output
         assert not grids.items, "no map may come out of bad frames"
         # it still serves: a valid frame makes a valid map, a valid query gets an answer
