@@ -56,11 +56,10 @@ def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_pa
             put(s, keys.cmd_safe, cmd(5.0))
             assert wait_until(lambda: any(m.linear == 1.0 for m in motions(emu)), 2.0)
             assert all(abs(m.linear) <= 1.0 for m in motions(emu))
-            # Watchdog: no more commands → a stop frame within the period (+ poll and transport).
+            # Watchdog: no more commands → a stop frame (its timing is checked with injected time in
+            # test_limo_bridge.py; here only that the process does it).
             t_last = time.perf_counter()
-            assert wait_until(lambda: any(m.is_stop for m in motions(emu, t_last)), 1.0)
-            t_stop = min(t for t, m in emu.frames(p.MotionCommand) if t >= t_last and m.is_stop)
-            assert t_stop - t_last < 0.2 + 0.1
+            assert wait_until(lambda: any(m.is_stop for m in motions(emu, t_last)), 5.0)
             assert emu.model.v == 0.0
             # State: the estimate moved forward and turned left, all values finite.
             states.wait(5)

@@ -61,9 +61,8 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
             assert veh.model.x > 5.2  # moved north
             # Watchdog: cmd/safe stops → zero setpoints keep streaming.
             t_last = time.perf_counter()
-            assert wait_until(lambda: any(t > t_last + 0.1 and m.vx == 0 for t, m in veh.setpoints()), 2.0)
-            t_zero = min(t for t, m in veh.setpoints() if t > t_last and m.vx == 0)
-            assert t_zero - t_last < 0.2 + 0.1
+            # (its timing is checked with injected time in test_mavlink_core.py)
+            assert wait_until(lambda: any(t > t_last and m.vx == 0 for t, m in veh.setpoints()), 5.0)
             # State: ENU, north → +y, heading turned clockwise in NED → ENU yaw = π/2 − yaw_NED.
             assert states.wait(10)
             st = states.items[-1]
