@@ -66,6 +66,24 @@ class ZenohRouter:
             self.session = None
 
 
+def open_when_ready(open_fn: Callable[[], zenoh.Session], timeout_s: float = 20.0,
+                    alive: ServiceProcess | None = None) -> zenoh.Session:
+    """``open_fn()``, retried while it fails with ``zenoh.ZError`` (the router it dials is still
+    starting), for at most ``timeout_s``; with ``alive``, a router process that died fails at once."""
+    sessions: list[zenoh.Session] = []
+
+    def opened() -> bool:
+        if alive is not None and not alive.alive():
+            raise RuntimeError(f"{alive.name} exited:\n{alive.output}")
+        with contextlib.suppress(zenoh.ZError):
+            sessions.append(open_fn())
+        return bool(sessions)
+
+    if not wait_until(opened, timeout_s, period_s=0.1):
+        raise TimeoutError(f"no session in {timeout_s} s" + (f"; output:\n{alive.output}" if alive else ""))
+    return sessions[0]
+
+
 @contextlib.contextmanager
 def client_session(endpoint: str, timeout_s: float = 15.0) -> Iterator[zenoh.Session]:
     """A client session to ``endpoint``, retried while a router process is still starting."""

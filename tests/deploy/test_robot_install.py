@@ -11,7 +11,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,7 +25,16 @@ from riskfield.services.runtime import SERVICES
 from riskfield.services.runtime.service import EXTRAS
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
-from riskfield.testing import Collector, ServiceProcess, client_session, free_port, put, wait_alive, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    client_session,
+    free_port,
+    open_when_ready,
+    put,
+    wait_alive,
+    wait_until,
+)
 
 if TYPE_CHECKING:
     from conftest import Secrets
@@ -231,13 +239,7 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
                 watcher = NodeSettings(connect=[server], tls_root_ca=secrets.tls / "ca.pem",
                                        tls_cert=secrets.tls / "planner.pem", tls_key=secrets.tls / "planner.key",
                                        tls_mtls=True, user="planner", password=secrets.passwords["planner"])
-                session = None
-                deadline = time.monotonic() + 20
-                while session is None and time.monotonic() < deadline:
-                    with contextlib.suppress(zenoh.ZError):
-                        session = zenoh.open(zenoh_config(watcher))
-                    time.sleep(0.2)  # retry period while the server's router starts
-                assert session is not None, srv.output
+                session = open_when_ready(lambda: zenoh.open(zenoh_config(watcher)), alive=srv)
                 try:
                     assert wait_alive(session, keys.alive("relay"), timeout_s=30), (r.output, relay.output)
                 finally:

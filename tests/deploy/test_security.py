@@ -5,7 +5,6 @@ Zenoh sessions: mutual TLS, user/password, and access control checked on the sub
 from __future__ import annotations
 
 import contextlib
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,6 +19,7 @@ from riskfield.testing import (
     Collector,
     ServiceProcess,
     free_port,
+    open_when_ready,
     put,
     query_barrier,
     wait_matched,
@@ -292,15 +292,8 @@ def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, s
         with session(secrets, server, "planner", "planner") as remote:
             at_server = Collector(remote, KEYS.cmd_safe, VelocityCommand)
             # Local clients of the rogue router use its (foreign) CA.
-            deadline = time.monotonic() + 20
-            filt = None
-            while filt is None and time.monotonic() < deadline:
-                assert proc.alive(), proc.output
-                with contextlib.suppress(zenoh.ZError):
-                    filt = client(secrets, endpoint, "safety-filter", "safety-filter", cert_dir=secrets.foreign,
-                                  ca=secrets.foreign / "ca.pem")
-                time.sleep(0.2)  # retry period while the rogue router starts
-            assert filt is not None, proc.output
+            filt = open_when_ready(lambda: client(secrets, endpoint, "safety-filter", "safety-filter",
+                                                  cert_dir=secrets.foreign, ca=secrets.foreign / "ca.pem"), alive=proc)
             try:
                 # The claim is an absence over time: while the rogue router retries its link (3 s of
                 # scenario), the server's subscriber never becomes reachable from its side.
@@ -346,15 +339,7 @@ def test_shipped_plain_router_and_client_configs_work_together(tmp_path: Path) -
     with ServiceProcess("router", f"tcp/127.0.0.1:{port}", ["--set", f"zenoh_config={router_cfg}"]) as proc:
         cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "client.json5"))
         cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-        s = None
-        deadline = time.monotonic() + 20
-        while s is None and time.monotonic() < deadline:
-            assert proc.alive(), proc.output
-            with contextlib.suppress(zenoh.ZError):
-                s = zenoh.open(cfg)
-            time.sleep(0.1)  # retry period while the router process starts
-        assert s is not None
-        with s:
+        with open_when_ready(lambda: zenoh.open(cfg), alive=proc) as s:
             got = Collector(s, KEYS.esdf)
             assert wait_matched(s, KEYS.esdf)
             put(s, KEYS.esdf, b"x")
