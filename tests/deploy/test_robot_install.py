@@ -183,6 +183,7 @@ def staged_robot(tmp_path: Path, server: str, robot: str, *extra: str) -> Iterat
     yield tmp_path
 
 
+@pytest.mark.slow  # two routers and a node as processes
 def test_installed_units_bring_the_robot_up_against_a_router_elsewhere(tmp_path: Path, router_endpoint: str) -> None:
     """The robot's router starts even while the server's router is unreachable, its nodes work
     locally, and the server sees them once the link exists. (`relay` stands in for a bridge.)"""
@@ -206,6 +207,7 @@ def test_installed_units_bring_the_robot_up_against_a_router_elsewhere(tmp_path:
             assert r.stop() == 0 and relay.stop() == 0, (r.output, relay.output)
 
 
+@pytest.mark.slow  # two TLS routers and a node as processes
 def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets: Secrets) -> None:
     """--secrets: the robot's router dials the server's over mutual TLS as user `router`; its
     node authenticates with its own certificate and user."""

@@ -239,6 +239,7 @@ def test_router_role_needs_a_router_certificate(secrets: Secrets, server: str) -
 # -- two sites ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a second router process meshing with the first
 def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
         secrets: Secrets, server: str, tmp_path: Path) -> None:
     """The robot site's router dials the server's with its router certificate and the router
@@ -276,6 +277,7 @@ def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
                 c.close()
 
 
+@pytest.mark.slow  # a second router process and a 3 s absence window
 def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, server: str, tmp_path: Path) -> None:
     """A router whose certificate another CA signed is refused by the server's router."""
     cfg = secrets.router_config("robot", tmp_path)
