@@ -264,6 +264,18 @@ def wait_alive(session: zenoh.Session, key: str, timeout_s: float = 20.0) -> boo
     return False
 
 
+def put_each_rejected(session: zenoh.Session, key: str, payloads: Sequence[bytes], status: StatusWatch,
+                      counter: str, timeout_s: float = 10.0) -> int:
+    """Put each payload, then wait until the node's ``invalid[counter]`` has counted it before
+    sending the next (a latest-value queue would otherwise skip some of them undecoded), so
+    every one of them is decoded and rejected. Returns the final invalid count."""
+    count = status.latest.invalid.get(counter, 0) if status.latest is not None else 0
+    for payload in payloads:
+        put(session, key, payload)
+        count = status.wait(lambda st, n=count: st.invalid.get(counter, 0) > n, timeout_s).invalid[counter]
+    return count
+
+
 def hostile_payloads(valid: Message, n: int = 1000, seed: int = 0) -> list[bytes]:
     """``n`` payloads a receiver must reject, derived from one valid message: random bytes,
     truncated msgpack, wrong or unknown schema, NaN/Inf, giant declared shapes, wrong dtypes,
