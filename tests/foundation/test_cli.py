@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import signal
 import subprocess
 import sys
-import time
 
 from riskfield import __version__
 from riskfield.testing import client_session, free_port, wait_alive
@@ -18,9 +18,11 @@ def _run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([*RF, *args], capture_output=True, text=True, timeout=timeout)
 
 
-def test_version():
+def test_version_matches_the_installed_distribution():
+    """What `--version` prints is the version pip installed (pyproject.toml), not only a constant."""
     r = _run("--version")
-    assert r.returncode == 0 and r.stdout.strip() == f"riskfield {__version__}"
+    assert r.returncode == 0 and r.stdout.strip() == f"riskfield {importlib.metadata.version('riskfield')}"
+    assert __version__ == importlib.metadata.version("riskfield")
 
 
 def test_schema_export(tmp_path):
@@ -62,12 +64,11 @@ def test_up_starts_and_stops_a_set_of_processes(tmp_path):
 
 def test_up_exits_non_zero_when_a_service_dies():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    t0 = time.monotonic()
-    r = subprocess.run([*RF, "up", "relay", "--listen", endpoint, "--duration", "60",
+    # --duration is far beyond the subprocess timeout: returning at all means it did not wait for it.
+    r = subprocess.run([*RF, "up", "relay", "--listen", endpoint, "--duration", "3600",
                         "--config", "/nonexistent/riskfield.yaml"], capture_output=True, text=True, timeout=90)
     assert r.returncode == 1
     assert "exited with code" in r.stderr + r.stdout
-    assert time.monotonic() - t0 < 45  # it did not wait for --duration
 
 
 def test_bench_codec_writes_a_summary(tmp_path):
@@ -75,6 +76,6 @@ def test_bench_codec_writes_a_summary(tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "summary.json").read_text())
     row = summary["decode PerceptionFrame 512x384"]
-    assert row["n"] == 3 and 0 < row["median_ms"] < 1000
+    assert row["n"] == 3 and row["median_ms"] > 0  # measured; how fast is the bench's report, not a test
     assert any(k.startswith("zenoh round trip") for k in summary)
     assert _run("bench", "nope").returncode == 2
