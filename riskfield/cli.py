@@ -138,8 +138,8 @@ def _print_settings(service: str) -> None:
     except ServiceUnavailable as exc:
         console.print(f"[yellow]{escape(str(exc))}[/yellow]")
         return
-    table = Table("setting", "type", "default", "description", title=f"{service} settings (--set key=value, "
-                  f"a config file's {service} section or RISKFIELD_<KEY>)", title_justify="left")
+    # One line per setting (not a table), so that a narrow terminal or grep keeps each whole.
+    print(f"\n{service} settings (--set key=value, the {service} section of a config file, or RISKFIELD_<KEY>):")
     common = NodeSettings.model_fields
     for name, field in spec.settings.model_fields.items():
         if name in common:
@@ -150,8 +150,8 @@ def _print_settings(service: str) -> None:
             value = field.default
             default = ("(required)" if value is PydanticUndefined
                        else str(value) if isinstance(value, Path) else repr(value))
-        table.add_row(name, escape(_type_name(field.annotation)), escape(default), escape(field.description or ""))
-    Console(soft_wrap=False).print(table)
+        about = f"  — {field.description}" if field.description else ""
+        print(f"  {name}: {_type_name(field.annotation)} = {default}{about}")
     print(f"common to every node: {', '.join(common)}")
 
 
