@@ -193,7 +193,7 @@ def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
     try:
         code = run_service(service, {k: v for k, v in overrides.items() if v is not None}, duration_s=duration)
     except (ServiceUnavailable, FileNotFoundError, ValueError, ConnectionError) as exc:
-        console.print(f"[red]{exc}[/red]")
+        console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
     raise typer.Exit(code)
 

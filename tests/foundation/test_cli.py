@@ -117,6 +117,11 @@ def test_demo_without_mcap_is_one_install_line(tmp_path):
     assert "'mcap'" in r.stderr and "pip install 'riskfield[tools]'" in r.stderr
 
 
+def test_record_without_mcap_keeps_the_brackets_of_its_hint():
+    r = _run_without(("mcap",), "record", "--duration", "1")
+    assert r.returncode == 2 and "pip install 'riskfield[tools]'" in r.stderr, r.stderr
+
+
 def test_bench_without_its_extra_is_one_install_line():
     r = _run_without(("osqp",), "bench", "filter")
     assert r.returncode == 2

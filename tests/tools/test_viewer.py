@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from riskfield.protocol import EsdfGrid, Image, PerceptionFrame, RobotState, SafetyStatus, VelocityCommand
+from riskfield.protocol import EsdfGrid, Header, Image, PerceptionFrame, RobotState, SafetyStatus, VelocityCommand
 from riskfield.protocol.ade20k import CLASSES, index
 from riskfield.services.viewer.draw import (
     OnChange,
@@ -171,7 +171,11 @@ def test_viewer_node_saves_a_recording_rerun_loads_back(router_endpoint, tmp_pat
             put(c, "rf/t_view/perception/frame", _frame())
             rgb = np.zeros((24, 32, 3), np.uint8)
             rgb[:, :16, 0] = 255
-            put(c, "rf/t_view/camera/image", Image(encoding="rgb8", width=32, height=24, data=rgb))
+            t0 = 1_000_000_000_000
+            for n, dt in enumerate((0.0, 0.1, 0.6), start=1):  # the second is within camera_period_s: not drawn
+                put(c, "rf/t_view/camera/image", Image(header=Header(stamp_ns=t0 + int(dt * 1e9)), encoding="rgb8",
+                                                       width=32, height=24, data=rgb))
+                assert wait_until(lambda n=n: view.drawn["image"] >= n, 10)
             put(c, "rf/t_view/cmd/safe", VelocityCommand.zero("f"))
             for fb in statuses:
                 put(c, "rf/t_view/safety/status", SafetyStatus(h=0.3, risk_group=1, intervening=fb is not None,
@@ -197,7 +201,8 @@ def test_viewer_node_saves_a_recording_rerun_loads_back(router_endpoint, tmp_pat
     assert {"Transform3D:translation", "Transform3D:quaternion"} <= names("/world/robot")
     assert "LineStrips3D:strips" in names("/world/robot/footprint")  # a child: moves with world/robot
     assert {"Pinhole:image_from_camera", "Pinhole:resolution", "Transform3D:mat3x3"} <= names("/world/robot/camera")
-    assert "Image:buffer" in names("/world/robot/camera/image")
+    assert "EncodedImage:blob" in names("/world/robot/camera/image")  # JPEG, to keep view.rrd small
+    assert len(_column(ents["/world/robot/camera/image"], "EncodedImage:blob")) == 2  # one per camera_period_s
     assert {"AnnotationContext:context", "Points3D:class_ids"} <= names("/world/pointmap")
 
     # the pinhole fitted from the pointmap (f = 8 px at 16 px wide), scaled to the 32 px image
