@@ -118,6 +118,8 @@ def open_session(s: NodeSettings) -> zenoh.Session:
             return zenoh.open(cfg)
         except zenoh.ZError as exc:
             now = time.monotonic()
+            if s.listen and "listener" in str(exc):  # our own port (busy, bad address): no router will fix it
+                raise ConnectionError(f"cannot listen on {', '.join(s.listen)}: {zenoh_message(exc)}") from exc
             where = ", ".join(s.connect) or "(no endpoint)"
             if now + delay > deadline:
                 raise ConnectionError(f"no Zenoh router at {where} after {s.connect_timeout_s:g} s "

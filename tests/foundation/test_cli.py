@@ -184,3 +184,13 @@ def test_examples_ship_in_the_sdist(tmp_path):
         names = tar.getnames()
     assert any(n.endswith("/examples/esdf_planner.py") for n in names)
     assert not any("__pycache__" in n for n in names)
+
+
+def test_a_busy_listen_port_fails_at_once_without_rust_paths():
+    from riskfield.testing import ZenohRouter
+
+    with ZenohRouter() as router:  # holds the port
+        r = _run("run", "router", "--listen", router.endpoint, timeout=20)  # no 30 s of retries
+    assert r.returncode == 3, r.stderr
+    assert f"cannot listen on {router.endpoint}" in r.stderr and "Address already in use" in r.stderr
+    assert ".rs:" not in r.stderr and "waiting" not in r.stderr
