@@ -20,6 +20,7 @@ app = typer.Typer(help="Semantic-risk safety filtering from one RGB camera, as Z
                   no_args_is_help=True, add_completion=False)
 console = Console(stderr=True, soft_wrap=True, highlight=False)
 
+
 def _missing_extras_in_one_line(command: Callable[..., Any]) -> Callable[..., Any]:
     """A command whose missing optional dependency (``MODULE_EXTRAS``) ends in one line
     naming the extra to install, exit code 2, instead of a traceback."""
