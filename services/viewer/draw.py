@@ -4,10 +4,13 @@ Frames: ``world`` is the map frame (x forward, y left, z up); ``world/robot`` is
 (``T_WR`` from ``RobotState``); the camera is an optical frame (x right, y down, z forward, the
 pinhole convention) placed in the robot frame by ``T_RC = T_WR⁻¹ · T_WC``.
 
-The ESDF slice at height z is a grid map: row ``j`` is ``y = o_y + j·s``, column ``i`` is
-``x = o_x + i·s`` (``o`` the grid origin, ``s`` the voxel size, distances as stored, metres),
-so row 0 is the lowest y, the lower-left image corner lies at ``(o_x − s/2, o_y − s/2)``: the
-corner of the first cell, whose centre is the origin.
+The ESDF slice at height z is a Rerun ``GridMap`` of distances as stored (metres). Rerun draws
+a grid map's first image row at the top: the texture's top-left corner at grid
+``(0, height·cell_size)`` and its rows running along −y from there, with ``translation`` the
+lower-left corner (upstream: rerun-io/rerun, crates/viewer/re_view_spatial/src/visualizers/
+grid_map.rs, ``textured_rect_from_grid_map``). So image row ``r`` holds y index ``ny − 1 − r``
+and column ``i`` x index ``i``, like a map seen from above with y up; the lower-left corner is
+``(o_x − s/2, o_y − s/2)``, the corner of cell (0, 0), whose centre is the origin ``o``.
 """
 
 from __future__ import annotations
@@ -47,10 +50,11 @@ def slice_index(grid: EsdfGrid, z: float) -> int:
 
 
 def esdf_slice(grid: EsdfGrid, z: float = 0.1) -> tuple[np.ndarray, tuple[float, float, float]]:
-    """The signed distance at height z as an (ny, nx) float32 grid map (row j ↔ y index j,
-    column i ↔ x index i), and the map-frame position of its lower-left corner."""
+    """The signed distance at height z as an (ny, nx) float32 grid-map image (row r ↔ y index
+    ny − 1 − r, column i ↔ x index i: the top row is the highest y), and the map-frame
+    position of its lower-left corner."""
     k = slice_index(grid, z)
-    d = np.ascontiguousarray(np.asarray(grid.distance[:, :, k], dtype=np.float32).T)
+    d = np.ascontiguousarray(np.asarray(grid.distance[:, :, k], dtype=np.float32).T[::-1])
     s = grid.voxel_size
     corner = (grid.origin[0] - s / 2, grid.origin[1] - s / 2, grid.origin[2] + k * s)
     return d, corner

@@ -41,17 +41,25 @@ def _asymmetric_grid() -> EsdfGrid:
                     max_distance=1.0, unknown_is_occupied=False)
 
 
-def test_esdf_slice_is_a_grid_map_with_rows_along_y_and_the_first_cell_at_the_origin():
+def _drawn_at(corner, cell: float, height: int, row: int, col: int) -> np.ndarray:
+    """Where Rerun's GridMap draws the centre of image pixel (row, col): the first row at the top,
+    grid y = height·cell, rows running along −y (rerun-io/rerun, re_view_spatial grid_map.rs)."""
+    return np.array(corner[:2]) + np.array([(col + 0.5) * cell, (height - row - 0.5) * cell])
+
+
+def test_esdf_slice_grid_map_draws_each_distance_at_its_map_position():
     g = _asymmetric_grid()
     d, corner = esdf_slice(g, z=0.1)
     assert d.shape == (4, 6) and d.dtype == np.float32  # rows are y, columns x
-    j, i = np.unravel_index(np.argmin(d), d.shape)
-    assert (i, j) == (4, 1)  # the obstacle stays at x index 4, y index 1: not flipped, not transposed
-    np.testing.assert_array_equal(d, g.distance[:, :, 1].T)  # distances kept, metres
     # the lower-left corner is the corner of cell (0, 0), whose centre is the origin
     np.testing.assert_allclose(corner, (0.95, -2.05, 0.1))
-    # so cell (i, j)'s centre, corner + (i + ½, j + ½)·s, is the obstacle's map position
-    np.testing.assert_allclose(np.array(corner[:2]) + (np.array([i, j]) + 0.5) * g.voxel_size, (1.4, -1.9))
+    r, c = np.unravel_index(np.argmin(d), d.shape)
+    # the obstacle (x index 4, y index 1) is drawn at its map position, not mirrored or transposed
+    np.testing.assert_allclose(_drawn_at(corner, g.voxel_size, d.shape[0], r, c), (1.4, -1.9))
+    for (row, col), value in np.ndenumerate(d):  # every pixel: the distance of the cell drawn there
+        x, y = _drawn_at(corner, g.voxel_size, d.shape[0], row, col)
+        i, j = round((x - g.origin[0]) / g.voxel_size), round((y - g.origin[1]) / g.voxel_size)
+        assert value == g.distance[i, j, 1]  # metres, from the slice at z = 0.1
     lo, size = map_bounds(g)
     np.testing.assert_allclose(lo, (0.95, -2.05, -0.05)) and np.testing.assert_allclose(size, (0.6, 0.4, 0.3))
 
@@ -219,11 +227,11 @@ def test_viewer_node_saves_a_recording_rerun_loads_back(router_endpoint, tmp_pat
     labels = {e["class_id"]: e["class_description"]["info"]["label"] for e in ctx}
     assert labels[12] == "person" and len(labels) == len(CLASSES)
 
-    # the ESDF slice: distances in metres, rows along y, lower-left corner at origin − s/2
+    # the ESDF slice: distances in metres, lower-left corner at origin − s/2
     fmt = _column(ents["/world/esdf"], "GridMap:format")[-1][0]
     data = _column(ents["/world/esdf"], "GridMap:data")[-1][0]
     d = np.frombuffer(bytes(data), np.float32).reshape(fmt["height"], fmt["width"])
-    np.testing.assert_array_equal(d, grid.distance[:, :, 1].T)
+    np.testing.assert_array_equal(d, grid.distance[:, :, 1].T[::-1])  # the top row is the highest y
     np.testing.assert_allclose(_column(ents["/world/esdf"], "GridMap:translation")[-1][0], (0.95, -2.05, 0.1),
                                atol=1e-6)
     assert _column(ents["/world/esdf"], "GridMap:cell_size")[-1][0] == pytest.approx(0.1)
