@@ -46,7 +46,7 @@ def check_endpoint(endpoint: str) -> str:
     return endpoint
 
 
-def zenoh_message(exc: BaseException) -> str:
+def zenoh_message(exc: BaseException | str) -> str:
     """A Zenoh error as one readable line: Rust source paths and Json5 wrapping removed."""
     text = _RUST_PATH.sub("", str(exc))
     inner = re.search(r'msg: "(.*?)"(, location|\s*\})', text)

@@ -194,3 +194,23 @@ def test_a_busy_listen_port_fails_at_once_without_rust_paths():
     assert r.returncode == 3, r.stderr
     assert f"cannot listen on {router.endpoint}" in r.stderr and "Address already in use" in r.stderr
     assert ".rs:" not in r.stderr and "waiting" not in r.stderr
+
+
+def test_endpoint_check_and_zenoh_message_units():
+    import pytest
+
+    from riskfield.services.runtime.session import check_endpoint, zenoh_message
+
+    for good in ("tcp/127.0.0.1:7447", "tcp/[::1]:7447", "tcp/robot-router:7447", "tcp/0.0.0.0:0",
+                 "tls/host.local:7447?x=1#y", "unixsock-stream//tmp/zenoh.sock"):
+        assert check_endpoint(good) == good
+    for bad, words in (("foo", "<protocol>/<address>"), ("127.0.0.1:7447", "did you mean tcp/127.0.0.1:7447"),
+                       ("tcp/127.0.0.1", "host:port"), ("tcp/127.0.0.1:70000", "65535"), ("tcp/:7447", "host:port")):
+        with pytest.raises(ValueError, match=words):
+            check_endpoint(bad)
+    raw = ('Json5Err(Message { msg: "Endpoints must be of the form <protocol>/<address>: foo at '
+           '/root/.cargo/git/checkouts/zenoh-x/commons/zenoh-protocol/src/core/endpoint.rs:615.", location: '
+           'Some(Location { line: 1, column: 2 }) }) at /root/.cargo/git/checkouts/zenoh-x/zenoh/src/api/config.rs:86.')
+    assert zenoh_message(raw) == "Endpoints must be of the form <protocol>/<address>: foo"
+    assert zenoh_message("Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at /a/b/orchestrator.rs:447.") == (
+        "Unable to connect to any of [Single(tcp/127.0.0.1:1)]")
