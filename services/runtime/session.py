@@ -35,9 +35,9 @@ def check_endpoint(endpoint: str) -> str:
     example = "e.g. tcp/127.0.0.1:7447"
     m = _ENDPOINT.match(endpoint) if isinstance(endpoint, str) else None
     if m is None:
-        hint = f" (did you mean tcp/{endpoint}?)" if isinstance(endpoint, str) and _HOST_PORT_ADDR.match(
-            endpoint) else ""
-        raise ValueError(f"endpoint {endpoint!r} is not <protocol>/<address>, {example}{hint}")
+        if isinstance(endpoint, str) and _HOST_PORT_ADDR.match(endpoint):
+            raise ValueError(f"endpoint {endpoint!r} has no protocol: did you mean tcp/{endpoint}?")
+        raise ValueError(f"endpoint {endpoint!r} is not <protocol>/<address>, {example}")
     if m["proto"] in _HOST_PORT:
         a = _HOST_PORT_ADDR.match(m["address"])
         if a is None or int(a["port"]) > 65535:
