@@ -129,6 +129,7 @@ def test_missing_mast3r_names_what_is_missing_and_how_to_install(monkeypatch: py
     # lietorch importable (a stand-in module), the rest absent here: the message names exactly
     # the modules that failed to import, then how to install them.
     monkeypatch.setitem(sys.modules, "lietorch", types.ModuleType("lietorch"))
+    monkeypatch.setitem(sys.modules, "torch", None)  # absent, even where the CPU wheel is installed
     with pytest.raises(MissingBackend) as err:
         require_mast3r()
     text = str(err.value)
