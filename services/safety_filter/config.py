@@ -8,15 +8,39 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
+from ..esdf_field import Interpolation
+from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Point = tuple[float, float, float]
 
 ModelName = Literal["unicycle", "single2d", "single3d", "double3d"]
+
+#: The AgileX LIMO's footprint (m), the unicycle model's default body.
+LIMO_LENGTH, LIMO_WIDTH = 0.322, 0.220
+
+
+class Footprint(BaseModel):
+    """The robot's body, covered by discs that each add a CBF row (``barriers.disc_cover``).
+
+    ``rectangle`` / ``capsule``: ``length`` × ``width`` centred on the body origin, x forward,
+    covered by ``discs`` discs on the medial axis (robots with a heading; not ``double3d``, which
+    has no attitude). ``sphere``: one ball of ``radius`` at the origin (``None``: the config's
+    ``robot_radius``). ``none``: only the control points (the look-ahead point for the
+    unicycle): the paper's filter, unprotected sides and rear.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    shape: Literal["rectangle", "capsule", "sphere", "none"]
+    length: Pos = LIMO_LENGTH
+    width: Pos = LIMO_WIDTH
+    radius: Pos | None = None
+    discs: Annotated[int, Field(ge=1, le=8)] = 3
 
 
 class FilterConfig(BaseModel):
@@ -34,7 +58,18 @@ class FilterConfig(BaseModel):
     (body-frame velocity control) or ``double3d`` (acceleration control with the HOCBF).
     ``extra_points`` are further body-frame points (x forward, y left, z up; world-frame offsets
     for ``double3d``), each adding one CBF row. Bounds are symmetric: |v| ≤ v_max (per axis for
-    single integrators), |ω| ≤ w_max, |v_z| ≤ vz_max, |a_i| ≤ a_max.
+    single integrators), |ω| ≤ w_max, |v_z| ≤ vz_max, |a_i| ≤ a_max. For velocity-controlled
+    models ``a_max`` is the platform's deceleration: it caps the first-order gains at
+    2 a_max / v_point_max so the robot can shed any speed the CBF allows within h (``barriers``).
+
+    ``footprint`` (``None``: the model's default — the LIMO rectangle for the unicycle, a sphere
+    of ``robot_radius`` otherwise) adds the body's disc cover to the control points.
+    ``barrier`` picks the double integrator's barrier: ``braking`` (braking distance at
+    ``brake_fraction`` · a_max, feasible under the bounds) or ``hocbf`` (the paper's).
+    ``interpolation`` is how the filter reads an ``EsdfField`` (``services/field_spline.py``):
+    ``bspline`` (C², default), ``catmull_rom`` (C¹) or the paper's ``trilinear``.
+    ``slack``: when the QP is infeasible, solve it with every row relaxed to what the backup
+    (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
     """
 
     model_config = ConfigDict(extra="ignore")
@@ -55,6 +90,30 @@ class FilterConfig(BaseModel):
     margins_in_filter: bool = False
     predictive_rows: bool = True
     solver: Literal["auto", "active_set", "osqp"] = "auto"
+    footprint: Footprint | None = None
+    barrier: Literal["braking", "hocbf"] = "braking"
+    brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
+    interpolation: Interpolation = "bspline"
+    slack: bool = True
+
+    def body(self) -> Footprint:
+        """The footprint in force (the model's default when not configured)."""
+        if self.footprint is not None:
+            return self.footprint
+        if self.model == "unicycle":
+            return Footprint(shape="rectangle")
+        return Footprint(shape="sphere")
+
+    def _discs(self) -> tuple[list[tuple[float, float, float]], list[float]]:
+        fp = self.body()
+        if fp.shape == "none":
+            return [], []
+        if fp.shape == "sphere":
+            return [(0.0, 0.0, 0.0)], [fp.radius if fp.radius is not None else self.robot_radius]
+        if self.model == "double3d":
+            raise ValueError("double3d has no heading: its footprint is a sphere")
+        o, r = disc_cover(fp.length, fp.width, fp.discs, capsule=fp.shape == "capsule")
+        return [tuple(float(v) for v in p) for p in o], r.tolist()  # type: ignore[misc]
 
     @property
     def dt(self) -> float:
@@ -68,11 +127,17 @@ class FilterConfig(BaseModel):
 
     def build_model(self) -> BarrierModel:
         extra = [tuple(p) for p in self.extra_points]
+        pts, radii = self._discs()
         if self.model == "unicycle":
+            body = (np.array(pts).reshape(-1, 3), np.array(radii)) if pts else None
             return UnicycleLookahead(self.lookahead_m, self.robot_radius, self.lambda_v, self.lambda_w,
-                                     self.v_max, self.w_max, extra)  # type: ignore[arg-type]
+                                     self.v_max, self.w_max, extra, body)  # type: ignore[arg-type]
+        if not pts:  # no body: the centre point with robot_radius, as before footprints
+            pts, radii = [(0.0, 0.0, 0.0)], [self.robot_radius]
+        pts = [*pts, *extra]  # type: ignore[list-item]
+        radii = np.array([*radii, *[self.robot_radius] * len(extra)])  # type: ignore[assignment]
         if self.model in ("single2d", "single3d"):
-            return SingleIntegrator(2 if self.model == "single2d" else 3, self.robot_radius, self.v_max,
-                                    self.vz_max, [(0.0, 0.0, 0.0), *extra], self.w_max)  # type: ignore[list-item]
-        return DoubleIntegrator(self.robot_radius, self.a_max, self.k_v, self.dt,
-                                [(0.0, 0.0, 0.0), *extra], self.v_max)  # type: ignore[list-item]
+            return SingleIntegrator(2 if self.model == "single2d" else 3, radii, self.v_max,
+                                    self.vz_max, pts, self.w_max)  # type: ignore[arg-type]
+        return DoubleIntegrator(radii, self.a_max, self.k_v, self.dt, pts, self.v_max,  # type: ignore[arg-type]
+                                self.barrier, self.brake_fraction)

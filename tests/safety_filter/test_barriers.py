@@ -87,7 +87,7 @@ def test_first_order_rows_predict_the_barrier_rate(model, seed):
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31))
 def test_hocbf_row_uses_the_second_derivative_of_h(seed):
-    model = MODELS[3]
+    model = DoubleIntegrator(0.1, points=[(0.0, 0.0, 0.0), (0.1, 0.0, 0.0)], barrier="hocbf")
     rng = np.random.default_rng(seed)
     s = random_state(rng, model)
     u = rng.uniform(model.lo, model.hi)
@@ -175,3 +175,32 @@ def test_predicted_points_are_the_points_after_the_exact_step(model):
         ang = np.array([0.0, 0.0, rng.uniform(-2, 2)])
         np.testing.assert_allclose(model.predicted_points(s, u, 0.02, ang),
                                    model.points(model.integrate(s, u, 0.02, ang)), atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_braking_row_is_the_first_order_cbf_of_the_braking_barrier(seed):
+    """A u - b = ḣ_b + κ h_b with h_b = h - s₊²/(2 a_b), ḣ_b by differences along the exact flow."""
+    model = MODELS[3]
+    rng = np.random.default_rng(seed)
+    s = random_state(rng, model)
+    u = rng.uniform(model.lo, model.hi)
+    a1, a2 = 2.5, 1.5  # κ = 1.5
+    gains = np.array([[1.0, a1, a2]] * model.m)
+
+    def hb(t: float) -> np.ndarray:
+        st_ = model.integrate(s, u, t)
+        return model.barrier(st_, FIELD.query(model.points(st_), hessian=True), model.h(st_, FIELD))
+
+    sample = FIELD.query(model.points(s), hessian=True)
+    a, b = model.rows(s, sample, model.h(s, FIELD), gains, np.zeros(3))
+    eps = 1e-5
+    rate = (hb(eps) - hb(-eps)) / (2 * eps)
+    moving_in = -(sample.gradient @ s.velocity) > 1e-2  # away from the kink of s₊ at s = 0
+    np.testing.assert_allclose((a @ u - b)[moving_in], (rate + 1.5 * hb(0.0))[moving_in], atol=1e-4)
+    # The backup (a_max along the gradient, inside the box) never lets h_b drop at a convex
+    # obstacle: ḣ_b = ḣ + (s/a_b)(a_max + vᵀ∇²d v) ≥ -s + s a_max/a_b ≥ 0.
+    ub = model.backup(s, sample.gradient[0])
+    assert np.all(np.abs(ub) <= model.hi + 1e-12)
+    hb0 = model.barrier(s, sample, model.h(s, FIELD))
+    assert (a[0] @ ub - b[0]) - 1.5 * hb0[0] >= -1e-9

@@ -39,7 +39,6 @@ def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: Union) -> F
     a state that is safe for the nearest obstacle only may already be unable to stop before the
     next one: that is outside every CBF's promise)."""
     model = filt.model
-    table = filt.gains.for_groups(field.groups)
     while True:
         p = rng.uniform([-0.3, -0.65, -0.3], [2.0, 1.4, 0.3])
         if planar:
@@ -55,12 +54,12 @@ def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: Union) -> F
         if hb.min() < 0 or hb.min() > 0.4:
             continue  # start in the safe set, close enough for the obstacles to matter
         if isinstance(model, DoubleIntegrator):
+            # Able to stop: braking at a_b keeps every obstacle's h - δ ≥ 0 (the braking barrier).
             safe = True
             for part in truth.parts:
                 ps = part.query(model.points(s))
-                k_fast = model.roots(*table[part.group, 1:3])[1]
                 hb_part = ps.distance - model.radius - filt.delta
-                safe &= bool((ps.gradient @ s.velocity + k_fast * hb_part).min() >= 0)
+                safe &= bool(model.barrier(s, ps, hb_part).min() >= 0)
             if not safe:
                 continue
         return s
@@ -109,7 +108,7 @@ def rollouts(model_name: str, field, n: int, seed: int, filtered: bool = True, t
             # h half-way between the samples (same held input) and at the next sample.
             between = model.points(model.integrate(s, u, 0.5 * dt, ang))
             s = model.integrate(s, u, dt, ang)
-            h = field.query(np.concatenate([between, model.points(s)])).distance.min() - model.radius
+            h = (field.query(np.concatenate([between, model.points(s)])).distance - np.tile(model.radius, 2)).min()
             worst = min(worst, h)
             hit |= h < 0
         collided += hit
