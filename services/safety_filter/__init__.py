@@ -12,7 +12,8 @@ Pure core (no I/O, no zenoh), usable directly by a simulation::
     state = filt.model.integrate(state, res.u, filt.config.dt)  # exact dynamics, zero-order hold
 
 Modules, one concept each: ``field`` (ESDF access: trilinear distance, finite-difference
-gradient and Hessian, risk group), ``analytic`` (closed-form fields), ``state`` (robot state,
+gradient and Hessian, risk group; the filter reads it with the cubic B-spline of
+``services/field_spline.py`` by default), ``analytic`` (closed-form fields), ``state`` (robot state,
 rotations), ``barriers`` (dynamics, h, CBF rows per model), ``qp`` (exact active-set path and
 OSQP), ``filter`` (one filter step, gains per risk group), ``config`` (the core's settings),
 ``supervisor`` (timeouts and fail-safe reasons → messages). Node side: ``settings``,
@@ -20,9 +21,9 @@ OSQP), ``filter`` (one filter step, gains per risk group), ``config`` (the core'
 """
 
 from ..esdf_field import DistanceField, EsdfField, FieldSample
-from .analytic import Plane, Sphere, Union, to_esdf, to_grid_message
+from .analytic import Box, Plane, Sphere, Union, to_esdf, to_grid_message
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
-from .config import FilterConfig
+from .config import FilterConfig, Footprint
 from .filter import FilterResult, GainTable, SafetyFilter
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
@@ -30,6 +31,7 @@ from .supervisor import FilterSupervisor
 
 __all__ = [
     "ActiveSetSolver",
+    "Box",
     "BarrierModel",
     "DistanceField",
     "DoubleIntegrator",
@@ -38,6 +40,7 @@ __all__ = [
     "FilterConfig",
     "FilterResult",
     "FilterState",
+    "Footprint",
     "FilterSupervisor",
     "GainTable",
     "OsqpSolver",
