@@ -31,8 +31,8 @@ from .supervisor import FilterSupervisor
 
 __all__ = [
     "ActiveSetSolver",
-    "Box",
     "BarrierModel",
+    "Box",
     "DistanceField",
     "DoubleIntegrator",
     "EsdfField",
@@ -40,8 +40,8 @@ __all__ = [
     "FilterConfig",
     "FilterResult",
     "FilterState",
-    "Footprint",
     "FilterSupervisor",
+    "Footprint",
     "GainTable",
     "OsqpSolver",
     "Plane",
