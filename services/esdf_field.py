@@ -38,7 +38,7 @@ from riskfield.protocol import EsdfGrid
 
 from . import field_spline
 
-Interpolation = Literal["trilinear", "catmull_rom", "bspline"]
+Interpolation = Literal["trilinear", "catmull_rom", "bspline", "bspline_smooth"]
 
 _OFFS = np.arange(-1, 3)
 _EPS = 1e-9

@@ -111,14 +111,14 @@ def test_reversing_into_a_wall_stops_with_the_body_clear(limo):
 
 
 def test_turning_in_place_next_to_a_wall_stops_with_the_body_clear(limo):
-    # A corridor 0.36 m wide: turning swings the corners (0.195 m from the centre) into the walls.
+    # A corridor 0.38 m wide: turning swings the corners (0.195 m from the centre) into the walls.
     # (Next to a single wall the filter trades the turn for a forward arc away from it, and the
     # robot turns clear; in the corridor there is no such way out and it must stop.)
-    wall = Union([Box([0.0, 0.28, 0.0], [1.5, 0.1, 0.5], group=3, planar=True),
-                  Box([0.0, -0.28, 0.0], [1.5, 0.1, 0.5], group=3, planar=True)], groups=GROUPS)
+    wall = Union([Box([0.0, 0.29, 0.0], [1.5, 0.1, 0.5], group=3, planar=True),
+                  Box([0.0, -0.29, 0.0], [1.5, 0.1, 0.5], group=3, planar=True)], groups=GROUPS)
     out = limo.drive(wall, FilterState.planar(0.0, 0.0, 0.0), (0.0, -1.5), 120)
     assert out["worst_disc"] >= 0.0 and out["worst_corner"] >= 0.0, out
-    assert out["end"].yaw < -0.1  # it turned...
+    assert out["end"].yaw < -0.02  # it turned as far as the margins allow...
     assert abs(out["last"].angular[2]) < 0.05, out  # ...and stopped turning
     sweep = [FilterState.planar(0.0, 0.0, -a) for a in np.linspace(0, math.pi / 2, 50)]
     assert min(wall.query(t.position + CORNERS @ t.rotation.T).distance.min() for t in sweep) < 0  # unfiltered: hits

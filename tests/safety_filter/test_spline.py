@@ -36,7 +36,7 @@ def coefs(n: int):
     return st.lists(st.floats(-3, 3), min_size=n, max_size=n).map(np.array)
 
 
-@pytest.mark.parametrize("kernel,degree", [("catmull_rom", 2), ("bspline", 3)])
+@pytest.mark.parametrize("kernel,degree", [("catmull_rom", 2), ("bspline", 3), ("bspline_smooth", 1)])
 @pytest.mark.parametrize("planar", [False, True])
 @settings(max_examples=12, deadline=None)
 @given(data=st.data())
@@ -72,7 +72,7 @@ def noisy_field(kernel: str, planar: bool, seed: int) -> EsdfField:
     return EsdfField(rng.normal(0.3, 0.1, shape), [0, 0, 0], H, interpolation=kernel)
 
 
-@pytest.mark.parametrize("kernel", ["catmull_rom", "bspline"])
+@pytest.mark.parametrize("kernel", ["catmull_rom", "bspline", "bspline_smooth"])
 @pytest.mark.parametrize("planar", [False, True])
 @settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 2**31))
@@ -87,7 +87,9 @@ def test_gradient_and_hessian_are_the_derivatives_of_the_distance(kernel, planar
     fd_h = np.stack([(field.query(p + e * EYE[i]).gradient - field.query(p - e * EYE[i]).gradient) / (2 * e)
                      for i in range(3)], axis=1)
     np.testing.assert_allclose(s.gradient, fd_g, atol=1e-5)
-    np.testing.assert_allclose(s.hessian, fd_h, atol=1e-3)  # Hessians are O(1/h) on noise: 1e-3 is tight
+    frac = (p / H) % 1.0
+    inner = ((frac > 1e-4) & (frac < 1 - 1e-4)).all(axis=1)  # Catmull-Rom's Hessian jumps at faces
+    np.testing.assert_allclose(s.hessian[inner], fd_h[inner], atol=1e-3)  # O(1/h) on noise: 1e-3 is tight
     np.testing.assert_allclose(s.hessian, np.swapaxes(s.hessian, 1, 2), atol=1e-9)
 
 
@@ -100,7 +102,7 @@ def test_trilinear_gradient_is_not_its_own_derivative():
     assert np.abs(field.query(p).gradient[:, 0] - fd).max() > 0.05
 
 
-@pytest.mark.parametrize("kernel", ["catmull_rom", "bspline"])
+@pytest.mark.parametrize("kernel", ["catmull_rom", "bspline", "bspline_smooth"])
 @settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 2**31), axis=st.integers(0, 2))
 def test_gradient_is_continuous_across_cell_faces(kernel, seed, axis):
@@ -113,7 +115,7 @@ def test_gradient_is_continuous_across_cell_faces(kernel, seed, axis):
     np.testing.assert_allclose(below.distance, above.distance, atol=1e-7)
     np.testing.assert_allclose(below.gradient, above.gradient, atol=1e-5)
     jump = np.abs(below.hessian - above.hessian).max()
-    if kernel == "bspline":
+    if kernel != "catmull_rom":
         assert jump < 1e-3  # C²: the Hessian is continuous too
     else:
         assert np.isfinite(jump)  # Catmull-Rom is C¹ only: its Hessian may jump here
@@ -121,7 +123,7 @@ def test_gradient_is_continuous_across_cell_faces(kernel, seed, axis):
 
 def test_weights_are_a_partition_of_unity_with_zero_sum_derivatives():
     t = np.random.default_rng(1).uniform(0, 1, (100, 3))
-    for kernel in ("catmull_rom", "bspline"):
+    for kernel in ("catmull_rom", "bspline", "bspline_smooth"):
         w = axis_weights(t, H, kernel, 3)  # type: ignore[arg-type]
         np.testing.assert_allclose(w[:, :, 0].sum(axis=-1), 1.0)
         np.testing.assert_allclose(w[:, :, 1:].sum(axis=-1), 0.0, atol=1e-9)
@@ -130,3 +132,23 @@ def test_weights_are_a_partition_of_unity_with_zero_sum_derivatives():
 def test_unknown_interpolation_is_a_clear_error():
     with pytest.raises(ValueError, match="interpolation"):
         EsdfField(np.zeros((4, 4, 1)), [0, 0, 0], H, interpolation="quintic")  # type: ignore[arg-type]
+
+
+def test_the_smoothing_bspline_is_close_to_a_sphere_and_conservative_at_a_ridge():
+    """It never reads more than a few mm (h²/6 ∂²d) above the geometry, and at the ridge between
+    two obstacles (a concave kink) it reads less than the true distance — where the interpolating
+    kernels overshoot (why it is the filter's default)."""
+    from riskfield.services.safety_filter.analytic import Sphere, Union, to_esdf
+
+    truth = Union([Sphere([0.0, 0.0, 0.0], 0.3), Sphere([1.0, 0.0, 0.0], 0.3)])
+    grid = to_esdf(truth, [-0.8, -0.8, -0.8], [1.8, 0.8, 0.8], H).with_interpolation("bspline_smooth")
+    rng = np.random.default_rng(0)
+    p = rng.uniform([-0.6, -0.6, -0.6], [1.6, 0.6, 0.6], (2000, 3))
+    p = p[truth.query(p).distance > 0.0]
+    assert (grid.query(p).distance - truth.query(p).distance).max() < 0.004
+    ridge = np.stack([np.full(200, 0.5), rng.uniform(-0.3, 0.3, 200), rng.uniform(-0.3, 0.3, 200)], axis=1)
+    assert np.all(grid.query(ridge).distance < truth.query(ridge).distance)
+    band = ridge + np.array([1.0, 0.0, 0.0]) * rng.uniform(-0.03, 0.03, (200, 1))
+    assert (grid.query(band).distance - truth.query(band).distance).max() < 0.004
+    overshoot = grid.with_interpolation("catmull_rom").query(band).distance - truth.query(band).distance
+    assert overshoot.max() > 0.004
