@@ -5,7 +5,8 @@ wall; a 2-D slice for the ground models, 3-D otherwise) is queried from random s
 the obstacles with random references, so that most steps intervene. A step is the whole
 ``SafetyFilter.filter`` call: field query (distance, gradient, Hessian for the HOCBF) at the
 barrier points and their predicted positions, CBF rows, and the QP — once with the exact
-active-set path and once with OSQP. Reports median and p99 (µs) and writes ``summary.json``.
+active-set path and once with OSQP. Reports median and p99 (µs; each step's fastest of three
+passes over the same cases) and writes ``summary.json``.
 
 Each model runs twice on the same cases: ``before`` is the paper's filter (trilinear field with
 finite-difference derivatives, control points only, the HOCBF for the double integrator, a
@@ -133,8 +134,11 @@ def main(
         for which in ("before", "after"):
             for solver in ("active_set", "osqp"):
                 filt = SafetyFilter(variant(name, which, "auto" if solver == "active_set" else solver))
-                step_us, qp_us, hits, fallbacks, slack, rows = [], [], 0, 0, 0, []
-                for _ in range(2):  # the first pass warms caches and OSQP's warm start
+                # Three passes over the same cases; each step's time is its fastest pass. The first
+                # pass warms caches and OSQP's warm start, and on a shared machine the minimum drops
+                # the steps that were merely preempted (the p99 is otherwise the scheduler's).
+                passes = []
+                for _ in range(3):
                     step_us, qp_us, hits, fallbacks, slack, rows = [], [], 0, 0, 0, []
                     for s, u_ref, ang in cases:
                         t0 = time.perf_counter()
@@ -145,6 +149,9 @@ def main(
                         hits += res.intervening and res.fallback is None
                         fallbacks += res.fallback not in (None, "slack")
                         slack += res.fallback == "slack"
+                    passes.append((step_us, qp_us))
+                step_us = np.min([p[0] for p in passes], axis=0).tolist()
+                qp_us = np.min([p[1] for p in passes], axis=0).tolist()
                 results[f"{name}/{which}/{solver}"] = {
                     "model": name, "variant": which, "solver": solver, "steps": len(cases),
                     "points": filt.model.m, "rows_mean": float(np.mean(rows)), "step_us": _stats(step_us),
