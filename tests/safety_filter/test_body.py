@@ -62,8 +62,9 @@ def stopping_distance(filt: SafetyFilter, s: FilterState) -> float:
     return float(model.hi[0]) ** 2 / (2 * filt.config.a_max)  # the platform's stop from full speed
 
 
-def can_stop(filt: SafetyFilter, field: Union, s: FilterState) -> bool:
-    model, b = filt.model, body(filt)
+def can_stop(filt: SafetyFilter, field: Union, s: FilterState, whole: bool = False) -> bool:
+    """Every disc (with ``whole``, also the look-ahead point) inside the filter's safe set."""
+    model, b = filt.model, slice(None) if whole else body(filt)
     for part in field.parts:
         ps = part.query(model.points(s), hessian=model.needs_hessian)
         hb = ps.distance - model.radius - filt.delta
@@ -140,9 +141,12 @@ def test_the_body_never_touches_an_obstacle(model_name, seed, near):
     s = start(rng, filt, field, near)
     if s is None:
         return  # no stoppable start in this layout (rare: the room is crowded)
+    in_safe_set = can_stop(filt, field, s, whole=True)
     out = closed_loop(filt, field, s, rng)
     assert out["worst"] >= 0.0, out
     assert out["brakes"] == 0, out  # fresh analytic data: never a blind brake
+    if in_safe_set:
+        assert out["slack"] == 0, out  # from the safe set the QP stays feasible within the bounds
 
 
 @pytest.mark.parametrize("model_name", MODELS)
