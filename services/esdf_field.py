@@ -24,6 +24,10 @@ point of that hull and flagged, and the filter brakes on them (fallback ``outsid
 
 The risk group of a query is the ``risk_group`` of the nearest voxel (the mapper stores there
 the group of that voxel's nearest obstacle).
+
+``interpolation`` other than ``trilinear`` (the above) reads the same stencil with a cubic
+kernel of ``field_spline`` instead: distance, gradient and Hessian are then the exact
+derivatives of one piecewise cubic (the safety filter's default is ``bspline_smooth``).
 """
 
 from __future__ import annotations
