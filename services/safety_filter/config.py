@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ..esdf_field import Interpolation
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
@@ -117,6 +117,13 @@ class FilterConfig(BaseModel):
             raise ValueError("double3d has no heading: its footprint is a sphere")
         o, r = disc_cover(fp.length, fp.width, fp.discs, capsule=fp.shape == "capsule")
         return [tuple(float(v) for v in p) for p in o], r.tolist()  # type: ignore[misc]
+
+    @model_validator(mode="after")
+    def _footprint_fits_the_model(self) -> FilterConfig:
+        fp = self.footprint
+        if self.model == "double3d" and fp is not None and fp.shape in ("rectangle", "capsule"):
+            raise ValueError("double3d has no heading: its footprint is a sphere (or none)")
+        return self
 
     @property
     def dt(self) -> float:

@@ -204,3 +204,20 @@ def test_braking_row_is_the_first_order_cbf_of_the_braking_barrier(seed):
     assert np.all(np.abs(ub) <= model.hi + 1e-12)
     hb0 = model.barrier(s, sample, model.h(s, FIELD))
     assert (a[0] @ ub - b[0]) - 1.5 * hb0[0] >= -1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(length=st.floats(0.1, 1.0), width=st.floats(0.05, 0.8), discs=st.integers(1, 6), capsule=st.booleans(),
+       seed=st.integers(0, 2**31))
+def test_disc_cover_contains_the_footprint(length, width, discs, capsule, seed):
+    from riskfield.services.safety_filter.barriers import disc_cover
+
+    o, r = disc_cover(length, width, discs, capsule)
+    rng = np.random.default_rng(seed)
+    p = rng.uniform([-length / 2, -width / 2], [length / 2, width / 2], (400, 2))
+    p = np.concatenate([p, [[sx * length / 2, sy * width / 2] for sx in (-1, 1) for sy in (-1, 1)]])
+    if capsule:  # keep the points of the rounded ends only
+        seg = max(length - width, 0.0) / 2
+        p = p[(np.abs(p[:, 0]) <= seg) | (np.hypot(np.abs(p[:, 0]) - seg, p[:, 1]) <= width / 2)]
+    dist = np.linalg.norm(p[:, None, :] - o[None, :, :2], axis=2) - r[None]
+    assert np.all(dist.min(axis=1) <= 1e-9)

@@ -217,3 +217,16 @@ def test_the_limo_footprint_protects_the_rear_by_default():
     rear_x, r = filt.model.offsets[1, 0], filt.model.radius[1]
     assert rear_x == pytest.approx(-0.322 / 3) and r == pytest.approx(math.hypot(0.322 / 6, 0.11))
     assert res.intervening and res.u[0] == pytest.approx(-1.5 * (0.4 + rear_x - r - filt.delta), abs=1e-6)
+
+
+def test_footprints_build_their_disc_covers_and_bad_ones_are_clear_errors():
+    from pydantic import ValidationError
+
+    cap = SafetyFilter(FilterConfig(model="single2d", footprint=Footprint(shape="capsule", discs=4))).model
+    assert cap.m == 4 and np.all(cap.radius == pytest.approx(math.hypot(0.102 / 3 / 2, 0.11)))
+    ball = SafetyFilter(FilterConfig(model="double3d", footprint=Footprint(shape="sphere", radius=0.2))).model
+    assert ball.m == 1 and ball.radius[0] == 0.2
+    with pytest.raises(ValidationError, match="no heading"):
+        FilterConfig(model="double3d", footprint=Footprint(shape="rectangle"))
+    with pytest.raises(ValidationError):
+        Footprint(shape="blob")  # type: ignore[arg-type]
