@@ -338,8 +338,10 @@ class DoubleIntegrator(BarrierModel):
         h_b = h - s₊² / (2 a_b),      s₊ = max(s, 0)              (C¹ in x)
         ḣ_b = ḣ + (s₊ / a_b) ḧ = ḣ + (s₊ / a_b)(∇dᵀu + vᵀ∇²d v)
 
-    and the row is the first-order CBF ḣ_b ≥ -κ h_b, κ the faster root of the group's
-    (α₁, α₂) (so the group's speed limit s ≤ κ h near the obstacle is the HOCBF's ψ₁ ≥ 0):
+    and the row is the first-order CBF ḣ_b ≥ -κ h_b with κ = k₁, the slower root of the group's
+    s² + α₁ s + α₂ = (s + k₁)(s + k₂): on the HOCBF's boundary h decays as e^{-k₁t} once the
+    fast mode has died out, so the approach speed s ≤ κ h it allows near the obstacle is the one
+    the paper's filter settles to, and the groups keep their ordering:
 
         (s₊/a_b) ∇dᵀu ≥ -κ h_b - ḣ - (s₊/a_b) vᵀ∇²d v.
 
@@ -420,7 +422,7 @@ class DoubleIntegrator(BarrierModel):
         approach = np.maximum(-hdot, 0.0)
         hbrake = h - approach * approach / (2 * self.a_brake)
         a1, a2 = gains[:, ALPHA1], gains[:, ALPHA2]
-        kappa = 0.5 * (a1 + np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0)))
+        kappa = 0.5 * (a1 - np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0)))
         c = np.maximum(approach, 1e-3) / self.a_brake
         return sample.gradient * c[:, None], -kappa * hbrake - hdot - c * curvature
 
