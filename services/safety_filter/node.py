@@ -42,7 +42,7 @@ class FilterNode:
         # distance (4 B/voxel) and risk_group (1 B/voxel) travel together: the payload is ~1.25 × distance
         self._map_limits = Limits(max_payload_bytes=2 * s.max_map_bytes + 65536, max_array_bytes=s.max_map_bytes)
         self._small_limits = Limits(max_payload_bytes=64 * 1024, max_array_bytes=4096)
-        for name in ("steps", "brakes", "intervening", "invalid_map", "invalid_state", "invalid_ref",
+        for name in ("steps", "brakes", "slack", "intervening", "invalid_map", "invalid_state", "invalid_ref",
                      "risk_reloads", "risk_errors"):
             node.stats[name] = 0.0
         k = node.keys
@@ -108,7 +108,8 @@ class FilterNode:
         self._last_pub = now
         st = self.node.stats
         st["steps"] += 1
-        st["brakes"] += status.fallback is not None
+        st["brakes"] += status.fallback is not None and status.fallback != "slack"
+        st["slack"] += status.fallback == "slack"
         st["intervening"] += status.intervening and status.fallback is None
         st["solve_us"] = status.solve_us
         st["h"] = status.h
@@ -116,8 +117,8 @@ class FilterNode:
             if status.fallback is None:
                 self.node.log.info("filtering (no fallback)")
             else:
-                self.node.ratelog(logging.WARNING, f"fallback:{status.fallback}",
-                                  f"braking: {status.fallback}")
+                what = "slack-relaxed QP (infeasible)" if status.fallback == "slack" else "braking"
+                self.node.ratelog(logging.WARNING, f"fallback:{status.fallback}", f"{what}: {status.fallback}")
             self._last_fallback = status.fallback
 
 

@@ -12,6 +12,10 @@ naming the first problem found, in this order:
 
 "invalid" means the last message on that key could not be used; it holds until a valid one
 arrives. Braking is the zero velocity command for every model.
+
+``slack`` is the one fallback that does not brake: the QP was infeasible with fresh inputs and
+the command is the slack-relaxed QP's, at least as safe as maximal braking along the field's
+gradient (``filter``); the status says ``fallback="slack"`` on every such step.
 """
 
 from __future__ import annotations
@@ -54,7 +58,8 @@ class FilterSupervisor:
     def on_map(self, grid: EsdfGrid | DistanceField, now: float) -> str | None:
         """Take a new map; returns why it was rejected (and marks the map invalid), or None."""
         try:
-            field = EsdfField.from_grid(grid) if isinstance(grid, EsdfGrid) else grid
+            field = (EsdfField.from_grid(grid, self.filter.config.interpolation) if isinstance(grid, EsdfGrid)
+                     else grid)
         except ValueError as exc:
             self.invalid("map", now)
             return str(exc)
@@ -116,15 +121,15 @@ class FilterSupervisor:
         u_ref = model.reference(lin, ang, state)
         res = self.filter.filter(state, u_ref, field, ang)  # type: ignore[arg-type]
         self.last = res
-        if res.fallback is not None:
+        if res.fallback is not None and res.fallback != "slack":
             return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)
         out_lin, out_ang = model.command(res.u, ang, state)
         if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
             return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
-        self._count(None)
+        self._count(res.fallback)
         cmd = VelocityCommand(header=Header(frame_id="base_link"), linear=tuple(out_lin.tolist()),
                               angular=tuple(out_ang.tolist()), source=f"{SOURCE}/{ref.source}")
-        status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=None,
+        status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=res.fallback,
                               solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now))
         return cmd, status
 
