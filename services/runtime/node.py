@@ -40,6 +40,21 @@ class _Sub:
     def __init__(self, key: str, slot: Slot, msg_type: type[Message] | None, handler: Callable, limits: Limits):
         self.key, self.slot, self.msg_type, self.handler, self.limits = key, slot, msg_type, handler, limits
         self.invalid = 0
+        self.foreign = 0  # samples dropped because their key is not one this subscription serves
+
+
+def serves(sub_key: str, sample_key: str) -> bool:
+    """Whether a sample on ``sample_key`` may reach a subscription declared on ``sub_key``.
+
+    Zenoh delivers a put on any key expression that *intersects* the subscription, so a put on
+    ``rf/limo1/cmd/*`` or ``**`` reaches a ``rf/limo1/cmd/safe`` subscriber with the
+    publisher's wildcard key (zenoh ``Sample.key_expr`` is the put's expression). A concrete
+    subscription therefore serves exactly its own key; a wildcard one (recorders) serves only
+    concrete keys, never a wildcard put (``*``, ``**`` and ``$*`` all contain ``*``).
+    """
+    if "*" in sub_key:
+        return "*" not in sample_key
+    return sample_key == sub_key
 
 
 class Node:
@@ -93,7 +108,15 @@ class Node:
         self._subs.append(sub)
 
         def on_sample(sample: zenoh.Sample, sub: _Sub = sub) -> None:
-            self._inbox.put(sub.slot, ("sample", str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+            key = str(sample.key_expr)
+            # Dropped here, before the queue: a forged wildcard put must not displace the
+            # legitimate newest value of a latest-value queue.
+            if not serves(sub.key, key):
+                sub.foreign += 1
+                self.ratelog(logging.WARNING, f"foreign:{sub.key}",
+                             f"dropped a sample on {key}: this subscription serves only {sub.key}")
+                return
+            self._inbox.put(sub.slot, ("sample", key, sample.payload.to_bytes(), time.time_ns()))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -261,6 +284,9 @@ class Node:
     def status(self) -> NodeStatus:
         d = np.asarray(self._durations, dtype=float) * 1e3 if self._durations else np.zeros(1)
         rel = lambda k: self.keys.relative(k) or k  # noqa: E731
+        extra = {k: float(v) for k, v in self.stats.items() if np.isfinite(v)}
+        # Wildcard (or otherwise foreign-keyed) puts dropped by the runtime, all subscriptions.
+        extra["wildcard_dropped"] = extra.get("wildcard_dropped", 0.0) + sum(s.foreign for s in self._subs)
         return NodeStatus(
             service=self.service,
             pid=os.getpid(),
@@ -273,7 +299,7 @@ class Node:
             handler_ms_p50=float(np.percentile(d, 50)),
             handler_ms_p99=float(np.percentile(d, 99)),
             handler_ms_max=float(d.max()),
-            extra={k: float(v) for k, v in self.stats.items() if np.isfinite(v)},
+            extra=extra,
         )
 
     def _publish_status(self) -> None:
