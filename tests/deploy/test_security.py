@@ -185,11 +185,11 @@ def test_only_the_filter_publishes_cmd_safe_and_not_operator_keys(secrets: Secre
 def test_data_services_may_not_publish_guarded_keys(secrets: Secrets, server: str) -> None:
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "mapping", "mapping") as mapping:
         guarded = [Collector(limo, KEYS.key(k), VelocityCommand) for k in ("cmd/safe", "cmd/ref")]
-        state = Collector(limo, KEYS.key("status/probe"))
+        state = Collector(limo, KEYS.status("mapping"))
         time.sleep(0.3)
         put(mapping, KEYS.cmd_safe, cmd("mapping"))
         put(mapping, KEYS.cmd_ref, cmd("mapping"))
-        deliver(mapping, KEYS.risk_config, b"\x80", state, KEYS.key("status/probe"), b"ok")
+        deliver(mapping, KEYS.risk_config, b"\x80", state, KEYS.status("mapping"), b"ok")
         assert all(c.items == [] for c in guarded)
         assert state.items == [b"ok"]
 
@@ -226,6 +226,99 @@ def test_router_role_needs_a_router_certificate(secrets: Secrets, server: str) -
         put(impostor, KEYS.cmd_safe, cmd("impostor"))
         deliver(router, KEYS.cmd_safe, cmd("router"), safe, KEYS.cmd_safe, cmd("router"))
         assert sources(safe) == ["router", "router"]
+
+
+# -- attacks: wildcard key expressions, swapped credentials, role-less liveliness (issue 19) ------
+
+GUARDED = ("cmd/safe", "cmd/ref", "nav/goal", "config/risk")
+
+
+def forge(publisher: zenoh.Session, keys: list[str]) -> None:
+    for key in keys:
+        put(publisher, key, cmd("forged"))
+        publisher.delete(key)
+
+
+@pytest.mark.parametrize(("user", "allowed", "forbidden"), [
+    # teleop may put cmd/ref, never cmd/safe: not through cmd/*, the robot's ** or **.
+    ("teleop", "cmd/ref", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/cmd/s$*", f"rf/{ROBOT}/**", "**", "rf/*/cmd/safe",
+                           "rf/**/cmd/safe", f"rf/{ROBOT}/*/safe"]),
+    # a data service reaches none of the four guarded keys.
+    ("mapping", "map/esdf", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/nav/*", f"rf/{ROBOT}/config/*", f"rf/{ROBOT}/**",
+                             "**", f"rf/{ROBOT}/*/*", "rf/*/cmd/ref", "rf/*/nav/goal", "rf/*/config/risk"]),
+])
+def test_wildcard_puts_and_deletes_are_refused_by_the_router(secrets: Secrets, server: str, user: str,
+                                                             allowed: str, forbidden: list[str]) -> None:
+    """Zenoh delivers a put on a key expression to every subscriber it intersects; the ACL
+    must refuse the wildcard itself. Raw subscribers (no riskfield runtime filter) see nothing."""
+    with session(secrets, server, "limo", "limo") as limo, session(secrets, server, user, user) as attacker:
+        guarded = {k: Collector(limo, KEYS.key(k)) for k in GUARDED if k != allowed}
+        own = Collector(limo, KEYS.key(allowed))
+        time.sleep(0.3)
+        forge(attacker, forbidden)
+        deliver(attacker, KEYS.key(allowed), cmd(user), own, KEYS.key(allowed), cmd(user))
+        assert {k: len(c.items) for k, c in guarded.items()} == dict.fromkeys(guarded, 0)
+        assert len(own.items) == 2  # the same session's own key got through, twice
+        for c in (*guarded.values(), own):
+            c.close()
+
+
+@pytest.mark.parametrize(("user", "cert"), [("teleop", "safety-filter"), ("safety-filter", "teleop"),
+                                            ("safety-filter", "limo")])
+def test_a_certificate_works_only_with_its_own_user(secrets: Secrets, server: str, user: str, cert: str) -> None:
+    """Certificates are bound to users: a valid certificate of one node with another node's
+    (right) password opens a session but gets no role, so it can put neither key."""
+    with (session(secrets, server, "limo", "limo") as limo,
+          session(secrets, server, user, cert) as swapped,
+          session(secrets, server, "safety-filter", "safety-filter") as filt):
+        safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
+        ref = Collector(limo, KEYS.cmd_ref, VelocityCommand)
+        time.sleep(0.3)
+        for _ in range(3):
+            put(swapped, KEYS.cmd_safe, cmd("swapped"))
+            put(swapped, KEYS.cmd_ref, cmd("swapped"))
+        time.sleep(0.3)  # the filter's session is another one: no ordering to synchronise on
+        put(filt, KEYS.cmd_safe, cmd("filter"))
+        safe.wait(1)
+        time.sleep(0.3)
+        assert sources(safe) == ["filter"] and sources(ref) == []
+        safe.close()
+        ref.close()
+
+
+def alive(observer: zenoh.Session, service: str) -> list[str]:
+    return [str(r.ok.key_expr) for r in observer.liveliness().get(KEYS.alive(service), timeout=2.0)
+            if r.ok is not None]
+
+
+def test_only_the_filter_may_declare_its_liveliness_token(secrets: Secrets, server: str) -> None:
+    """A role-less client (or another role) declaring alive/safety-filter would make a
+    supervisor believe the filter runs; the router refuses the token."""
+    with (session(secrets, server, "limo", "limo") as limo,
+          session(secrets, server, "planner", "planner") as roleless,
+          session(secrets, server, "teleop", "teleop") as tele):
+        tokens = [roleless.liveliness().declare_token(KEYS.alive("safety-filter")),
+                  tele.liveliness().declare_token(KEYS.alive("safety-filter")),
+                  roleless.liveliness().declare_token(f"rf/{ROBOT}/alive/*")]
+        time.sleep(0.5)
+        assert alive(limo, "safety-filter") == []
+        with session(secrets, server, "safety-filter", "safety-filter") as filt:
+            token = filt.liveliness().declare_token(KEYS.alive("safety-filter"))
+            assert wait_until(lambda: alive(limo, "safety-filter") == [KEYS.alive("safety-filter")], 10)
+            token.undeclare()
+        for t in tokens:
+            t.undeclare()
+
+
+def test_a_roleless_client_may_not_serve_the_esdf_query(secrets: Secrets, server: str) -> None:
+    """Only mapping answers map/esdf/query: a forged queryable's replies never arrive."""
+    with (session(secrets, server, "planner", "planner") as roleless,
+          session(secrets, server, "limo", "limo") as limo):
+        q = roleless.declare_queryable(KEYS.esdf_query, lambda query: query.reply(query.key_expr, b"forged"))
+        time.sleep(0.5)
+        replies = [r for r in limo.get(KEYS.esdf_query, timeout=1.0) if r.ok is not None]
+        assert replies == []
+        q.undeclare()
 
 
 # -- two sites ---------------------------------------------------------------------------------
