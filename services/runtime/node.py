@@ -34,6 +34,11 @@ M = TypeVar("M", bound=Message)
 _ENC = zenoh.Encoding(ENCODING)
 
 
+def _entity(gid: Any) -> str:
+    """``<zid>/<eid>`` of a zenoh ``EntityGlobalId``."""
+    return f"{gid.zid}/{gid.eid}"
+
+
 class _Sub:
     """A subscription's slot plus how to decode and whom to call."""
 
@@ -68,6 +73,9 @@ class Node:
         self.ratelog = RateLimitedLog(self.log)
         self.stats: dict[str, float] = {}  # extra numbers a service wants in its NodeStatus
         self.arrival_ns = 0  # wall-clock arrival time of the message being handled
+        # Zenoh source of the message being handled ("<zid>/<eid>" of its publisher), or None
+        # when the publisher set no source info (foreign clients); see ``publish``.
+        self.source_id: str | None = None
         self._own_session = session is None
         self.session = session if session is not None else open_session(settings)
         self._inbox = Inbox()
@@ -116,7 +124,9 @@ class Node:
                 self.ratelog(logging.WARNING, f"foreign:{sub.key}",
                              f"dropped a sample on {key}: this subscription serves only {sub.key}")
                 return
-            self._inbox.put(sub.slot, ("sample", key, sample.payload.to_bytes(), time.time_ns()))
+            info = sample.source_info
+            source = None if info is None else _entity(info.source_id)
+            self._inbox.put(sub.slot, ("sample", key, sample.payload.to_bytes(), time.time_ns(), source))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -134,14 +144,14 @@ class Node:
         self._subs.append(sub)
 
         def on_query(query: zenoh.Query, sub: _Sub = sub) -> None:
-            self._inbox.put(sub.slot, ("query", query, None, time.time_ns()))
+            self._inbox.put(sub.slot, ("query", query, None, time.time_ns(), None))
 
         self._declared.append(self.session.declare_queryable(key, on_query))
 
     def post(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` on the loop thread as soon as possible; safe to call from any thread
         (device readers, serial threads), so cores still see one thread only."""
-        self._inbox.put(self._calls, ("call", fn, None, time.time_ns()))
+        self._inbox.put(self._calls, ("call", fn, None, time.time_ns(), None))
 
     def on_close(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` at shutdown while the session is still open (a bridge's last stop command)."""
@@ -153,14 +163,18 @@ class Node:
 
     # -- output -------------------------------------------------------------------------------
     def publish(self, key: str, msg: Message) -> None:
-        """Stamp the header's sequence number, encode (refusing NaN/Inf) and put."""
+        """Stamp the header's sequence number, encode (refusing NaN/Inf) and put.
+
+        The sample carries Zenoh source info (this publisher's entity id and the same sequence
+        number), which tells a receiver which publisher a message came from: a ``seq`` going
+        backwards from one publisher is a replay, a new publisher (a restarted node) is not."""
         seq = self._seq.get(key, 0)
         msg.header.seq = seq
         payload = encode(msg)
         pub = self._publishers.get(key)
         if pub is None:
             pub = self._publishers[key] = self.session.declare_publisher(key, encoding=_ENC)
-        pub.put(payload)
+        pub.put(payload, source_info=zenoh.SourceInfo(pub.id, seq))
         self._seq[key] = seq + 1
         self._published[key] = self._published.get(key, 0) + 1
 
@@ -170,7 +184,8 @@ class Node:
         if pub is None:
             enc = _ENC if encoding == ENCODING else zenoh.Encoding(encoding)
             pub = self._publishers[key] = self.session.declare_publisher(key, encoding=enc)
-        pub.put(payload)
+        # A replay or relay is a publisher of its own, whatever publisher the bytes came from.
+        pub.put(payload, source_info=zenoh.SourceInfo(pub.id, self._published.get(key, 0)))
         self._published[key] = self._published.get(key, 0) + 1
 
     def query(self, key: str, request: Message, reply_type: type[M], timeout_s: float = 1.0) -> list[M]:
@@ -227,7 +242,7 @@ class Node:
             self._call(f"timer {getattr(fn, '__name__', fn)}", fn)
 
     def _dispatch(self, slot: Slot, item: tuple) -> None:
-        kind, a, b, self.arrival_ns = item
+        kind, a, b, self.arrival_ns, self.source_id = item
         if kind == "call":
             self._call(f"posted {getattr(a, '__name__', a)}", a)
             return
