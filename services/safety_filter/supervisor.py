@@ -6,8 +6,9 @@ arrived (receive time, not the sender's stamp, so clock offsets between machines
 data look fresh or stale). The map is also judged by its content: ``admit_map`` refuses a map
 that is stale, from the future, replayed or older than the one in force, and ``tick(now,
 wall_ns)`` brakes with ``stale_map`` once the content in force is older than the map timeout
-plus the clock-offset tolerance (``freshness.MapFreshness``), however recently it arrived. ``tick(now)`` returns the safe command and its status. It brakes,
-naming the first problem found, in this order:
+plus the clock-offset tolerance (``freshness.MapFreshness``), however recently it arrived.
+``tick(now)`` returns the safe command and its status. It brakes, naming the first problem
+found, in this order:
 
 ``no_map`` / ``invalid_map`` / ``stale_map`` → ``no_state`` / ``invalid_state`` / ``stale_state``
 → ``no_ref`` / ``invalid_ref`` / ``stale_ref`` → the filter's own ``outside_map``,

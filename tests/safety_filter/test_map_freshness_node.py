@@ -81,7 +81,8 @@ class MapPublisher:
 
     def put(self, grid: EsdfGrid, seq: int, stamp_ns: int | None = None) -> None:
         g = grid.model_copy(deep=False)
-        g.header = g.header.model_copy(update={"seq": seq, "stamp_ns": time.time_ns() if stamp_ns is None else stamp_ns})
+        stamp = time.time_ns() if stamp_ns is None else stamp_ns
+        g.header = g.header.model_copy(update={"seq": seq, "stamp_ns": stamp})
         self.pub.put(encode(g), source_info=zenoh.SourceInfo(self.pub.id, seq))
 
     def close(self) -> None:
@@ -192,7 +193,8 @@ def test_seq_backwards_is_refused_and_a_restarted_mapper_is_accepted(router_endp
 
 def frames(n: int) -> list[PerceptionFrame]:
     from riskfield.protocol import ade20k
-    from riskfield.services.mapping.synthetic import Camera, Plane as SynPlane, orbit, render
+    from riskfield.services.mapping.synthetic import Camera, orbit, render
+    from riskfield.services.mapping.synthetic import Plane as SynPlane
 
     cam = Camera(160, 120, 125.0, 125.0)
     scene = [SynPlane((1, 0, 0), 1.5, ade20k.index("wall")), SynPlane((0, 0, 1), 0.0, ade20k.index("floor"))]
@@ -225,7 +227,7 @@ def test_perception_dead_brakes_with_stale_map_although_mapping_re_emits(router_
             f.header.stamp_ns = last_stamp = time.time_ns()
             put(s, keys.perception_frame, f)
             st = status.items[-1] if status.items else None
-            return st is not None and not st.fallback or (st is not None and not st.fallback.endswith("_map"))
+            return st is not None and (st.fallback is None or not st.fallback.endswith("_map"))
 
         assert wait_until(perceive, timeout_s=90, period_s=0.15), mapping.output + filt.output
         # perception dies; the risk configuration changes every 50 ms, so mapping keeps re-emitting
