@@ -10,7 +10,10 @@ so the path keeps more room from people and pets than from walls. The step cost 
 obstacles so the path prefers open space. With ``--send-goal`` the path is sent to the
 navigator as a ``NavGoal``.
 
-Only ``riskfield.protocol`` (numpy, pydantic, msgpack) and ``eclipse-zenoh`` are needed.
+The start and the goal are checked with the field API (``riskfield.services.fields``: the
+interpolated distance and the in-map rule the safety filter uses), so the planner refuses exactly
+the ends the filter would brake at. Only ``riskfield.protocol`` and ``riskfield.services.fields``
+(numpy, pydantic, msgpack) and ``eclipse-zenoh`` are needed.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import threading
 import numpy as np
 
 from riskfield.protocol import ENCODING, EsdfGrid, Keys, NavGoal, decode, encode
+from riskfield.services.fields import EsdfField
 
 
 def _slice(grid: EsdfGrid, z: float) -> np.ndarray:
@@ -35,10 +39,14 @@ def _slice(grid: EsdfGrid, z: float) -> np.ndarray:
 
 def plan(grid: EsdfGrid, start: tuple[float, float], goal: tuple[float, float], clearance: float,
          z: float = 0.0, weight: float = 0.5) -> np.ndarray | None:
-    """A* on the 8-connected cells of the slice; ``None`` when no path keeps ``clearance``.
+    """A* on the 8-connected cells of the slice; ``None`` when no path keeps ``clearance``
+    (or the start or the goal is outside the map).
 
     Returns an (K, 2) array of cell centres from start to goal (map frame, metres).
     """
+    ends = EsdfField.from_grid(grid).query(np.array([[*start, z], [*goal, z]], dtype=float))
+    if not ends.inside.all() or (ends.distance < clearance).any():
+        return None
     d = _slice(grid, z)
     ox, oy, vs = grid.origin[0], grid.origin[1], grid.voxel_size
     nx, ny = d.shape
@@ -47,9 +55,6 @@ def plan(grid: EsdfGrid, start: tuple[float, float], goal: tuple[float, float], 
         return round((p[0] - ox) / vs), round((p[1] - oy) / vs)
 
     s, g = cell(start), cell(goal)
-    for c in (s, g):
-        if not (0 <= c[0] < nx and 0 <= c[1] < ny) or d[c] < clearance:
-            return None
     free = d >= clearance
     penalty = weight / np.maximum(d, vs)  # prefer open space
     steps = [(dx, dy, float(np.hypot(dx, dy))) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]

@@ -153,7 +153,8 @@ class DistanceQuery(Message):
 
 class DistanceReply(Message):
     """Answer to a ``DistanceQuery``, row for row. ``in_map`` (optional) is False where a
-    point lies outside the map; its distance is then ``-max_distance`` if unknown space is
+    point lies outside the map (beyond the hull of the ESDF's voxel centres, where the safety
+    filter brakes with ``outside_map``); its distance is then ``-max_distance`` if unknown space is
     occupied, else ``max_distance``."""
 
     SCHEMA: ClassVar[str] = "DistanceReply/1"

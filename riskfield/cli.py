@@ -94,9 +94,11 @@ def up(
     config: Annotated[Path | None, typer.Option("--config", "-c")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop everything after this many seconds.")] = None,
 ) -> None:
-    """Start the router and services as separate processes; logs are prefixed by service."""
-    from riskfield.launcher import Launcher
-    from riskfield.services.runtime import SERVICES
+    """Start the router and services as separate processes; logs are prefixed by service.
+    Ctrl-C or SIGTERM stops them all; if a service dies, the rest are stopped and the exit code is 1."""
+    from riskfield.protocol import Keys
+    from riskfield.services.runtime import SERVICES, NodeSettings
+    from riskfield.services.runtime.processes import ProcessRunner
 
     names = services or []
     unknown = [n for n in names if n not in SERVICES or n == "router"]
@@ -107,13 +109,17 @@ def up(
     for flag, value in (("--robot", robot), ("--prefix", prefix), ("--config", config)):
         if value:
             common += [flag, str(value)]
-    launcher = Launcher()
+    try:  # the robot whose liveliness tokens say "ready", resolved as the services resolve it
+        ident = NodeSettings(**{k: v for k, v in dict(robot=robot, prefix=prefix, config=config).items() if v})
+        keys = Keys(robot=ident.robot, prefix=ident.prefix)
+    except (ValueError, OSError):  # a broken config: the services will say so and exit, and so will we
+        keys = Keys(robot=robot or "limo1", prefix=prefix or "rf")
+    runner = ProcessRunner(listen, keys, echo=True, console=console)
     if router:
-        launcher.add("router", ["--listen", listen, *common])
+        runner.add("router", "router", common)
     for name in names:
-        launcher.add(name, ["--connect", listen, *common])
-    launcher.start()
-    raise typer.Exit(launcher.wait(duration))
+        runner.add(name, name, common)
+    raise typer.Exit(runner.watch(duration))
 
 
 def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
@@ -131,13 +137,27 @@ def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
 def record(
     out: Annotated[Path, typer.Option(help="Folder for recording.mcap and summary.json.")] = Path("out/record"),
     keys: Annotated[str | None, typer.Option(help="Key expression (default: every key of the robot).")] = None,
+    raw: Annotated[bool, typer.Option("--raw", help="Also keep the wire bytes of every key (pointmaps and images "
+                                      "too), so `riskfield replay` can reproduce all of them.")] = False,
+    include: Annotated[list[str] | None, typer.Option(help="Record only keys matching this key expression, "
+                                                      "full or relative to the robot (repeatable), e.g. 'map/**'.")
+                       ] = None,
+    exclude: Annotated[list[str] | None, typer.Option(help="Skip keys matching this key expression "
+                                                      "(repeatable), e.g. 'sim/**'.")] = None,
+    max_mb: Annotated[float, typer.Option(help="Stop recording at this total size (MB); 0: no limit.")] = 0.0,
+    split_mb: Annotated[float, typer.Option(help="Continue in a new file past this size (MB); 0: one file.")] = 0.0,
     connect: Connect = None,
     robot: Annotated[str | None, typer.Option()] = None,
     prefix: Annotated[str | None, typer.Option()] = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
 ) -> None:
-    """Record every key to MCAP (schema = the message's JSON Schema, encoding msgpack)."""
-    _run_tool("record", dict(out=out, keys=keys, connect=connect, robot=robot, prefix=prefix), duration)
+    """Record a robot's keys to MCAP that Foxglove (and any MCAP tool) can show: camera as
+    CompressedImage, ESDF as Grid/VoxelGrid, pointmaps as PointCloud, state as FrameTransform,
+    the rest as JSON. The keys that drive the filter (map/esdf, state, cmd/ref, nav/goal) are
+    also kept raw for `riskfield replay`; --raw keeps every key raw."""
+    _run_tool("record", dict(out=out, keys=keys, raw=raw, include=include or None, exclude=exclude or None,
+                             max_mb=max_mb, split_mb=split_mb, connect=connect, robot=robot, prefix=prefix),
+              duration)
 
 
 @app.command()
@@ -145,13 +165,53 @@ def replay(
     file: Annotated[Path, typer.Argument(help="A recording.mcap made by `riskfield record`.")],
     speed: Annotated[float, typer.Option(help="Time scale: 2 replays twice as fast.")] = 1.0,
     loop: Annotated[bool, typer.Option(help="Start again at the end.")] = False,
-    remap_from: Annotated[str | None, typer.Option(help="Key root to rewrite, e.g. rf/limo1.")] = None,
-    remap_to: Annotated[str | None, typer.Option(help="New key root, e.g. rf/replay1.")] = None,
+    remap_from: Annotated[str | None, typer.Option(help="Key prefix to rewrite, e.g. rf/limo1.")] = None,
+    remap_to: Annotated[str | None, typer.Option(help="New key prefix, e.g. rf/replay1.")] = None,
+    include_commands: Annotated[bool, typer.Option(
+        "--include-commands", help="Also publish cmd/safe, cmd/ref and nav/goal (can drive a live robot).")] = False,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="List what would be published, then exit.")] = False,
     connect: Connect = None,
 ) -> None:
-    """Publish a recording back with its original timing."""
-    _run_tool("replay", dict(file=file, speed=speed, loop=loop, remap_from=remap_from, remap_to=remap_to,
-                             connect=connect), None)
+    """Publish a recording's raw channels back with their original timing. Command keys are
+    withheld unless --include-commands; keys recorded only as views are listed as not reproducible.
+    Exit codes: 0 played, 1 the file was cut short or corrupt (what was readable was played),
+    2 not a recording or a bad option."""
+    from rich.markup import escape
+
+    from riskfield.services.recorder.mcap_io import RecordingError, check_recording, scan
+    from riskfield.services.recorder.replay import Remap, plan
+
+    try:
+        check_recording(file)
+        remap = Remap(remap_from, remap_to)
+        keys, err = scan(file)
+        p = plan(keys, remap, include_commands=include_commands)
+    except (RecordingError, ValueError) as exc:
+        console.print(f"[red]{escape(str(exc))}[/red]")
+        raise typer.Exit(2) from None
+    for line in p.lines() if dry_run else [ln for ln in p.lines() if not ln.startswith("publish")]:
+        console.print(escape(line))
+    if dry_run:
+        if err is not None:
+            console.print(f"[yellow]{escape(str(err))}[/yellow]")
+        raise typer.Exit(1 if err is not None else 0)
+    if not p.publish:
+        console.print("[red]nothing to replay: no raw channel to publish[/red]")
+        raise typer.Exit(2)
+    from riskfield.services.recorder.node import LAST_REPLAY
+    from riskfield.services.runtime import ServiceUnavailable, run_service
+
+    overrides = dict(file=file, speed=speed, loop=loop, remap_from=remap_from, remap_to=remap_to,
+                     include_commands=include_commands, connect=connect, verify=False)
+    try:
+        code = run_service("replay", {k: v for k, v in overrides.items() if v is not None})
+    except (ServiceUnavailable, FileNotFoundError, ValueError, ConnectionError) as exc:
+        console.print(f"[red]{escape(str(exc))}[/red]")
+        raise typer.Exit(2) from None
+    replayer = LAST_REPLAY.get("replayer")
+    if replayer is not None and replayer.error is not None:  # already said in one log line by the replayer
+        code = code or replayer.exit_code
+    raise typer.Exit(code)
 
 
 @app.command()
@@ -168,7 +228,8 @@ def demo(
     with an unseen obstacle; ends with a summary table and a report folder."""
     import json
 
-    from riskfield.experiments.demo.run import Demo, DemoConfig, make_report
+    from riskfield.experiments.demo.report import make_report
+    from riskfield.experiments.demo.run import Demo, DemoConfig
 
     cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose)
     if report_only:

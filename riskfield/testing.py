@@ -12,67 +12,35 @@ process that holds a Zenoh session.
 from __future__ import annotations
 
 import contextlib
-import os
 import signal
-import socket
 import subprocess
-import sys
-import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import zenoh
 
 from riskfield.protocol import ENCODING, Message, decode, encode
+from riskfield.services.runtime.processes import (  # noqa: F401  (re-exported test API)
+    Child,
+    EmbeddedRouter,
+    client_session,
+    free_port,
+    service_argv,
+    wait_alive,
+    wait_until,
+)
 from riskfield.services.runtime.session import endpoint_config
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def client_config(endpoint: str, mode: str = "client") -> zenoh.Config:
     return endpoint_config(mode, [endpoint])
 
 
-class ZenohRouter:
-    """A Python Zenoh router session on a free loopback port (what `riskfield run router` runs)."""
-
-    def __init__(self, port: int | None = None):
-        self.port = port or free_port()
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        self.session: zenoh.Session | None = None
-
-    def __enter__(self) -> ZenohRouter:
-        self.session = zenoh.open(endpoint_config("router", listen=[self.endpoint]))
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.session is not None:
-            self.session.close()
-            self.session = None
-
-
-@contextlib.contextmanager
-def client_session(endpoint: str, timeout_s: float = 15.0) -> Iterator[zenoh.Session]:
-    """A client session to ``endpoint``, retried while a router process is still starting."""
-    end = time.monotonic() + timeout_s
-    while True:
-        try:
-            session = zenoh.open(client_config(endpoint))
-            break
-        except zenoh.ZError:
-            if time.monotonic() > end:
-                raise
-            time.sleep(0.1)
-    try:
-        yield session
-    finally:
-        session.close()
+class ZenohRouter(EmbeddedRouter):
+    """A Python Zenoh router session on a free loopback port (what `riskfield run router` runs);
+    the runtime's ``EmbeddedRouter`` under its test name."""
 
 
 def put(session: zenoh.Session, key: str, msg: Message | bytes) -> None:
@@ -117,70 +85,47 @@ class Collector:
         self._sub.undeclare()
 
 
-def wait_until(predicate: Callable[[], bool], timeout_s: float = 10.0, period_s: float = 0.02) -> bool:
-    """Poll ``predicate`` until it holds or ``timeout_s`` passes (bounded, never infinite)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(period_s)
-    return bool(predicate())
-
-
 class ServiceProcess:
-    """``riskfield run NAME --connect ENDPOINT ARGS...`` in its own interpreter, output to a file."""
+    """``riskfield run NAME --connect ENDPOINT ARGS...`` in its own interpreter, output kept.
+
+    The runtime's process (``services/runtime/processes.py``: spawn model, output pumped into
+    memory) with the test API: a stop that fails the test if the service ignored the signal."""
 
     def __init__(self, name: str, endpoint: str, args: Sequence[str] = (), env: dict[str, str] | None = None):
         self.name = name
         flag = "--listen" if name == "router" else "--connect"
-        self.argv = [sys.executable, "-m", "riskfield", "run", name, flag, endpoint, *args]
-        self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
-        self._log = tempfile.NamedTemporaryFile(prefix=f"rf-{name}-", suffix=".log", delete=False)
-        self.proc: subprocess.Popen | None = None
+        self._child = Child(name, name, service_argv(name, [flag, endpoint, *args]), env=env)
+        self.argv = self._child.argv
+        self.env = self._child.env
+
+    @property
+    def proc(self) -> subprocess.Popen | None:
+        return self._child.proc
 
     def __enter__(self) -> ServiceProcess:
-        self.proc = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT, env=self.env)
+        self._child.start()
         return self
 
     @property
     def output(self) -> str:
-        with open(self._log.name, errors="replace") as f:
-            return f.read()
+        return self._child.output
 
     def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
+        return self._child.alive()
 
     def stop(self, sig: int = signal.SIGINT, timeout_s: float = 15.0) -> int:
         """Signal the process, wait, and return its exit code (kills it if it hangs)."""
-        assert self.proc is not None
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-                raise RuntimeError(f"{self.name} ignored signal {sig}; output:\n{self.output}") from None
-        return self.proc.returncode
+        code, escalated = self._child.stop(sig, timeout_s)
+        if escalated:
+            raise RuntimeError(f"{self.name} ignored signal {sig} (needed {escalated}); output:\n{self.output}")
+        assert code is not None
+        return code
 
     def __exit__(self, *exc: object) -> None:
-        if self.proc is not None and self.proc.poll() is None:
+        if self.alive():
             with contextlib.suppress(RuntimeError):
                 self.stop()
-        self._log.close()
-        with contextlib.suppress(OSError):
-            os.unlink(self._log.name)
-
-
-def wait_alive(session: zenoh.Session, key: str, timeout_s: float = 20.0) -> bool:
-    """Wait until a liveliness token on ``key`` is visible (a node is up and connected)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        replies = list(session.liveliness().get(key, timeout=0.5))
-        if any(r.ok is not None for r in replies):
-            return True
-        time.sleep(0.1)
-    return False
+        self._child.join_output()
 
 
 def hostile_payloads(valid: Message, n: int = 1000, seed: int = 0) -> list[bytes]:

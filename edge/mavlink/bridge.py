@@ -19,13 +19,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from riskfield.services.geometry.transforms import euler_zyx_matrix
+
 from .convert import (
     MAV_FRAME_BODY_NED,
     PoseENU,
     Setpoint,
     VelocityLimits,
     command_to_setpoint,
-    euler_to_matrix,
     vehicle_state,
 )
 
@@ -148,7 +149,7 @@ class MavlinkBridge:
         if not fresh and not self._stale:
             self._stale = True
             self.counters.watchdog_stops += 1
-        r = None if self._att is None else euler_to_matrix(*self._att[0])
+        r = None if self._att is None else euler_zyx_matrix(*self._att[0])
         linear, wz = self._cmd if fresh and self._cmd is not None else ((0.0, 0.0, 0.0), 0.0)
         sp = command_to_setpoint(linear, wz, self.config.limits, self.config.frame, r)
         self._last_sp = now

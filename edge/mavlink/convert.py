@@ -1,4 +1,6 @@
-"""Frame conventions between riskfield and MAVLink autopilots (pure maths, numpy only).
+"""Frame conventions between riskfield and MAVLink autopilots (pure maths; the rotations are
+``riskfield.services.geometry.transforms``: MAVLink ATTITUDE angles are intrinsic Z-Y-X Euler
+angles, ``euler_zyx_matrix``).
 
 riskfield
     **map frame = ENU**: x east, y north, z up, with its origin at the autopilot's local
@@ -25,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from riskfield.services.geometry.transforms import euler_zyx_matrix, matrix_to_quat
+
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_NED = 8
 #: SET_POSITION_TARGET_LOCAL_NED.type_mask: use vx, vy, vz and yaw rate; ignore position,
@@ -35,47 +39,13 @@ P = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 F = np.diag([1.0, -1.0, -1.0])
 
 
-def euler_to_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Z-Y-X (yaw, pitch, roll) Euler angles → rotation matrix, as MAVLink ATTITUDE defines them."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
-
-
-def matrix_to_quaternion(r: np.ndarray) -> tuple[float, float, float, float]:
-    """Rotation matrix → unit quaternion (x, y, z, w) with w ≥ 0 (Shepperd's method: stable for any angle)."""
-    tr = float(np.trace(r))
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        w, x, y, z = 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-        w, x, y, z = (r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s
-    elif r[1, 1] > r[2, 2]:
-        s = math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-        w, x, y, z = (r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s
-    else:
-        s = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-        w, x, y, z = (r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s
-    q = np.array([x, y, z, w])
-    q /= np.linalg.norm(q)
-    if q[3] < 0:
-        q = -q
-    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
-
-
 def ned_to_enu(v: tuple[float, float, float] | np.ndarray) -> tuple[float, float, float]:
     return float(v[1]), float(v[0]), -float(v[2])
 
 
 def attitude_ned_frd_to_enu_flu(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """R_ENU←FLU from an ATTITUDE message's roll, pitch, yaw (rad)."""
-    return P @ euler_to_matrix(roll, pitch, yaw) @ F
+    return P @ euler_zyx_matrix(roll, pitch, yaw) @ F
 
 
 @dataclass(frozen=True)
@@ -156,7 +126,7 @@ def vehicle_state(local_position: tuple[float, ...], velocity_ned: tuple[float, 
     w = r @ (F @ np.asarray(rates_frd, dtype=float))
     return PoseENU(
         position=ned_to_enu(local_position),
-        orientation=matrix_to_quaternion(r),
+        orientation=matrix_to_quat(r),
         linear_velocity=ned_to_enu(velocity_ned),
         angular_velocity=(float(w[0]), float(w[1]), float(w[2])),
     )

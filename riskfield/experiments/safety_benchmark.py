@@ -25,18 +25,17 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 
 from riskfield.experiments.metrics import Rollout
-from riskfield.experiments.pointcloud import PointCloudField
 from riskfield.experiments.sampling import Pair, Target, sample_pairs, targets_from_boxes
 from riskfield.protocol import RiskConfig
-from riskfield.services.esdf_field import EsdfField
+from riskfield.services.fields import DistanceField, EsdfField, PointCloudField
+from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
-from riskfield.services.mapping.synthetic import look_at
 from riskfield.services.navigator.clf import DoubleIntegratorCLF
 from riskfield.services.perception.degrade import Degrader
 from riskfield.services.safety_filter.config import FilterConfig
@@ -196,10 +195,6 @@ def sim_perception(renderer, seed: int) -> Perceive:
 
 
 # -- maps -----------------------------------------------------------------------------------------------
-
-
-class DistanceField(Protocol):
-    def query(self, points: np.ndarray, hessian: bool = False): ...
 
 
 @dataclass

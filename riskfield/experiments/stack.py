@@ -1,9 +1,10 @@
 """The full service stack as processes over a loopback Zenoh router, for the hardware-style
 benchmarks (teleop, navigation) and their tests.
 
-``Stack`` starts the router in this process and each service in its own interpreter
-(``riskfield.testing.ServiceProcess``: spawn model, never a fork of a process holding a
-session). ``Recorder`` keeps every message of a few keys with its arrival time, decoded.
+``Stack`` starts the router in this process and each service in its own interpreter through the
+runtime's process runner (``services/runtime/processes.py``: spawn model, never a fork of a
+process holding a session; a service counts as started once its liveliness token is visible).
+``Recorder`` keeps every message of a few keys with its arrival time, decoded.
 
 Perception: ``gt`` relays the simulator's ground-truth frames (``sim/truth``) to
 ``perception/frame``; ``sim`` runs the perception service's FM-like ``sim`` backend on the
@@ -19,8 +20,10 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from riskfield.protocol import Keys, Message, decode
-from riskfield.testing import ServiceProcess, ZenohRouter, client_session, wait_alive
+import zenoh
+
+from riskfield.protocol import ENCODING, Keys, Message, decode, encode
+from riskfield.services.runtime.processes import Child, EmbeddedRouter, ProcessRunner, client_session
 
 #: The safety filter as the benchmarks run it (50 Hz control).
 FAST_FILTER = ["--set", "rate_hz=50"]
@@ -41,46 +44,48 @@ class Stack:
     """Router + services for one robot id. Use as a context manager; ``start`` more later."""
 
     robot: str
-    router: ZenohRouter = field(default_factory=ZenohRouter)
-    procs: dict[str, ServiceProcess] = field(default_factory=dict)
+    router: EmbeddedRouter = field(default_factory=EmbeddedRouter)
+    procs: dict[str, Child] = field(default_factory=dict)
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)
 
     def __enter__(self) -> Stack:
         self._stack.__enter__()
         self._stack.enter_context(self.router)
         self.session = self._stack.enter_context(client_session(self.router.endpoint))
+        self.runner = ProcessRunner(self.router.endpoint, Keys(robot=self.robot))
         return self
 
     def __exit__(self, *exc: object) -> None:
         for name in list(self.procs)[::-1]:
             self.stop(name)
+        self.runner.close()
         self._stack.__exit__(*exc)
 
     def start(self, label: str, service: str, args: Sequence[str] = (), wait: bool = True,
-              timeout_s: float = 60.0) -> ServiceProcess:
-        proc = ServiceProcess(service, self.router.endpoint, ["--robot", self.robot, *args])
-        proc.__enter__()
-        self.procs[label] = proc
-        if wait and not wait_alive(self.session, self.keys.alive(service), timeout_s):
-            out = proc.output
-            self.stop(label)
-            raise RuntimeError(f"{label} ({service}) did not come up:\n{out[-3000:]}")
-        return proc
+              timeout_s: float = 60.0) -> Child:
+        """Start ``service`` as ``label``; with ``wait``, return once it is alive (raise if not)."""
+        self.procs[label] = self.runner.spawn(label, service, ["--robot", self.robot, *args],
+                                              session=self.session if wait else None, timeout_s=timeout_s)
+        return self.procs[label]
 
     def stop(self, label: str) -> int | None:
-        proc = self.procs.pop(label, None)
-        if proc is None:
+        """Stop one service; its exit code."""
+        if self.procs.pop(label, None) is None:
             return None
-        code = proc.stop() if proc.alive() else (proc.proc.returncode if proc.proc else None)
-        proc.__exit__(None, None, None)
-        return code
+        return self.runner.stop(label)
 
     @property
     def keys(self) -> Keys:
-        return Keys(robot=self.robot)
+        """The keys of this stack's robot."""
+        return self.runner.keys
 
-    def key(self, relative: str) -> str:
-        return self.keys.key(relative)
+
+def publish(session: Any, key: str, msg: Message | bytes) -> None:
+    """Put a message (or an encoded payload) that must arrive whole: congestion control BLOCK
+    (the default, DROP, sheds load under CPU pressure, and a lost goal stalls an experiment)."""
+    payload = msg if isinstance(msg, (bytes, bytearray)) else encode(msg)
+    session.put(key, bytes(payload), encoding=zenoh.Encoding(ENCODING),
+                congestion_control=zenoh.CongestionControl.BLOCK)
 
 
 class Recorder:

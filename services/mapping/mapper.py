@@ -4,7 +4,7 @@
                        labels + confidence          → semantic layer  (SemanticIntegrator, vote rule)
     update_esdf()      TSDF surface support + labels → semantic occupancy (occupancy.py)
                        → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator)
-    query(points)      distance, gradient, risk group of the latest field (DistanceField)
+    query(points)      distance, gradient, risk group of the latest field (fields.EsdfField)
 
 The volume follows the robot: ``set_robot_position`` (from ``RobotState``) recentres it
 once the robot is ``recentre_distance`` from its centre, keeping the overlapping voxels.
@@ -24,9 +24,9 @@ import numpy as np
 
 from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig
 
+from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import MapperConfig
 from .esdf_integrator import EsdfIntegrator
-from .field import DistanceField, FieldAnswer
 from .layers import SemanticLayer, TsdfLayer
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
@@ -73,7 +73,7 @@ class Mapper:
         self.semantic_integrator = SemanticIntegrator(c)
         self.esdf_integrator = EsdfIntegrator(c)
         self.robot_position: np.ndarray | None = None
-        self.field: DistanceField | None = None
+        self.field: EsdfField | None = None
         self.frames = 0
         self.shifts = 0
         self.dirty = False
@@ -209,20 +209,18 @@ class Mapper:
                                   distance=dist, risk_group=grp, **common)
             out.timings_ms["esdf3d"] = (time.perf_counter() - t1) * 1e3
         g = out.primary
-        self.field = DistanceField(g.distance, g.risk_group, np.asarray(g.origin), g.voxel_size, g.max_distance,
-                                   g.unknown_is_occupied)
+        self.field = EsdfField.from_grid(g)
         self.dirty = False
         out.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
         return out
 
-    def query(self, points: np.ndarray) -> FieldAnswer:
-        """Distance, gradient, risk group (and in-map flag) of the latest field at world points."""
+    def query(self, points: np.ndarray) -> FieldSample:
+        """Distance, gradient, risk group (and in-map flag, ``inside``) of the latest field at world
+        points: the filter's field and in-map rule (``fields.answer_query``)."""
         if self.field is None:
-            p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-            d = -self.config.max_distance if self.config.unknown_is_occupied else self.config.max_distance
-            n = p.shape[0]
-            return FieldAnswer(np.full(n, d), np.zeros((n, 3)), np.zeros(n, np.uint8), np.zeros(n, bool))
-        return self.field.query(points)
+            n = np.asarray(points, dtype=np.float64).reshape(-1, 3).shape[0]
+            return unknown_sample(n, self.config.max_distance, self.config.unknown_is_occupied)
+        return answer_query(self.field, points)
 
 
 __all__ = ["FrameRejected", "FrameResult", "MapUpdate", "Mapper"]

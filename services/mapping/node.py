@@ -118,7 +118,7 @@ class MappingNode:
             raise ValueError(f"a query of {query.points.shape[0]} points is over {MAX_QUERY_POINTS}")
         ans = self.mapper.query(query.points)
         return DistanceReply(header=Header(frame_id=self.mapper.frame_id), distance=ans.distance, gradient=ans.gradient,
-                             risk_group=ans.risk_group, in_map=ans.in_map)
+                             risk_group=ans.risk_group.astype(np.uint8), in_map=ans.inside)
 
 
 def setup(node: Node, settings: MappingSettings) -> MappingNode:

@@ -29,6 +29,8 @@ def pixel_ray(points: np.ndarray, conf: np.ndarray, R: np.ndarray, v: int, u: in
     r = np.sqrt(px * px + py * py + pz * pz)
     if not r >= r_min:
         return q, -1.0
+    # The rotation is written out rather than calling geometry.transforms: numba cannot call it,
+    # and this runs once per pixel.
     for a in range(3):
         dw[a] = (R[a, 0] * px + R[a, 1] * py + R[a, 2] * pz) / r
     return q, r

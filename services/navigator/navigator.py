@@ -20,25 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.transforms import world_to_body, yaw_of
 from .config import NavigatorConfig
 from .waypoints import WaypointSequencer
-
-
-def yaw_of(q: np.ndarray) -> float:
-    """Heading about +z of a unit quaternion xyzw."""
-    x, y, z, w = (float(c) for c in q)
-    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
-
-
-def world_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate a world-frame vector into the body frame of orientation ``q`` (xyzw): Rᵀ v."""
-    x, y, z, w = (float(c) for c in q)
-    r = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-    return r.T @ np.asarray(v, dtype=float)
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ import numpy as np
 from riskfield.protocol import Image, PerceptionFrame
 from riskfield.protocol.messages import Header
 
+from ..geometry.transforms import quat_to_matrix
 from .backend import Labeller, MissingBackend, image_rgb
 from .fusion import Q_CONF, match_confidence, transfer_labels, vote_fuse
 
@@ -110,14 +111,8 @@ def sim3_pose(data: np.ndarray) -> tuple[np.ndarray, float]:
     d = np.asarray(data, np.float64).reshape(-1)
     if d.shape != (8,) or not np.isfinite(d).all():
         raise ValueError(f"a Sim3 needs 8 finite numbers, got {d.shape}")
-    x, y, z, w = d[3:7] / np.linalg.norm(d[3:7])
-    R = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, d[:3]
+    T[:3, :3], T[:3, 3] = quat_to_matrix(d[3:7]), d[:3]
     if not d[7] > 0:
         raise ValueError(f"Sim3 scale must be positive, got {d[7]}")
     return T, float(d[7])

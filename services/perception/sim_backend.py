@@ -27,11 +27,12 @@ import numpy as np
 from riskfield.protocol import Image, PerceptionFrame
 from riskfield.protocol.messages import Header
 
+from ..geometry.camera import PinholeCamera
+from ..geometry.transforms import inverse as _inv
+from ..geometry.transforms import transform_points
 from .backend import Labeller, image_rgb
 from .degrade import DegradationConfig, Degrader, Observation
 from .fusion import Q_CONF, KeyframeFusion, scatter_to_frame
-from .geometry import inverse as _inv
-from .geometry import transform_points
 
 
 @dataclass(frozen=True)
@@ -93,9 +94,9 @@ class SimBackend:
         pc = transform_points(_inv(T_WC_true), kf.world_true)
         z = pc[:, 2]
         front = kf.valid & (z > 1e-6)
-        zs = np.where(front, z, 1.0)
-        u = np.rint(self._fx * pc[:, 0] / zs + self._cx).astype(np.int64)
-        v = np.rint(self._fy * pc[:, 1] / zs + self._cy).astype(np.int64)
+        uv, _ = self._camera.project(np.where(front[:, None], pc, [0.0, 0.0, 1.0]))
+        u = np.rint(uv[:, 0]).astype(np.int64)
+        v = np.rint(uv[:, 1]).astype(np.int64)
         inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         idx = np.where(inside, v * w + u, 0)
         z_here = truth_points.reshape(-1, 3)[idx, 2]
@@ -119,8 +120,7 @@ class SimBackend:
         xz, yz = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
         a = np.polyfit(uu, xz, 1) if np.ptp(uu) > 0 else np.array([1.0, 0.0])
         b = np.polyfit(vv, yz, 1) if np.ptp(vv) > 0 else np.array([1.0, 0.0])
-        self._fx, self._cx = 1.0 / a[0], -a[1] / a[0]
-        self._fy, self._cy = 1.0 / b[0], -b[1] / b[0]
+        self._camera = PinholeCamera(w, h, 1.0 / a[0], 1.0 / b[0], -a[1] / a[0], -b[1] / b[0])
         self._k_shape = (h, w)
 
     def _new_keyframe(self, obs: Observation, truth_points: np.ndarray, T_WC_true: np.ndarray) -> _Keyframe:

@@ -4,23 +4,22 @@ Filter" and the look-ahead teleoperation formulation of the paper).
 
 Pure core (no I/O, no zenoh), usable directly by a simulation::
 
-    from riskfield.services.safety_filter import EsdfField, FilterConfig, FilterState, SafetyFilter
+    from riskfield.services.fields import EsdfField
+    from riskfield.services.safety_filter import FilterConfig, FilterState, SafetyFilter
 
     filt = SafetyFilter(FilterConfig(model="double3d"))        # or unicycle, single2d, single3d
-    field = EsdfField.from_grid(esdf_grid)                     # or an analytic field (analytic.py)
+    field = EsdfField.from_grid(esdf_grid)                     # or any riskfield.services.fields field
     res = filt.filter(FilterState(p, R, v), u_nominal, field)  # res.u, res.h, res.fallback, ...
     state = filt.model.integrate(state, res.u, filt.config.dt)  # exact dynamics, zero-order hold
 
-Modules, one concept each: ``field`` (ESDF access: trilinear distance, finite-difference
-gradient and Hessian, risk group), ``analytic`` (closed-form fields), ``state`` (robot state,
-rotations), ``barriers`` (dynamics, h, CBF rows per model), ``qp`` (exact active-set path and
-OSQP), ``filter`` (one filter step, gains per risk group), ``config`` (the core's settings),
+The field it reads (ESDF grid, analytic or point-cloud) is ``riskfield.services.fields``.
+Modules, one concept each: ``state`` (robot state), ``barriers`` (dynamics, h, CBF rows per
+model), ``qp`` (exact active-set path and OSQP), ``filter`` (one filter step, gains per risk
+group), ``config`` (the core's settings),
 ``supervisor`` (timeouts and fail-safe reasons → messages). Node side: ``settings``,
 ``risk_file``, ``node``; ``bench`` is ``riskfield bench filter``.
 """
 
-from ..esdf_field import DistanceField, EsdfField, FieldSample
-from .analytic import Plane, Sphere, Union, to_esdf, to_grid_message
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
 from .config import FilterConfig
 from .filter import FilterResult, GainTable, SafetyFilter
@@ -31,23 +30,15 @@ from .supervisor import FilterSupervisor
 __all__ = [
     "ActiveSetSolver",
     "BarrierModel",
-    "DistanceField",
     "DoubleIntegrator",
-    "EsdfField",
-    "FieldSample",
     "FilterConfig",
     "FilterResult",
     "FilterState",
     "FilterSupervisor",
     "GainTable",
     "OsqpSolver",
-    "Plane",
     "QPResult",
     "SafetyFilter",
     "SingleIntegrator",
-    "Sphere",
     "UnicycleLookahead",
-    "Union",
-    "to_esdf",
-    "to_grid_message",
 ]

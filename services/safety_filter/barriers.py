@@ -35,8 +35,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..esdf_field import DistanceField, FieldSample
-from .state import FilterState, skew, so3_exp, so3_integral, yaw_matrix
+from ..fields import DistanceField, FieldSample
+from ..geometry.transforms import yaw_matrix
+from .state import FilterState, skew, so3_exp, so3_integral
 
 ALPHA, ALPHA1, ALPHA2 = 0, 1, 2
 

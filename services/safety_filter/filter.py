@@ -19,7 +19,7 @@ import numpy as np
 
 from riskfield.protocol import RiskConfig
 
-from ..esdf_field import DistanceField, FieldSample
+from ..fields import DistanceField, FieldSample
 from .barriers import ALPHA1, ALPHA2, BarrierModel
 from .config import FilterConfig
 from .qp import ActiveSetSolver, OsqpSolver, QPResult

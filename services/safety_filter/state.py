@@ -1,4 +1,5 @@
-"""The robot state as the filter sees it, and the rotation helpers the barrier models share."""
+"""The robot state as the filter sees it, and the SO(3) series the barrier models share (rotations
+from quaternions and yaw come from ``riskfield.services.geometry.transforms``)."""
 
 from __future__ import annotations
 
@@ -9,22 +10,7 @@ import numpy as np
 
 from riskfield.protocol import RobotState
 
-
-def quat_to_matrix(q: tuple[float, float, float, float] | np.ndarray) -> np.ndarray:
-    """Rotation matrix (body → world) of a quaternion xyzw (normalised here)."""
-    x, y, z, w = (float(c) for c in q)
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def yaw_matrix(yaw: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+from ..geometry.transforms import quat_to_matrix, yaw_matrix
 
 
 def skew(w: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ import numpy as np
 
 from riskfield.protocol import EsdfGrid, Header, RiskConfig, RobotState, SafetyStatus, VelocityCommand
 
-from ..esdf_field import DistanceField, EsdfField
+from ..fields import DistanceField, EsdfField
 from .filter import FilterResult, SafetyFilter
 from .freshness import MapFreshness
 from .state import FilterState

@@ -1,10 +1,8 @@
-"""The simulated forward RGB camera: a pinhole model, its mounting on the robot, and a renderer
-that ray-casts the scene into RGB, depth, a camera-frame pointmap and ground-truth labels.
+"""The simulated forward RGB camera: its mounting on the robot, and a renderer that ray-casts the
+scene into RGB, depth, a camera-frame pointmap and ground-truth labels.
 
-Conventions (OpenCV): camera x right, y down, z forward; pixel (u, v) has its centre at integer
-coordinates, so the ray of pixel (u, v) is ``((u − cx)/fx, (v − cy)/fy, 1)``. Casting that
-unnormalised direction makes the returned hit distance equal to the **depth** z, and the
-pointmap is ``depth · ray``.
+The pinhole model and its conventions (OpenCV; the pointmap is ``depth · ray``) are
+``riskfield.services.geometry.camera.PinholeCamera``.
 
 The default image is 512×384 — what MASt3R-SLAM works at (a 640×480 frame resized and cropped)
 — with a 90° horizontal field of view, mounted 0.15 m forward of and 0.1 m above the robot's base
@@ -22,59 +20,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from riskfield.protocol import ade20k
 
+from ..geometry.camera import PinholeCamera
 from .scene import NO_LABEL, Snapshot
-
-
-@dataclass(frozen=True)
-class PinholeCamera:
-    width: int = 512
-    height: int = 384
-    fx: float = 256.0
-    fy: float = 256.0
-    cx: float = 255.5
-    cy: float = 191.5
-
-    def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0 or self.fx <= 0 or self.fy <= 0:
-            raise ValueError("camera width, height, fx and fy must be positive")
-        if not all(math.isfinite(v) for v in (self.fx, self.fy, self.cx, self.cy)):
-            raise ValueError("camera intrinsics must be finite")
-
-    @classmethod
-    def from_fov(cls, width: int = 512, height: int = 384, hfov_deg: float = 90.0) -> PinholeCamera:
-        """Square pixels, principal point at the image centre, horizontal field of view."""
-        if not 1.0 < hfov_deg < 179.0:
-            raise ValueError("hfov_deg must be between 1 and 179")
-        f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
-        return cls(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
-
-    @property
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def rays(self) -> np.ndarray:
-        """(H, W, 3) float32 camera-frame ray of each pixel, with z = 1."""
-        u = (np.arange(self.width, dtype=np.float64) - self.cx) / self.fx
-        v = (np.arange(self.height, dtype=np.float64) - self.cy) / self.fy
-        uu, vv = np.meshgrid(u, v)
-        return np.stack([uu, vv, np.ones_like(uu)], axis=-1).astype(np.float32)
-
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel coordinates (…, 2) of camera-frame points and whether each is in front (z > 0)."""
-        z = points[..., 2]
-        front = z > 1e-9
-        zs = np.where(front, z, 1.0)
-        uv = np.stack([self.fx * points[..., 0] / zs + self.cx, self.fy * points[..., 1] / zs + self.cy], axis=-1)
-        return uv, front
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
 
 #: Body (x forward, y left, z up) ← camera (x right, y down, z forward), looking straight ahead.
 R_BODY_CAMERA = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -93,7 +44,7 @@ class CameraMount:
         """4x4 camera → body."""
         T = np.eye(4)
         # Pitching down turns the optical axis (+z) towards +y (down) of the camera: −pitch about x.
-        T[:3, :3] = R_BODY_CAMERA @ _rot_x(-math.radians(self.pitch_deg))
+        T[:3, :3] = R_BODY_CAMERA @ Rotation.from_euler("x", -math.radians(self.pitch_deg)).as_matrix()
         T[:3, 3] = (self.x, self.y, self.z)
         return T
 
@@ -143,6 +94,8 @@ class Render:
 
 def _rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     # Not ``v @ R.T``: a BLAS gemm with a 3-wide inner dimension stalls on a busy machine.
+    # (geometry.transforms.transform_points is the same product plus a translation, in float64;
+    # this one keeps the rays' float32 and skips the translation, once per pixel per frame.)
     out = np.empty_like(v)
     for i in range(3):
         out[..., i] = R[i, 0] * v[..., 0] + R[i, 1] * v[..., 1] + R[i, 2] * v[..., 2]

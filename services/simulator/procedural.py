@@ -16,6 +16,7 @@ import numpy as np
 
 from riskfield.protocol import ade20k
 
+from ..geometry.transforms import pose_matrix
 from . import shapes
 from .scene import LIFT, SceneObject
 
@@ -148,7 +149,7 @@ def build_objects(placements: list[Placement], prefix: str = "") -> list[SceneOb
     for p in placements:
         n = counts[p.class_name] = counts.get(p.class_name, 0) + 1
         objs.append(SceneObject(f"{prefix}{p.class_name}_{n}", ade20k.index(p.class_name),
-                                object_mesh(p.class_name, p.size), shapes.pose_matrix(p.x, p.y, LIFT, p.yaw)))
+                                object_mesh(p.class_name, p.size), pose_matrix(p.x, p.y, LIFT, p.yaw)))
     return objs
 
 

@@ -29,6 +29,8 @@ from typing import Protocol
 
 import numpy as np
 
+from ..geometry.transforms import yaw_matrix, yaw_of, yaw_quaternion
+
 
 @dataclass(frozen=True)
 class KinematicState:
@@ -41,8 +43,7 @@ class KinematicState:
 
     @property
     def yaw(self) -> float:
-        x, y, z, w = self.orientation
-        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        return yaw_of(self.orientation)
 
 
 class Robot(Protocol):
@@ -66,10 +67,6 @@ LIMO = PlanarLimits()
 LIMO_MECANUM = PlanarLimits(vy_max=1.0)
 LIMO_WHEELBASE = 0.2
 LIMO_MAX_STEER = 0.488
-
-
-def yaw_quaternion(yaw: float) -> np.ndarray:
-    return np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
 
 
 def wrap_angle(a: float) -> float:
@@ -216,8 +213,7 @@ class _Spatial:
         self.v = np.asarray(self.v, np.float64).copy()
 
     def _rot(self) -> np.ndarray:
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return yaw_matrix(self.yaw)
 
     def _turn(self, w_cmd: float, dt: float) -> None:
         self.w = float(np.clip(w_cmd, -self.w_max, self.w_max))

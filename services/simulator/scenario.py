@@ -37,8 +37,10 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from riskfield.protocol import ade20k
 
-from . import procedural, shapes
-from .camera import CameraMount, PinholeCamera
+from ..geometry.camera import PinholeCamera
+from ..geometry.transforms import pose_matrix
+from . import procedural
+from .camera import CameraMount
 from .mesh_io import load_labelled_ply
 from .robots import ROBOT_TYPES
 from .scene import LIFT, Motion, Scene, SceneObject
@@ -221,7 +223,7 @@ def load_scenario(source: str | Path | dict[str, Any]) -> Scenario:
 
 def object_from_spec(spec: ObjectSpec, name: str, base_dir: str | None = None) -> SceneObject:
     """The scene object a spec describes (primitive or mesh file)."""
-    pose = shapes.pose_matrix(spec.position[0], spec.position[1], spec.z + LIFT, spec.yaw)
+    pose = pose_matrix(spec.position[0], spec.position[1], spec.z + LIFT, spec.yaw)
     motion = None
     if spec.waypoints is not None or spec.velocity is not None:
         motion = Motion(np.asarray(spec.waypoints) if spec.waypoints else None, spec.speed, spec.motion,

@@ -89,12 +89,3 @@ def transform(mesh: Mesh, T: np.ndarray) -> Mesh:
     v, t = mesh
     R, p = T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32)
     return (v @ R.T + p).astype(np.float32), t
-
-
-def pose_matrix(x: float, y: float, z: float = 0.0, yaw: float = 0.0) -> np.ndarray:
-    """4x4 transform of a floor placement: translation and a rotation about +z."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:3, 3] = (x, y, z)
-    return T

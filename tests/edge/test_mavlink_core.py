@@ -17,10 +17,9 @@ from riskfield.edge.mavlink.convert import (
     VelocityLimits,
     attitude_ned_frd_to_enu_flu,
     command_to_setpoint,
-    euler_to_matrix,
-    matrix_to_quaternion,
     vehicle_state,
 )
+from riskfield.services.geometry.transforms import euler_zyx_matrix, matrix_to_quat
 
 angle = st.floats(-math.pi, math.pi)
 small = st.floats(-1.2, 1.2)  # pitch away from gimbal lock
@@ -47,7 +46,7 @@ def test_body_flu_to_frd_setpoint() -> None:
 
 
 def test_local_ned_setpoint_uses_the_attitude() -> None:
-    r = euler_to_matrix(0.0, 0.0, math.pi / 2)  # facing east
+    r = euler_zyx_matrix(0.0, 0.0, math.pi / 2)  # facing east
     sp = command_to_setpoint((0.5, 0.0, 0.0), 0.0, VelocityLimits(), MAV_FRAME_LOCAL_NED, r)
     assert (sp.vx, sp.vy) == pytest.approx((0.0, 0.5), abs=1e-12)  # forward = east
     unknown = command_to_setpoint((0.5, 0.0, 0.0), 0.0, VelocityLimits(), MAV_FRAME_LOCAL_NED, None)
@@ -81,14 +80,14 @@ def test_north_facing_vehicle_has_enu_yaw_pi_over_2() -> None:
 
 @given(angle, small, angle)
 def test_attitude_conversion_keeps_body_axes(roll: float, pitch: float, yaw: float) -> None:
-    r_ned = euler_to_matrix(roll, pitch, yaw)
+    r_ned = euler_zyx_matrix(roll, pitch, yaw)
     r_enu = attitude_ned_frd_to_enu_flu(roll, pitch, yaw)
     assert np.allclose(r_enu.T @ r_enu, np.eye(3), atol=1e-9) and np.linalg.det(r_enu) == pytest.approx(1.0)
     swap = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])
     assert np.allclose(r_enu[:, 0], swap @ r_ned[:, 0])  # forward axis is forward in both
     assert np.allclose(r_enu[:, 1], -(swap @ r_ned[:, 1]))  # left = −right
     assert np.allclose(r_enu[:, 2], -(swap @ r_ned[:, 2]))  # up = −down
-    q = matrix_to_quaternion(r_enu)
+    q = matrix_to_quat(r_enu)
     assert np.allclose(quat_to_matrix(q), r_enu, atol=1e-9)
     if abs(roll) < 1e-9 and abs(pitch) < 1e-9:
         assert math.atan2(r_enu[1, 0], r_enu[0, 0]) == pytest.approx(

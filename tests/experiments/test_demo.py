@@ -9,18 +9,20 @@ import sys
 import numpy as np
 import pytest
 
-from riskfield.experiments.demo import report as rp
-from riskfield.experiments.demo.scenario import LOOP, navigation_waypoints
+from riskfield.experiments.demo.report import command_latency_ms
+from riskfield.experiments.scenarios import LOOP, collisions, episodes, navigation_waypoints
+from riskfield.experiments.teleop import first_intervention
 
 
 def test_report_helpers_on_hand_made_series():
-    assert rp.episodes(np.array([0, 1, 1, 0, 1, 0, 0, 1], bool)) == 3
-    assert rp.episodes(np.zeros(4, bool)) == 0
-    lat = rp.command_latency_ms([0.0, 1.0, 2.0], [0.001, 1.004, 1.5])
+    assert episodes(np.array([0, 1, 1, 0, 1, 0, 0, 1], bool)) == 3
+    assert episodes(np.zeros(4, bool)) == 0
+    assert collisions(np.array([0.3, -0.01, -0.02, 0.1, -0.5])) == 2
+    lat = command_latency_ms([0.0, 1.0, 2.0], [0.001, 1.004, 1.5])
     np.testing.assert_allclose(lat, [1.0, 4.0])  # the last reference got no answer: not counted
     t = np.array([0.0, 1.0, 2.0, 3.0])
-    assert rp.first_intervention(t, np.array([1, 0, 1, 1], bool), (0.5, 3.0)) == 2.0
-    assert rp.first_intervention(t, np.zeros(4, bool), (0.0, 3.0)) is None
+    assert first_intervention(t, np.array([1, 0, 1, 1], bool), (0.5, 3.0)) == 2.0
+    assert first_intervention(t, np.zeros(4, bool), (0.0, 3.0)) is None
     assert navigation_waypoints(1.5) == [*LOOP, *LOOP[:2]]
 
 

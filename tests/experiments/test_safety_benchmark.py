@@ -19,8 +19,10 @@ from riskfield.experiments.safety_benchmark import (
 )
 from riskfield.experiments.sampling import Pair
 from riskfield.protocol import RiskConfig, ade20k
+from riskfield.services.fields import AnalyticField
+from riskfield.services.geometry.shapes import Sphere
+from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.navigator.clf import DoubleIntegratorCLF
-from riskfield.services.safety_filter.analytic import Sphere
 from riskfield.services.simulator import procedural, shapes
 from riskfield.services.simulator.scene import SceneObject
 
@@ -31,7 +33,7 @@ CLF = DoubleIntegratorCLF(CFG.k_p, CFG.k_d, CFG.v_max, CFG.a_max)
 @pytest.fixture(scope="module")
 def case():
     ball = SceneObject("ball_1", ade20k.index("ball"), shapes.sphere(0.3, resolution=32),
-                       shapes.pose_matrix(0.0, 0.0, 0.2))
+                       pose_matrix(0.0, 0.0, 0.2))
     return make_case("tiny", [*procedural.room(4.0, 4.0, 2.5), ball], RiskConfig())
 
 
@@ -46,7 +48,7 @@ def test_case_excludes_floor_and_ceiling_from_ground_truth(case):
 
 def test_free_path_reaches_the_goal(case):
     pair = Pair(0, "ball_1", "low", np.array([-1.5, 1.2, 0.5]), np.array([1.5, 1.2, 0.5]))
-    r = rollout("m", pair, Sphere([0.0, 0.0, 0.5], 0.3), hocbf_safe_control(CFG), CLF, CFG, case)
+    r = rollout("m", pair, AnalyticField(Sphere([0.0, 0.0, 0.5], 0.3)), hocbf_safe_control(CFG), CLF, CFG, case)
     assert r.progress > 0.97
     assert r.clearance.min() > 0.3  # 0.5 m from the walls at the ends, minus the radius
     assert np.all(r.filter_times > 0)
@@ -55,7 +57,7 @@ def test_free_path_reaches_the_goal(case):
 def test_exact_field_keeps_clearance_through_a_blocked_path(case):
     # Straight through the ball (centre at z 0.5): the filter must steer around or stop.
     pair = Pair(0, "ball_1", "low", np.array([-1.5, 0.05, 0.5]), np.array([1.5, 0.05, 0.5]))
-    exact = Sphere([0.0, 0.0, 0.5], 0.3)
+    exact = AnalyticField(Sphere([0.0, 0.0, 0.5], 0.3))
     r = rollout("m", pair, exact, hocbf_safe_control(CFG), CLF, CFG, case)
     assert r.clearance.min() > -0.02  # HOCBF in discrete time: at most a small overshoot
     assert r.reached > 0.3  # it did approach
@@ -65,7 +67,8 @@ def test_exact_field_keeps_clearance_through_a_blocked_path(case):
 
 
 def test_pointcloud_map_from_renders_matches_ground_truth(case):
-    from riskfield.services.simulator.camera import PinholeCamera, Renderer
+    from riskfield.services.geometry.camera import PinholeCamera
+    from riskfield.services.simulator.camera import Renderer
 
     perceive = gt_perception(Renderer(PinholeCamera.from_fov(128, 96, 90.0)))
     stream = [perceive(case.scene.at(0.0), T) for T in camera_poses(case, 12)]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from riskfield.protocol import ade20k
-from riskfield.services.mapping.synthetic import Box, Camera, Plane
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, Plane
 
 WALL = ade20k.index("wall")
 FLOOR = ade20k.index("floor")
@@ -25,6 +26,6 @@ def room() -> list:
 
 
 @pytest.fixture
-def small_camera() -> Camera:
+def small_camera() -> PinholeCamera:
     """A small camera (fast tests) with the angular resolution of the real one at half size."""
-    return Camera(160, 120, 125.0, 125.0)
+    return PinholeCamera.centred(160, 120, 125.0)

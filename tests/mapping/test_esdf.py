@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from riskfield.services.geometry.shapes import Box, Plane, Sphere
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
-from riskfield.services.mapping.synthetic import Box, Plane, Sphere
 from riskfield.services.mapping.volume import Volume
 
 V = 0.05
@@ -34,7 +34,7 @@ SHAPES = [
 @pytest.mark.parametrize("shape", SHAPES, ids=["sphere", "sphere2", "box"])
 def test_solid_shapes_match_exact_signed_distance_within_half_a_voxel(shape: Sphere | Box) -> None:
     c = centres((41, 41, 41))
-    sdf = shape.sdf(c)
+    sdf = shape.distance(c)
     groups = np.where(sdf <= 0, 3, 0).astype(np.uint8)
     esdf = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0))
     d, g = esdf.compute(groups, no_margins())
@@ -46,7 +46,7 @@ def test_off_lattice_box_corners_stay_within_the_documented_bound() -> None:
     """Off the lattice a convex corner can be misplaced by up to (√3 − ½) voxel; faces stay within ½."""
     c = centres((41, 41, 41))
     box = Box((0.52, 0.61, 0.43), (1.27, 1.18, 1.33), 0)
-    sdf = box.sdf(c)
+    sdf = box.distance(c)
     d, _ = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0)).compute(
         np.where(sdf <= 0, 3, 0).astype(np.uint8), no_margins())
     assert np.abs(d - sdf).max() <= (np.sqrt(3) - 0.5) * V
@@ -59,11 +59,11 @@ def test_off_lattice_box_corners_stay_within_the_documented_bound() -> None:
 
 def test_half_space_matches_the_plane_distance() -> None:
     c = centres((31, 21, 21))
-    plane = Plane((1, 0, 0), 0.737, 0)
+    plane = Plane((-1, 0, 0), -0.737, 0)  # solid behind the normal: x ≥ 0.737
     signed = c[..., 0] - 0.737  # solid beyond x = 0.737
     groups = np.where(signed >= 0, 3, 0).astype(np.uint8)
     d, _ = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0)).compute(groups, no_margins())
-    true = np.where(signed >= 0, -plane.sdf(c), plane.sdf(c))
+    true = plane.distance(c)
     assert np.abs(d - true).max() <= 0.5 * V + 1e-5
 
 
@@ -71,7 +71,7 @@ def test_half_space_matches_the_plane_distance() -> None:
 def test_surface_shell_never_overestimates_the_distance(shape: Sphere) -> None:
     """The TSDF's surface support is a shell; the field is then conservative (≤ true) and within a voxel."""
     c = centres((41, 41, 41))
-    sdf = shape.sdf(c)
+    sdf = shape.distance(c)
     groups = np.where(np.abs(sdf) <= 0.5 * V, 3, 0).astype(np.uint8)
     d, _ = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0)).compute(groups, no_margins())
     out = (groups == 0) & (sdf > 0)

@@ -6,15 +6,17 @@ import numpy as np
 import pytest
 
 from riskfield.protocol import EsdfGrid, RiskConfig, ade20k, decode, encode
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, render
+from riskfield.services.geometry.transforms import look_at, orbit
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.pointmap import FrameRejected
-from riskfield.services.mapping.synthetic import Box, Camera, look_at, orbit, render
 
 V = 0.05
 
 
-def build(scene: list, camera: Camera, output: str = "3d", risk: RiskConfig | None = None, **kw) -> Mapper:
+def build(scene: list, camera: PinholeCamera, output: str = "3d", risk: RiskConfig | None = None, **kw) -> Mapper:
     m = Mapper(MapperConfig(output=output, pixel_stride=1, carve_stride=2, max_distance=1.5, **kw), risk)
     m.set_robot_position(np.zeros(3))
     for T in orbit([1.2, 0.0, 0.3], n=5, radius=0.2, height=0.3):
@@ -28,7 +30,8 @@ def line_in_front_of_person(n: int = 8) -> np.ndarray:
 
 
 @pytest.mark.parametrize("output", ["3d", "2d"])
-def test_distance_in_front_of_a_person_includes_its_margin(room: list, small_camera: Camera, output: str) -> None:
+def test_distance_in_front_of_a_person_includes_its_margin(room: list, small_camera: PinholeCamera,
+                                                           output: str) -> None:
     m = build(room, small_camera, output)
     up = m.update_esdf()
     assert up is not None
@@ -38,7 +41,7 @@ def test_distance_in_front_of_a_person_includes_its_margin(room: list, small_cam
     p = line_in_front_of_person()
     ans = m.query(p)
     true = (0.8 - p[:, 0]) - 0.15
-    assert ans.in_map.all()
+    assert ans.inside.all()
     assert np.all(ans.risk_group == 1)
     # conservative and within about a voxel (shell thickness + interpolation)
     assert np.all(ans.distance <= true + 0.5 * V)
@@ -47,7 +50,7 @@ def test_distance_in_front_of_a_person_includes_its_margin(room: list, small_cam
     assert np.all(ans.gradient[:, 0] < -0.5)
 
 
-def test_wall_is_low_risk_without_margin_and_floor_is_free(room: list, small_camera: Camera) -> None:
+def test_wall_is_low_risk_without_margin_and_floor_is_free(room: list, small_camera: PinholeCamera) -> None:
     m = build(room, small_camera, "3d")
     m.update_esdf()
     p = np.array([[1.3, 0.0, 0.3], [1.35, 0.05, 0.9]])
@@ -59,7 +62,7 @@ def test_wall_is_low_risk_without_margin_and_floor_is_free(room: list, small_cam
     assert above_floor.distance[0] > 0.4
 
 
-def test_margins_hot_reload_shifts_the_field_exactly(room: list, small_camera: Camera) -> None:
+def test_margins_hot_reload_shifts_the_field_exactly(room: list, small_camera: PinholeCamera) -> None:
     m = build(room, small_camera, "3d")
     m.update_esdf()
     p = line_in_front_of_person()
@@ -74,7 +77,7 @@ def test_margins_hot_reload_shifts_the_field_exactly(room: list, small_camera: C
     assert np.all(after.risk_group == 1)
 
 
-def test_paper_dilation_variant_rounds_margins(room: list, small_camera: Camera) -> None:
+def test_paper_dilation_variant_rounds_margins(room: list, small_camera: PinholeCamera) -> None:
     risk = RiskConfig()
     risk.groups[0].margin = 0.12  # rounds to 2 voxels = 0.10 m
     exact = build(room, small_camera, "3d", risk)
@@ -86,7 +89,7 @@ def test_paper_dilation_variant_rounds_margins(room: list, small_camera: Camera)
     assert np.allclose(diff, 0.02, atol=0.004)
 
 
-def test_ground_slice_ignores_obstacles_above_the_band(small_camera: Camera) -> None:
+def test_ground_slice_ignores_obstacles_above_the_band(small_camera: PinholeCamera) -> None:
     lamp = ade20k.index("lamp")
     scene = [Box((0.6, -0.3, 1.0), (0.9, 0.3, 1.2), lamp)]  # hanging above the robot's band
     m = Mapper(MapperConfig(output="both", pixel_stride=1, max_distance=1.0))
@@ -103,7 +106,7 @@ def test_ground_slice_ignores_obstacles_above_the_band(small_camera: Camera) -> 
     assert g.shape == (101, 101, 1)
 
 
-def test_the_volume_rolls_with_the_robot_and_keeps_the_map(room: list, small_camera: Camera) -> None:
+def test_the_volume_rolls_with_the_robot_and_keeps_the_map(room: list, small_camera: PinholeCamera) -> None:
     m = build(room, small_camera, "3d")
     wall_point = np.array([1.5, 0.0, 0.3])
     m.update_esdf()
@@ -119,7 +122,7 @@ def test_the_volume_rolls_with_the_robot_and_keeps_the_map(room: list, small_cam
     assert m.shifts == 1
 
 
-def test_bad_frames_are_rejected_and_change_nothing(room: list, small_camera: Camera) -> None:
+def test_bad_frames_are_rejected_and_change_nothing(room: list, small_camera: PinholeCamera) -> None:
     m = build(room, small_camera, "3d")
     weights = m.tsdf.weight.copy()
     T = look_at(np.array([0.0, 0.0, 0.3]), np.array([1.0, 0.0, 0.3]))
@@ -148,14 +151,14 @@ def test_bad_frames_are_rejected_and_change_nothing(room: list, small_camera: Ca
     assert np.array_equal(m.tsdf.weight, weights)
 
 
-def test_query_before_any_map_is_outside(small_camera: Camera) -> None:
+def test_query_before_any_map_is_outside(small_camera: PinholeCamera) -> None:
     m = Mapper(MapperConfig(unknown_is_occupied=True, max_distance=1.0))
     ans = m.query(np.zeros((3, 3)))
-    assert not ans.in_map.any() and np.all(ans.distance == -1.0)
+    assert not ans.inside.any() and np.all(ans.distance == -1.0)
     assert m.update_esdf() is None
 
 
-def test_unknown_is_occupied_makes_unseen_space_an_obstacle(room: list, small_camera: Camera) -> None:
+def test_unknown_is_occupied_makes_unseen_space_an_obstacle(room: list, small_camera: PinholeCamera) -> None:
     m = build(room, small_camera, "3d", unknown_is_occupied=True)
     up = m.update_esdf()
     assert up is not None and up.primary.unknown_is_occupied

@@ -26,10 +26,12 @@ from riskfield.protocol import (
     encode,
     to_map,
 )
-from riskfield.services.mapping.synthetic import Box, Camera, Plane, orbit, render
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, Plane, render
+from riskfield.services.geometry.transforms import orbit
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
 
-CAM = Camera(160, 120, 125.0, 125.0)
+CAM = PinholeCamera.centred(160, 120, 125.0)
 
 
 def room() -> list:

@@ -5,14 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, Plane, render
+from riskfield.services.geometry.transforms import look_at, orbit
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.layers import TsdfLayer
 from riskfield.services.mapping.occupancy import surface_support
-from riskfield.services.mapping.synthetic import Box, Camera, Plane, look_at, orbit, render
 from riskfield.services.mapping.tsdf_integrator import TsdfIntegrator
 from riskfield.services.mapping.volume import Volume
 
-CAM = Camera(160, 120, 125.0, 125.0)
+CAM = PinholeCamera.centred(160, 120, 125.0)
 
 
 @pytest.fixture(params=["merged", "ray"])
@@ -69,7 +71,7 @@ def test_box_surface_support_hugs_the_box(integration: str) -> None:
     vol, layer = fuse([box], poses, cfg)
     occ = surface_support(layer, cfg.min_weight, cfg.surface_band)
     c = vol.centres()
-    d = box.sdf(c[occ])
+    d = box.distance(c[occ])
     assert occ.sum() > 50
     assert np.abs(d).max() < cfg.voxel_size
     # the front face x = 0.6 is fully covered: each lattice (y, z) on it has a supported voxel near it

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from riskfield.services.geometry.transforms import world_to_body
 from riskfield.services.navigator import Navigator, NavigatorConfig, WaypointSequencer
-from riskfield.services.navigator.navigator import world_to_body
 
 SQUARE = np.array([[1.0, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 0]])
 

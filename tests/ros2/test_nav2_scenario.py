@@ -14,8 +14,9 @@ import time
 import numpy as np
 
 from riskfield.protocol import EsdfGrid, NodeStatus, RobotState, SafetyStatus, VelocityCommand
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Plane
 from riskfield.services.ros2_bridge.messages import Odometry, RosCodec, Transform
-from riskfield.services.safety_filter.analytic import Plane, to_esdf, to_grid_message
 from riskfield.testing import (
     Collector,
     ServiceProcess,
@@ -34,7 +35,7 @@ MAP_T_ODOM = (0.5, 0.0, 0.0)  # the odom origin sits 0.5 m along the map's x axi
 
 def wall() -> EsdfGrid:
     """A wall (low-risk structure) at x = 1.5 m in the map frame: d = 1.5 − x."""
-    plane = Plane([1.5, 0.0, 0.0], [-1.0, 0.0, 0.0], group=3, groups=GROUPS)
+    plane = AnalyticField(Plane.through([1.5, 0.0, 0.0], [-1.0, 0.0, 0.0], label=3), groups=GROUPS)
     return to_grid_message(to_esdf(plane, [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 

@@ -9,12 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from riskfield.services.safety_filter.analytic import Sphere
+from riskfield.services.fields import AnalyticField
+from riskfield.services.geometry.shapes import Sphere
+from riskfield.services.geometry.transforms import quat_to_matrix
 from riskfield.services.safety_filter.barriers import DoubleIntegrator, SingleIntegrator, UnicycleLookahead
-from riskfield.services.safety_filter.state import FilterState, quat_to_matrix, so3_exp
+from riskfield.services.safety_filter.state import FilterState, so3_exp
 
-FIELD = Sphere([2.0, 0.5, 0.3], 0.6, group=1, groups=["high"])
-FIELD_2D = Sphere([2.0, 0.5, 0.0], 0.6, group=1, groups=["high"], planar=True)
+FIELD = AnalyticField(Sphere([2.0, 0.5, 0.3], 0.6, label=1), groups=["high"])
+FIELD_2D = AnalyticField(Sphere([2.0, 0.5, 0.0], 0.6, planar=True, label=1), groups=["high"])
 
 
 def vector(model, s: FilterState) -> np.ndarray:

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from riskfield.protocol import RiskConfig, RiskGroup
-from riskfield.services.safety_filter.analytic import Plane, Sphere, to_esdf
+from riskfield.services.fields import AnalyticField, to_esdf
+from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import GainTable, SafetyFilter, hocbf_gains
 from riskfield.services.safety_filter.qp import OsqpSolver
@@ -34,8 +35,8 @@ def first_intervention(field, model: str = "unicycle", v: float = 0.6) -> float:
 @pytest.mark.parametrize("model", ["unicycle", "single2d"])
 def test_higher_risk_intervenes_earlier_at_the_same_geometry(model):
     # Identical geometry and distance field; only the risk group of the obstacle differs.
-    high = Sphere([1.0, 0.0, 0.0], 0.3, group=1, groups=GROUPS, planar=True)
-    low = Sphere([1.0, 0.0, 0.0], 0.3, group=3, groups=GROUPS, planar=True)
+    high = AnalyticField(Sphere([1.0, 0.0, 0.0], 0.3, planar=True, label=1), groups=GROUPS)
+    low = AnalyticField(Sphere([1.0, 0.0, 0.0], 0.3, planar=True, label=3), groups=GROUPS)
     h_high, h_low = first_intervention(high, model), first_intervention(low, model)
     assert h_high > h_low + 0.2, (h_high, h_low)
     # The same on real grids built from each.
@@ -46,7 +47,7 @@ def test_higher_risk_intervenes_earlier_at_the_same_geometry(model):
 
 def test_intervention_starts_where_the_cbf_predicts():
     # Straight approach of the look-ahead point: ∇d·ṗ = -v, so the row binds when v > α (h - δ).
-    field = Plane([1.0, 0, 0], [-1.0, 0, 0], group=3, groups=GROUPS)
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
     filt = SafetyFilter(FilterConfig())
     alpha = RiskConfig().groups[2].alpha
     h = first_intervention(field, v=0.6)
@@ -55,7 +56,7 @@ def test_intervention_starts_where_the_cbf_predicts():
 
 def test_hocbf_higher_risk_brakes_earlier_and_keeps_more_clearance():
     def run(group: int) -> tuple[float, float]:
-        field = Sphere([1.5, 0, 0], 0.3, group=group, groups=GROUPS)
+        field = AnalyticField(Sphere([1.5, 0, 0], 0.3, label=group), groups=GROUPS)
         filt = SafetyFilter(FilterConfig(model="double3d"))
         s = FilterState(np.zeros(3), np.eye(3), np.array([0.5, 0.0, 0.0]))
         first, hmin = None, math.inf
@@ -88,7 +89,7 @@ def test_hocbf_gains_with_complex_roots_are_critically_damped():
 
 
 def test_risk_hot_swap_changes_the_gains_used():
-    field = Plane([1.0, 0, 0], [-1.0, 0, 0], group=1, groups=["high"])
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=1), groups=["high"])
     filt = SafetyFilter(FilterConfig())
     s = FilterState.planar(0.0, 0.0, 0.0)
     before = filt.filter(s, np.array([1.0, 0.0]), field).u[0]
@@ -98,7 +99,7 @@ def test_risk_hot_swap_changes_the_gains_used():
 
 
 def test_margins_in_filter_apply_the_groups_margin():
-    field = Plane([1.0, 0, 0], [-1.0, 0, 0], group=1, groups=GROUPS)  # high: margin 0.15
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=1), groups=GROUPS)  # high: margin 0.15
     s = FilterState.planar(0.0, 0.0, 0.0)
     plain = SafetyFilter(FilterConfig()).filter(s, np.array([1.0, 0.0]), field)
     inflated = SafetyFilter(FilterConfig(margins_in_filter=True)).filter(s, np.array([1.0, 0.0]), field)
@@ -106,7 +107,7 @@ def test_margins_in_filter_apply_the_groups_margin():
 
 
 def test_outside_the_map_brakes():
-    grid = to_esdf(Sphere([0.5, 0, 0], 0.2, planar=True), [-1, -1, 0], [1, 1, 0], 0.05, planar=True)
+    grid = to_esdf(AnalyticField(Sphere([0.5, 0, 0], 0.2, planar=True)), [-1, -1, 0], [1, 1, 0], 0.05, planar=True)
     filt = SafetyFilter(FilterConfig())
     res = filt.filter(FilterState.planar(0.9, 0.0, 0.0), np.array([0.5, 0.0]), grid)  # look-ahead at 1.15
     assert res.fallback == "outside_map" and not res.u.any() and res.intervening
@@ -114,7 +115,7 @@ def test_outside_the_map_brakes():
 
 def test_non_finite_reference_brakes():
     filt = SafetyFilter(FilterConfig())
-    field = Plane([1.0, 0, 0], [-1.0, 0, 0])
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0]))
     for bad in ([np.nan, 0.0], [0.0, np.inf], [1.0, 2.0, 3.0]):
         res = filt.filter(FilterState.planar(0, 0, 0), np.array(bad), field)
         assert res.fallback == "non_finite" and not res.u.any()
@@ -124,7 +125,7 @@ def test_non_finite_reference_brakes():
 
 def test_infeasible_inside_an_obstacle_brakes():
     # Deep inside the inflated set: h - δ ≈ -0.5 needs an escape speed the bounds do not allow.
-    field = Plane([1.0, 0, 0], [-1.0, 0, 0], group=3, groups=GROUPS)
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
     filt = SafetyFilter(FilterConfig(v_max=0.2))
     res = filt.filter(FilterState.planar(1.0, 0.0, 0.0), np.array([0.1, 0.0]), field)
     assert res.fallback == "infeasible" and not res.u.any()
@@ -134,14 +135,15 @@ def test_infeasible_inside_an_obstacle_brakes():
 def test_solver_failure_brakes():
     filt = SafetyFilter(FilterConfig(solver="osqp"))
     filt._osqp = OsqpSolver(filt.model.n, filt.rows_max, max_iter=1)  # a real OSQP that cannot converge
-    field = Plane([0.5, 0, 0], [-1.0, 0, 0], group=3, groups=GROUPS)
+    field = AnalyticField(Plane.through([0.5, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
     res = filt.filter(FilterState.planar(0.0, 0.0, 0.3), np.array([1.0, 0.5]), field)
     assert res.fallback == "solver_failed" and not res.u.any()
 
 
 @pytest.mark.parametrize("model", ["unicycle", "single2d", "single3d", "double3d"])
 def test_osqp_and_the_active_set_path_agree_in_the_loop(model):
-    field = Sphere([1.0, 0.2, 0.0], 0.3, group=1, groups=GROUPS, planar=model in ("unicycle", "single2d"))
+    planar = model in ("unicycle", "single2d")
+    field = AnalyticField(Sphere([1.0, 0.2, 0.0], 0.3, planar=planar, label=1), groups=GROUPS)
     fast = SafetyFilter(FilterConfig(model=model))
     slow = SafetyFilter(FilterConfig(model=model, solver="osqp"))
     rng = np.random.default_rng(3)
@@ -161,7 +163,7 @@ def test_osqp_and_the_active_set_path_agree_in_the_loop(model):
 
 def test_extra_points_add_rows_and_protect_the_rear():
     # Reversing into a wall behind the robot: only a rear point sees it.
-    wall = Plane([-0.4, 0, 0], [1.0, 0, 0], group=3, groups=GROUPS)
+    wall = AnalyticField(Plane.through([-0.4, 0, 0], [1.0, 0, 0], label=3), groups=GROUPS)
     s = FilterState.planar(0.0, 0.0, 0.0)
     front_only = SafetyFilter(FilterConfig()).filter(s, np.array([-0.4, 0.0]), wall)
     rear = SafetyFilter(FilterConfig(extra_points=[(-0.2, 0.0, 0.0)]))
@@ -174,7 +176,7 @@ def test_extra_points_add_rows_and_protect_the_rear():
 
 
 def test_filter_is_identity_far_from_obstacles():
-    field = Sphere([5.0, 5.0, 0.0], 0.3, group=1, groups=GROUPS, planar=True)
+    field = AnalyticField(Sphere([5.0, 5.0, 0.0], 0.3, planar=True, label=1), groups=GROUPS)
     filt = SafetyFilter(FilterConfig())
     res = filt.filter(FilterState.planar(0, 0, 0.3), np.array([0.7, -0.4]), field)
     assert res.fallback is None and not res.intervening

@@ -20,14 +20,15 @@ from riskfield.protocol import (
     SafetyStatus,
     VelocityCommand,
 )
-from riskfield.services.safety_filter.analytic import Sphere, to_esdf, to_grid_message
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Sphere
 from riskfield.testing import Collector, ServiceProcess, client_session, hostile_payloads, put, wait_alive, wait_until
 
 GROUPS = ["high", "mid", "low"]
 
 
 def grid(center=(1.0, 0.0), group=1) -> EsdfGrid:
-    sphere = Sphere([*center, 0.0], 0.3, group=group, groups=GROUPS, planar=True)
+    sphere = AnalyticField(Sphere([*center, 0.0], 0.3, planar=True, label=group), groups=GROUPS)
     return to_grid_message(to_esdf(sphere, [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 

@@ -15,7 +15,8 @@ import math
 import numpy as np
 import pytest
 
-from riskfield.services.safety_filter.analytic import Plane, Sphere, Union, to_esdf
+from riskfield.services.fields import AnalyticField, to_esdf
+from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.barriers import DoubleIntegrator, SingleIntegrator
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
@@ -25,16 +26,16 @@ GROUPS = ["high", "mid", "low"]
 STEPS = 30
 
 
-def scene(planar: bool) -> Union:
+def scene(planar: bool) -> AnalyticField:
     """A high-risk and a low-risk obstacle side by side and a mid-risk wall: ridges included."""
-    return Union([
-        Sphere([1.0, 0.0, 0.0], 0.3, group=1, planar=planar),
-        Sphere([0.95, 0.75, 0.0], 0.25, group=3, planar=planar),
-        Plane([0.0, -0.7, 0.0], [0.0, 1.0, 0.0], group=2),
+    return AnalyticField([
+        Sphere([1.0, 0.0, 0.0], 0.3, planar=planar, label=1),
+        Sphere([0.95, 0.75, 0.0], 0.25, planar=planar, label=3),
+        Plane.through([0.0, -0.7, 0.0], [0.0, 1.0, 0.0], label=2),
     ], groups=GROUPS)
 
 
-def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: Union) -> FilterState:
+def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: AnalyticField) -> FilterState:
     """A random state in the safe set of every obstacle of ``truth`` (for the double integrator
     a state that is safe for the nearest obstacle only may already be unable to stop before the
     next one: that is outside every CBF's promise)."""
@@ -56,11 +57,11 @@ def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: Union) -> F
             continue  # start in the safe set, close enough for the obstacles to matter
         if isinstance(model, DoubleIntegrator):
             safe = True
-            for part in truth.parts:
-                ps = part.query(model.points(s))
-                k_fast = model.roots(*table[part.group, 1:3])[1]
-                hb_part = ps.distance - model.radius - filt.delta
-                safe &= bool((ps.gradient @ s.velocity + k_fast * hb_part).min() >= 0)
+            for part in truth.shapes:
+                pts = model.points(s)
+                k_fast = model.roots(*table[part.label, 1:3])[1]
+                hb_part = part.distance(pts) - model.radius - filt.delta
+                safe &= bool((part.gradient(pts) @ s.velocity + k_fast * hb_part).min() >= 0)
             if not safe:
                 continue
         return s
@@ -82,7 +83,8 @@ def reference(rng, filt: SafetyFilter, field, s: FilterState, cfg: FilterConfig)
     return toward * rng.uniform(0.4, 1.0), ang  # double integrator: a desired world velocity
 
 
-def rollouts(model_name: str, field, n: int, seed: int, filtered: bool = True, truth: Union | None = None) -> dict:
+def rollouts(model_name: str, field, n: int, seed: int, filtered: bool = True,
+             truth: AnalyticField | None = None) -> dict:
     cfg = FilterConfig(model=model_name)
     filt = SafetyFilter(cfg)
     model = filt.model

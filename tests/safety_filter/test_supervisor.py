@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from riskfield.protocol import RiskConfig, RiskGroup, RobotState, VelocityCommand, encode
-from riskfield.services.safety_filter.analytic import Plane, Sphere, to_esdf, to_grid_message
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.supervisor import FilterSupervisor
@@ -17,7 +18,7 @@ GROUPS = ["high", "mid", "low"]
 
 
 def grid():
-    return to_grid_message(to_esdf(Sphere([1.0, 0.0, 0.0], 0.3, group=1, groups=GROUPS, planar=True),
+    return to_grid_message(to_esdf(AnalyticField(Sphere([1.0, 0.0, 0.0], 0.3, planar=True, label=1), groups=GROUPS),
                                    [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 
@@ -99,8 +100,8 @@ def test_outside_map_and_the_double_integrator_through_the_supervisor():
     cmd, st = sup.tick(0.0)
     assert st.fallback == "outside_map" and cmd.linear == (0.0, 0.0, 0.0) and st.h == 0.0
     dbl = make("double3d")
-    dbl.on_map(to_grid_message(to_esdf(Plane([3, 0, 0], [-1, 0, 0], group=3, groups=GROUPS), [-1, -1, -1],
-                                       [2, 1, 1], 0.1)), 0.0)
+    wall = AnalyticField(Plane.through([3, 0, 0], [-1, 0, 0], label=3), groups=GROUPS)
+    dbl.on_map(to_grid_message(to_esdf(wall, [-1, -1, -1], [2, 1, 1], 0.1)), 0.0)
     moving = state().model_copy(update={"linear_velocity": (0.4, 0.0, 0.0)})
     dbl.on_state(moving, 0.0)
     dbl.on_ref(ref(1.0), 0.0)

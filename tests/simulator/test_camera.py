@@ -9,8 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.simulator import procedural, shapes
-from riskfield.services.simulator.camera import CameraMount, PinholeCamera, Renderer, class_colour
+from riskfield.services.simulator.camera import CameraMount, Renderer, class_colour
 from riskfield.services.simulator.scene import NO_LABEL, Scene, SceneObject
 
 CAM = PinholeCamera.from_fov(64, 48, 90.0)
@@ -72,7 +74,7 @@ def test_render_of_a_wall_has_constant_depth_and_world_consistent_pointmap():
 
 
 def test_render_labels_misses_and_shading():
-    scene = Scene([*procedural.room(6, 6), SceneObject("ball", 119, shapes.sphere(0.3), shapes.pose_matrix(1.0, 0))])
+    scene = Scene([*procedural.room(6, 6), SceneObject("ball", 119, shapes.sphere(0.3), pose_matrix(1.0, 0))])
     T_WC = np.eye(4)
     T_WC[:3, :3] = CameraMount().T_body_camera()[:3, :3]
     T_WC[:3, 3] = (0, 0, 0.3)
@@ -86,7 +88,7 @@ def test_render_labels_misses_and_shading():
     assert colours.std(axis=0).sum() > 5  # shading varies with the normal over the sphere
     base = class_colour(np.array([119]))[0] * 255
     assert np.all(colours <= base + 1)  # shading only darkens the class colour
-    empty = Renderer(CAM).render(Scene([SceneObject("b", 41, shapes.box(1, 1, 1), shapes.pose_matrix(0, 0, 10))])
+    empty = Renderer(CAM).render(Scene([SceneObject("b", 41, shapes.box(1, 1, 1), pose_matrix(0, 0, 10))])
                                  .at(0.0), T_WC)
     assert not empty.valid.any() and np.all(empty.labels == NO_LABEL) and np.all(empty.rgb == 0)
     assert np.all(empty.points == 0)

@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.protocol import ade20k
+from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.simulator import procedural, shapes
 from riskfield.services.simulator.mesh_io import is_closed
 from riskfield.services.simulator.scene import NO_LABEL, Motion, Scene, SceneObject
@@ -46,7 +47,7 @@ def test_capsule_has_its_height_and_radius():
 def test_box_signed_distance_matches_analytic(x, y, z):
     centre = np.array([0.3, -0.2, 0.5])
     half = np.array([0.5, 0.25, 0.4])
-    scene = Scene([SceneObject("b", 41, shapes.box(*(2 * half)), shapes.pose_matrix(0.3, -0.2, 0.1))])
+    scene = Scene([SceneObject("b", 41, shapes.box(*(2 * half)), pose_matrix(0.3, -0.2, 0.1))])
     p = np.array([[x, y, z]])
     got = scene.signed_distance(p)[0]
     assert got == pytest.approx(box_sdf(p, centre, half)[0], abs=1e-4)
@@ -54,7 +55,7 @@ def test_box_signed_distance_matches_analytic(x, y, z):
 
 def test_sphere_signed_distance_within_tessellation_error():
     r = 0.5
-    scene = Scene([SceneObject("ball", 119, shapes.sphere(r, resolution=32), shapes.pose_matrix(0, 0, 0))])
+    scene = Scene([SceneObject("ball", 119, shapes.sphere(r, resolution=32), pose_matrix(0, 0, 0))])
     rng = np.random.default_rng(0)
     p = rng.uniform(-1.5, 1.5, (500, 3)) + np.array([0, 0, r])
     expect = np.linalg.norm(p - [0, 0, r], axis=1) - r
@@ -73,7 +74,7 @@ def test_room_interior_is_free_and_walls_are_inside():
 
 def test_cast_returns_hit_distance_normal_label_and_object():
     scene = Scene([*procedural.room(6, 6), SceneObject("dog", 126, shapes.box(0.5, 0.5, 1.0),
-                                                        shapes.pose_matrix(2.0, 0, 0.001))])
+                                                        pose_matrix(2.0, 0, 0.001))])
     o = np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0.5], [0, 0, 0.5]])
     d = np.array([[1, 0, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]], float)
     h = scene.cast(o, d)
@@ -114,9 +115,9 @@ def test_motion_paths():
 
 
 def test_moving_and_appearing_objects_change_the_snapshot():
-    walker = SceneObject("walker", 12, shapes.person(), shapes.pose_matrix(0, 0, 0.001),
+    walker = SceneObject("walker", 12, shapes.person(), pose_matrix(0, 0, 0.001),
                          motion=Motion(np.array([[0, 0], [4, 0]]), 1.0))
-    late = SceneObject("late", 41, shapes.box(0.4, 0.4, 0.4), shapes.pose_matrix(0, 3, 0.001), appear_at_s=5.0)
+    late = SceneObject("late", 41, shapes.box(0.4, 0.4, 0.4), pose_matrix(0, 3, 0.001), appear_at_s=5.0)
     scene = Scene([walker, late])
     probe = np.array([[2.0, 0, 1.0], [0, 3, 0.2]])
     d0 = scene.signed_distance(probe, t=0.0)

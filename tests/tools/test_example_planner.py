@@ -49,6 +49,9 @@ def test_plan_keeps_clearance_and_goes_around_the_wall():
     assert path[:, 1].max() > 1.4 + 0.2  # it had to go over the end of the wall
     assert mod.plan(grid, (0.5, 0.5), (3.5, 0.5), clearance=0.9) is None  # the gap is too narrow
     assert mod.plan(grid, (2.0, 0.5), (3.5, 0.5), clearance=0.2) is None  # start inside the wall
+    # within half a voxel beyond the outer voxel centres: outside the map (the filter's rule)
+    assert mod.plan(grid, (-0.02, 0.5), (3.5, 0.5), clearance=0.2) is None
+    assert mod.plan(grid, (0.0, 0.5), (3.5, 0.5), clearance=0.2) is not None
     wps = mod.simplify(path, every=5)
     np.testing.assert_allclose(wps[-1], path[-1])
 

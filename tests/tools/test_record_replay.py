@@ -3,15 +3,24 @@
 from __future__ import annotations
 
 import json
+import shutil
 import time
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
-from riskfield.protocol import EsdfGrid, VelocityCommand, decode, encode
+from riskfield.protocol import EsdfGrid, NodeStatus, VelocityCommand, decode, encode
 from riskfield.services.recorder.mcap_io import McapRecorder, peek_schema, read_records
 from riskfield.services.recorder.replay import Remap, schedule
-from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive
+from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+
+
+@pytest.fixture(autouse=True)
+def _delete_recordings(tmp_path):
+    """Recordings can be large: nothing a test wrote outlives it."""
+    yield
+    shutil.rmtree(tmp_path, ignore_errors=True)
 
 
 def _grid(v: float) -> EsdfGrid:
@@ -35,6 +44,8 @@ def test_mcap_file_layout(tmp_path):
     assert schemas["EsdfGrid/1"].encoding == "jsonschema"
     assert json.loads(schemas["EsdfGrid/1"].data)["properties"]["schema"]["const"] == "EsdfGrid/1"
     assert {c.message_encoding for c in summary.channels.values()} == {"msgpack"}
+    assert {c.topic: c.metadata["riskfield_key"] for c in summary.channels.values()} == {
+        "raw/rf/a/map/esdf": "rf/a/map/esdf", "raw/rf/a/cmd/ref": "rf/a/cmd/ref"}
     recs = list(read_records(path))
     assert [r.key for r in recs] == ["rf/a/map/esdf", "rf/a/cmd/ref"]
     assert decode(recs[0].payload, EsdfGrid).distance[0, 0, 0] == 1.0
@@ -54,16 +65,19 @@ def test_peek_schema_and_remap_and_schedule():
 def test_record_then_replay_over_zenoh(router_endpoint, tmp_path):
     robot = "t_rec"
     sent = [encode(_grid(float(i))) for i in range(5)]
+    args = ["--robot", robot, "--set", f"out={tmp_path}", "--set", "status_period_s=0.1"]
     with client_session(router_endpoint) as session:
-        with ServiceProcess("record", router_endpoint, ["--robot", robot, "--set", f"out={tmp_path}"]) as rec:
+        status = Collector(session, f"rf/{robot}/status/record", NodeStatus)
+        with ServiceProcess("record", router_endpoint, args) as rec:
             assert wait_alive(session, f"rf/{robot}/alive/record"), rec.output
-            time.sleep(0.3)
+            status.wait(1, timeout_s=20)  # the loop runs: its subscription is declared
             for payload in sent:
                 put(session, f"rf/{robot}/map/esdf", payload)
-                time.sleep(0.2)
+                time.sleep(0.2)  # the spacing the replay must keep, not a synchronisation
             put(session, f"rf/{robot}/cmd/ref", VelocityCommand.zero("joystick"))
-            time.sleep(0.5)
+            assert wait_until(lambda: status.items[-1].extra.get("handled_data_messages", 0) >= 6, 20), rec.output
             assert rec.stop() == 0, rec.output
+        status.close()
         summary = json.loads((tmp_path / "summary.json").read_text())
         assert summary["per_key"][f"rf/{robot}/map/esdf"] == 5
         assert summary["per_key"][f"rf/{robot}/cmd/ref"] == 1

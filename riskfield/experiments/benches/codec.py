@@ -19,10 +19,11 @@ from riskfield.protocol import EsdfGrid, PerceptionFrame, VelocityCommand, decod
 
 app = typer.Typer(add_completion=False)
 
+# The echo is a fresh interpreter (spawn model: this process holds a router session).
 ECHO = """
-import sys, zenoh
-from riskfield.services.runtime.session import endpoint_config
-with zenoh.open(endpoint_config("client", [sys.argv[1]])) as s:
+import sys
+from riskfield.services.runtime.processes import client_session
+with client_session(sys.argv[1]) as s:
     pub = s.declare_publisher("bench/pong")
     sub = s.declare_subscriber("bench/ping", lambda smp: pub.put(smp.payload))
     print("ready", flush=True)
@@ -57,9 +58,9 @@ def _round_trips(payload: bytes, repeat: int) -> np.ndarray:
 
     import zenoh
 
-    from riskfield.testing import ZenohRouter, client_session
+    from riskfield.services.runtime.processes import EmbeddedRouter, client_session
 
-    with ZenohRouter() as router:
+    with EmbeddedRouter() as router:
         echo = subprocess.Popen([sys.executable, "-c", ECHO, router.endpoint], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, text=True)
         try:

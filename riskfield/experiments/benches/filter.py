@@ -22,7 +22,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from riskfield.services.safety_filter.analytic import Plane, Sphere, Union, to_esdf
+from riskfield.services.fields import AnalyticField, to_esdf
+from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.state import FilterState, so3_exp
@@ -33,11 +34,11 @@ MODELS = ("unicycle", "single2d", "single3d", "double3d")
 GROUPS = ["high", "mid", "low"]
 
 
-def scene(planar: bool) -> Union:
-    return Union([
-        Sphere([1.0, 0.0, 0.0], 0.3, group=1, planar=planar),
-        Sphere([0.95, 0.75, 0.0], 0.25, group=3, planar=planar),
-        Plane([0.0, -0.7, 0.0], [0.0, 1.0, 0.0], group=2),
+def scene(planar: bool) -> AnalyticField:
+    return AnalyticField([
+        Sphere((1.0, 0.0, 0.0), 0.3, label=1, planar=planar),
+        Sphere((0.95, 0.75, 0.0), 0.25, label=3, planar=planar),
+        Plane.through((0.0, -0.7, 0.0), (0.0, 1.0, 0.0), label=2),
     ], groups=GROUPS)
 
 

@@ -35,8 +35,9 @@ from riskfield.edge.joystick.mapping import CODES, EV_ABS, EV_KEY, EV_SYN, SYN_R
 from riskfield.edge.joystick.source import pack_event
 from riskfield.edge.limo.emulator import ChassisEmulator
 from riskfield.edge.limo.protocol import MotionCommand
+from riskfield.experiments.stack import publish
 from riskfield.protocol import EsdfGrid, Keys, VelocityCommand, decode, encode
-from riskfield.testing import ServiceProcess, ZenohRouter, client_session, put, wait_alive, wait_until
+from riskfield.services.runtime.processes import EmbeddedRouter, ProcessRunner, client_session, wait_until
 
 app = typer.Typer(add_completion=False)
 TARGET_P99_MS = 5.0
@@ -126,9 +127,8 @@ def latency(
     else:
         filter_args = [a for kv in (filter_set or []) for a in ("--set", kv)]
     console.print(f"[bold]latency bench[/bold]: joystick → {filter_service} → limo, robot id {robot}")
-    with ZenohRouter() as router, ChassisEmulator(on_frame=on_frame) as emu, \
-            client_session(router.endpoint) as session:
-        ep = router.endpoint
+    with EmbeddedRouter() as router, ChassisEmulator(on_frame=on_frame) as emu, \
+            client_session(router.endpoint) as session, ProcessRunner(router.endpoint, keys) as runner:
         subs = []
         for key, tl in ((keys.cmd_ref, ref), (keys.cmd_safe, safe)) if hops else ():
             def cb(sample: object, tl: Timeline = tl) -> None:
@@ -136,31 +136,27 @@ def latency(
                 msg = decode(sample.payload.to_bytes(), VelocityCommand)  # type: ignore[attr-defined]
                 tl.add(t, round(msg.linear[0] * 1000))
             subs.append(session.declare_subscriber(key, cb))
-        procs = [
-            ServiceProcess("limo", ep, [*common, "--set", f"port={emu.path}", "--set", "motion_mode=differential"]),
-            ServiceProcess(filter_service, ep, [*common, *filter_args]),
-            ServiceProcess("joystick", ep, [*common, "--set", "source=raw", "--set", f"device={fifo}",
+        runner.add("limo", "limo", [*common, "--set", f"port={emu.path}", "--set", "motion_mode=differential"])
+        runner.add(filter_service, filter_service, [*common, *filter_args])
+        runner.add("joystick", "joystick", [*common, "--set", "source=raw", "--set", f"device={fifo}",
                                             "--set", "speed_scale=", "--set", f"max_linear={MAX_LINEAR}",
-                                            "--set", f"poll_s={poll_ms / 1000}"]),
-        ]
+                                            "--set", f"poll_s={poll_ms / 1000}"])
         stop_esdf = threading.Event()
 
         def esdf_loop() -> None:
             payload = encode(esdf)
             while not stop_esdf.is_set():
-                put(session, keys.esdf, payload)
+                publish(session, keys.esdf, payload)
                 stop_esdf.wait(0.1)
 
         esdf_thread = threading.Thread(target=esdf_loop, daemon=True)
         esdf_thread.start()
         fd = -1
         try:
-            for p in procs:
-                p.__enter__()
-            for p in procs:
-                name = "safety-filter" if p.name == filter_service and filter_service != "relay" else p.name
-                if not wait_alive(session, keys.alive(name), 30.0):
-                    raise RuntimeError(f"{p.name} did not come up:\n{p.output}")
+            runner.start()
+            for label, child in runner.children.items():
+                if not runner.wait_ready(session, [label], 30.0):
+                    raise RuntimeError(f"{label} did not come up:\n{child.output}")
             if not wait_until(lambda: emu.model.control_mode == 1, 10.0):
                 raise RuntimeError("the LIMO node did not enable command mode")
             fd = os.open(fifo, os.O_WRONLY)
@@ -183,11 +179,8 @@ def latency(
                 os.close(fd)
             stop_esdf.set()
             esdf_thread.join(2.0)
-            outputs = {}
-            for p in reversed(procs):
-                if p.proc is not None:
-                    outputs[p.name] = p.output[-2000:]
-                p.__exit__(None, None, None)
+            runner.stop()
+            outputs = {label: child.output[-2000:] for label, child in runner.children.items()}
             for s in subs:
                 s.undeclare()
     total, hop_ref, hop_filter, hop_limo = [], [], [], []

@@ -26,9 +26,11 @@ from rich.console import Console
 from rich.table import Table
 
 from riskfield.protocol import RiskConfig, ade20k
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, Plane, Sphere, render
+from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
-from riskfield.services.mapping.synthetic import Box, Camera, Plane, Sphere, look_at, render
 
 app = typer.Typer(add_completion=False)
 
@@ -78,7 +80,7 @@ def main(
     """TSDF, ESDF (exact vs. paper dilation, 3-D vs. 2-D slice) and query timings: medians, p99, CPU."""
     console = Console()
     scene = bench_scene()
-    camera = Camera(width, height, fx=0.78 * width, fy=0.78 * width)
+    camera = PinholeCamera.centred(width, height, 0.78 * width)
     poses = [look_at(np.array([0.1 * np.cos(a), 0.6 * np.sin(a), 0.25]), np.array([1.5, 0.0, 0.4]))
              for a in np.linspace(-1.0, 1.0, frames)]
     rendered = [render(scene, T, camera) for T in poses]

@@ -12,8 +12,6 @@ ground-truth clearance (robot centre to the nearest obstacle surface). Outputs
 
 from __future__ import annotations
 
-import json
-import math
 import time
 from pathlib import Path
 from typing import Annotated
@@ -24,79 +22,27 @@ import yaml
 from rich.console import Console
 from rich.table import Table
 
+from riskfield.experiments.navigation import drive, place_unseen, polyline_distance
+from riskfield.experiments.scenarios import SQUARE_CORNERS, SQUARE_ROOM, SQUARE_UNSEEN, risky_clearance
 from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, recording
 from riskfield.experiments.tables import write_json
-from riskfield.protocol import NavGoal, RiskConfig, RobotState, SafetyStatus
-from riskfield.services.navigator.waypoints import WaypointSequencer
-from riskfield.services.simulator.scenario import ObjectSpec, build_scene, load_scenario, object_from_spec
-from riskfield.services.simulator.scene import Scene
-from riskfield.testing import put
+from riskfield.experiments.teleop import is_intervention
+from riskfield.protocol import RobotState, SafetyStatus
 
 app = typer.Typer(add_completion=False)
 
-CORNERS = np.array([[2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0], [-2.0, -2.0, 0.0]])
-START = (-2.0, -2.0, 0.0)
-UNSEEN = {"class": "ball", "name": "unseen_ball", "position": [2.0, 0.0]}
-SCENARIO = {
-    "name": "navigation_loop", "room": {"size": [7.0, 7.0]},
-    "robot": {"type": "limo", "start": list(START)},
-    "objects": [
-        {"class": "table", "name": "table", "position": [0.0, 0.0]},
-        {"class": "chair", "name": "chair", "position": [2.8, 0.0], "yaw": math.pi},
-        {"class": "ball", "name": "ball", "position": [0.0, 2.6]},
-    ],
-}
 TOLERANCE = 0.2
-
-
-def polyline_distance(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """Planar distance of each point to the closed polyline through ``corners``."""
-    p = points[:, None, :2]
-    a = corners[:, :2][None]
-    b = np.roll(corners[:, :2], -1, axis=0)[None]
-    ab = b - a
-    s = np.clip(((p - a) * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)
-    return np.linalg.norm(p - (a + s[..., None] * ab), axis=-1).min(axis=1)
-
-
-def clearance_fn(scenario_path: Path, extra: list[dict]):
-    """Ground-truth distance from the robot centre (at body height) to every obstacle surface."""
-
-
-    scene = build_scene(load_scenario(str(scenario_path)))
-    lut = RiskConfig().label_to_group()
-    objs = [o for o in scene.objects if lut[int(o.label)] > 0]
-    for spec in extra:
-        objs.append(object_from_spec(ObjectSpec.model_validate(spec), spec["name"]))
-    only = Scene(objs)
-
-    def clearance(xy: np.ndarray) -> np.ndarray:
-        pts = np.column_stack([xy, np.full(len(xy), 0.15)])
-        return np.asarray(only.at(0.0).distance(pts), dtype=float)
-
-    return clearance
 
 
 def run_lap(stack: Stack, rec, timeout_s: float) -> dict:
     """Send the square once and wait until the last corner is reached (or the timeout)."""
     rec.clear()
-    seq = WaypointSequencer(planar=True)
-    seq.set_goal(CORNERS, TOLERANCE, loop=False)
-    put(stack.session, stack.keys.nav_goal, NavGoal(waypoints=CORNERS, tolerance=TOLERANCE, loop=False))
-    t0 = time.monotonic()
-    seen = 0
-    while time.monotonic() - t0 < timeout_s and not seq.finished:
-        time.sleep(0.1)
-        states = rec.snapshot("state")
-        for _, st in states[seen:]:
-            seq.update(np.array(st.position))
-        seen = len(states)
-    elapsed = time.monotonic() - t0
+    lap = drive(stack.session, stack.keys, rec, SQUARE_CORNERS, TOLERANCE, timeout_s)
     states = rec.snapshot("state")
     status = rec.snapshot("status")
     path = np.array([st.position for _, st in states]).reshape(-1, 3)
-    return dict(completed=bool(seq.finished), reached=seq.reached, lap_time_s=elapsed if seq.finished else None,
-                path=path, interventions=sum(1 for _, s in status if s.intervening and s.fallback is None),
+    return dict(completed=lap.completed, reached=lap.reached, lap_time_s=lap.lap_time_s,
+                path=path, interventions=sum(1 for _, s in status if is_intervention(s)),
                 brakes=sum(1 for _, s in status if s.fallback is not None), steps=len(status))
 
 
@@ -110,7 +56,7 @@ def plot(out: Path, laps: list[dict], unseen: dict) -> Path:
     fig, axes = plt.subplots(1, len(laps), figsize=(5.5 * len(laps), 5.2), squeeze=False)
     for ax, lap, title in zip(axes[0], laps, ("lap 1: loop on the live map", "lap 2: unseen obstacle"),
                               strict=False):
-        sq = np.vstack([CORNERS, CORNERS[:1]])
+        sq = np.vstack([SQUARE_CORNERS, SQUARE_CORNERS[:1]])
         ax.plot(sq[:, 0], sq[:, 1], "k--", lw=0.8, label="nominal square")
         ax.add_patch(Rectangle((-0.6, -0.35), 1.2, 0.7, color="tab:brown", alpha=0.4, label="table"))
         ax.add_patch(Rectangle((2.8 - 0.225, -0.225), 0.45, 0.45, color="tab:olive", alpha=0.4, label="chair"))
@@ -143,9 +89,8 @@ def navigation(
     console = Console()
     out.mkdir(parents=True, exist_ok=True)
     scenario_path = out / "navigation_scenario.yaml"
-    scenario_path.write_text(yaml.safe_dump(SCENARIO))
+    scenario_path.write_text(yaml.safe_dump(SQUARE_ROOM))
     t_start = time.perf_counter()
-    keys = {"state": (None, RobotState), "status": (None, SafetyStatus)}
     with Stack(robot="nav_loop") as stack:
         keys = {"state": (stack.keys.state, RobotState), "status": (stack.keys.safety_status, SafetyStatus)}
         service, args = perception_args(perception)
@@ -158,22 +103,22 @@ def navigation(
         with recording(stack.session, keys) as rec:
             time.sleep(2.0)  # first frames into the map
             laps.append(run_lap(stack, rec, lap_timeout))
-            put(stack.session, stack.keys.sim_spawn, json.dumps(UNSEEN).encode())
+            place_unseen(stack.session, stack.keys, SQUARE_UNSEEN)
             time.sleep(2.5)  # the navigator's stop hold ends; the new obstacle is in view of nothing yet
             laps.append(run_lap(stack, rec, lap_timeout))
-    clearance = clearance_fn(scenario_path, [UNSEEN])
-    base_clear = clearance_fn(scenario_path, [])
+    clearance = risky_clearance(scenario_path, [SQUARE_UNSEEN])
+    base_clear = risky_clearance(scenario_path)
     rows = []
     for i, lap in enumerate(laps):
         p = lap["path"]
-        dev = polyline_distance(p, CORNERS) if len(p) else np.zeros(1)
+        dev = polyline_distance(p, SQUARE_CORNERS) if len(p) else np.zeros(1)
         clear = (clearance if i == 1 else base_clear)(p[:, :2]) if len(p) else np.zeros(1)
-        near = np.linalg.norm(p[:, :2] - np.array(UNSEEN["position"]), axis=1) if len(p) else np.zeros(1)
+        near = np.linalg.norm(p[:, :2] - np.array(SQUARE_UNSEEN["position"]), axis=1) if len(p) else np.zeros(1)
         lap.update(max_deviation_m=float(dev.max()), mean_deviation_m=float(dev.mean()),
                    min_clearance_m=float(clear.min()),
                    closest_to_unseen_m=float(near.min()) if i == 1 else None)
         rows.append(lap)
-    plot(out, laps, UNSEEN)
+    plot(out, laps, SQUARE_UNSEEN)
     wall = time.perf_counter() - t_start
     md = [f"# riskfield bench navigation — perception `{perception}`", "",
           "Square of four corners (4 m side), tolerance 0.2 m; clearance: robot centre to the nearest obstacle "
@@ -193,6 +138,6 @@ def navigation(
            "returns to the loop (no numbers reported)."]
     (out / "tables.md").write_text("\n".join(md) + "\n")
     write_json(out / "summary.json", dict(benchmark="navigation", perception=perception, wall_time_s=wall,
-                                          corners=CORNERS, unseen=UNSEEN, laps=rows))
+                                          corners=SQUARE_CORNERS, unseen=SQUARE_UNSEEN, laps=rows))
     console.print(table)
     console.print(f"wrote {out / 'tables.md'}, {out / 'summary.json'}, {out / 'navigation.png'} ({wall:.0f} s)")

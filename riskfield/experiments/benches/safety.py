@@ -39,8 +39,9 @@ from riskfield.experiments.safety_benchmark import (
 from riskfield.experiments.scannetpp import load_scene
 from riskfield.experiments.tables import plot_safety, safety_table, table2, table3, write_json
 from riskfield.protocol import RiskConfig
+from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.navigator.clf import DoubleIntegratorCLF
-from riskfield.services.simulator.camera import PinholeCamera, Renderer
+from riskfield.services.simulator.camera import Renderer
 
 app = typer.Typer(add_completion=False)
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -29,88 +28,17 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from riskfield.experiments.scenarios import TELEOP_CASES, obstacle_distance
 from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, recording
 from riskfield.experiments.tables import write_json
+from riskfield.experiments.teleop import PAPER, Trace, operator_args, trace_of
 from riskfield.protocol import RobotState, SafetyStatus, VelocityCommand
-from riskfield.services.simulator.scenario import build_scene, load_scenario
-from riskfield.services.simulator.scene import Scene
 
 app = typer.Typer(add_completion=False)
 
-PAPER = {"ball": {"first_intervention_m": 0.36, "min_clearance_m": 0.14},
-         "dog": {"first_intervention_m": 0.56, "min_clearance_m": 0.41}}
-CASES = {"ball": ("teleop_ball", "ball"), "dog": ("teleop_dog", "dog")}
-LOOKAHEAD = 0.25
-
-
-@dataclass
-class Trace:
-    """One run's time series (seconds from the first state) and its metrics."""
-
-    t: np.ndarray
-    centre_distance: np.ndarray
-    lookahead_distance: np.ndarray
-    t_cmd: np.ndarray
-    v_ref: np.ndarray
-    w_ref: np.ndarray
-    t_safe: np.ndarray
-    v_safe: np.ndarray
-    w_safe: np.ndarray
-    t_intervention: float | None
-
-    def metrics(self) -> dict[str, float | None]:
-        first = None
-        first_c = None
-        if self.t_intervention is not None and self.t.size:
-            i = int(np.searchsorted(self.t, self.t_intervention))
-            i = min(i, self.t.size - 1)
-            first, first_c = float(self.lookahead_distance[i]), float(self.centre_distance[i])
-        return dict(first_intervention_m=first, min_clearance_m=float(self.lookahead_distance.min()),
-                    first_intervention_centre_m=first_c, min_clearance_centre_m=float(self.centre_distance.min()))
-
-
-def obstacle_distance(scenario: str, name: str):
-    """Ground-truth distance (m) from planar points to the obstacle's surface, at its mid-height."""
-
-    scene = build_scene(load_scenario(scenario))
-    obj = scene[name]
-    only = Scene([obj])
-    v = obj.world_mesh(0.0)[0]
-    z_mid = 0.5 * float(v[:, 2].min() + v[:, 2].max())
-
-    def distance(xy: np.ndarray) -> np.ndarray:
-        pts = np.column_stack([xy, np.full(len(xy), z_mid)])
-        return np.asarray(only.at(0.0).distance(pts), dtype=float)
-
-    return distance
-
-
-def trace_of(rec, distance, t0: float) -> Trace:
-    states = rec.snapshot("state")
-    refs = rec.snapshot("ref")
-    safes = rec.snapshot("safe")
-    status = rec.snapshot("status")
-    t = np.array([a for a, _ in states]) - t0
-    xy = np.array([m.position[:2] for _, m in states]).reshape(-1, 2)
-    yaw = np.array([m.yaw for _, m in states])
-    la = xy + LOOKAHEAD * np.column_stack([np.cos(yaw), np.sin(yaw)]) if len(xy) else xy
-    cd = distance(xy) if len(xy) else np.zeros(0)
-    ld = distance(la) if len(xy) else np.zeros(0)
-    first = next((a - t0 for a, s in status if s.intervening and s.fallback is None), None)
-
-    def series(items):
-        if not items:
-            return np.zeros(0), np.zeros(0), np.zeros(0)
-        return (np.array([a for a, _ in items]) - t0, np.array([m.linear[0] for _, m in items]),
-                np.array([m.angular[2] for _, m in items]))
-
-    tr, vr, wr = series(refs)
-    ts, vs, ws = series(safes)
-    return Trace(t, cd, ld, tr, vr, wr, ts, vs, ws, first)
-
 
 def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, progress, task) -> list[Trace]:
-    scenario, obj = CASES[cls]
+    scenario, obj = TELEOP_CASES[cls]
     distance = obstacle_distance(scenario, obj)
     service, args = perception_args(perception)
     stack.start("perception", service, args)
@@ -118,16 +46,15 @@ def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, 
     stack.start("filter", "safety-filter", FAST_FILTER)
     traces = []
     k = stack.keys
-    keys = {"state": (k.state, RobotState), "ref": (k.cmd_ref, VelocityCommand),
-            "safe": (k.cmd_safe, VelocityCommand), "status": (k.safety_status, SafetyStatus)}
+    keys = {"state": (k.state, RobotState), "ref": (k.cmd_ref, VelocityCommand), "safe": (k.cmd_safe, VelocityCommand),
+            "status": (k.safety_status, SafetyStatus)}
     for run in range(runs):
         stack.start("sim", "simulator", ["--set", f"scenario={scenario}", "--set", "camera_hz=10"])
         with recording(stack.session, keys) as rec:
             time.sleep(1.5)  # the first frames reach the map before the operator starts
             rec.clear()
             t0 = time.monotonic()
-            stack.start("operator", "operator", ["--set", f"targets=[[{obj}, 0.5, 0.0]]", "--set", f"seed={run}",
-                                                 "--set", "push_s=10.0"])
+            stack.start("operator", "operator", operator_args([(obj, 0.5, 0.0)], seed=run, push_s=10.0))
             time.sleep(run_s)
             stack.stop("operator")
             traces.append(trace_of(rec, distance, t0))
@@ -184,8 +111,8 @@ def teleop(
     """Scripted-operator teleoperation towards a ball and a dog through the full stack."""
     console = Console()
     names = [c.strip() for c in classes.split(",") if c.strip()]
-    if not names or any(c not in CASES for c in names):
-        raise typer.BadParameter(f"classes must be among {', '.join(CASES)}")
+    if not names or any(c not in TELEOP_CASES for c in names):
+        raise typer.BadParameter(f"classes must be among {', '.join(TELEOP_CASES)}")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     results: dict[str, list[Trace]] = {}

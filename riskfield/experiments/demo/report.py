@@ -2,7 +2,8 @@
 
 Everything here is computed after the run from the recording (what was on the wire, with
 receive times) and the scenario (ground-truth geometry), so a report can be made again from a
-saved run: ``riskfield demo --report-only --out DIR``.
+saved run: ``riskfield demo --report-only --out DIR``. The metrics are the experiments' own
+(``riskfield.experiments.teleop``, ``.navigation``, ``.scenarios``), shared with the benches:
 
 - clearance to an object = ground-truth signed distance from the robot's centre to the object's
   surface (open3d, at the body's heights) minus the robot radius; < 0 is a collision;
@@ -18,15 +19,22 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
 from riskfield.protocol import DecodeError, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
 from riskfield.services.recorder.mcap_io import read_records
+from riskfield.services.simulator.scene import Scene
 
-BODY_HEIGHTS = (0.08, 0.2)
+from ..navigation import polyline_distance
+from ..scenarios import LOOP, TELEOP_TARGETS, TRACKED, UNSEEN, clearance_series, collisions, scenario, scene_objects
+from ..teleop import distance_at, first_intervention, is_intervention
 
+if TYPE_CHECKING:
+    from .run import DemoConfig
 
 @dataclass
 class Streams:
@@ -101,49 +109,200 @@ def command_latency_ms(ref_t: list[float], safe_t: list[float]) -> list[float]:
     return out
 
 
-def episodes(mask: np.ndarray) -> int:
-    """Number of separate runs of True in a boolean series."""
-    m = np.asarray(mask, dtype=bool)
-    return int(np.count_nonzero(m[1:] & ~m[:-1]) + (1 if m.size and m[0] else 0))
-
-
-def first_intervention(status_t: np.ndarray, intervening: np.ndarray, window: tuple[float, float]
-                       ) -> float | None:
-    sel = (status_t >= window[0]) & (status_t <= window[1]) & intervening
-    idx = np.flatnonzero(sel)
-    return float(status_t[idx[0]]) if idx.size else None
-
-
-def interp(t: float, ts: np.ndarray, v: np.ndarray) -> float:
-    return float(np.interp(t, ts, v))
-
-
-def clearance_series(scene_for, names: list[str], t: np.ndarray, xy: np.ndarray, radius: float,
-                     t_sim0: float = 0.0) -> dict[str, np.ndarray]:
-    """Clearance to each named object (and ``"all"``) along the trajectory.
-
-    ``scene_for(name, t_sim)`` returns an object with ``signed_distance(points)``; moving
-    objects are evaluated in 0.25 s bins of simulated time.
-    """
-    out: dict[str, np.ndarray] = {}
-    for name in names:
-        d = np.full(len(t), np.inf)
-        bins = np.floor((t - t_sim0) / 0.25).astype(int)
-        for b in np.unique(bins):
-            sel = bins == b
-            scene = scene_for(name, max(0.0, (b + 0.5) * 0.25))
-            if scene is None:
-                continue
-            best = np.full(int(sel.sum()), np.inf)
-            for z in BODY_HEIGHTS:
-                pts = np.column_stack([xy[sel], np.full(int(sel.sum()), z)])
-                best = np.minimum(best, np.asarray(scene.signed_distance(pts), dtype=float))
-            d[sel] = best
-        out[name] = d - radius
-    return out
-
-
 def fmt(v: Any, unit: str = "", digits: int = 2) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "–"
     return f"{v:.{digits}f}{unit}"
+
+
+def _scene_objects() -> dict[str, Any]:
+    """Ground truth: every object of the demo scene but floor and ceiling, plus the unseen ball."""
+    return scene_objects(scenario(), [UNSEEN])
+
+
+def _clearances(cfg: DemoConfig, t: np.ndarray, xy: np.ndarray, placed_at: float) -> dict[str, np.ndarray]:
+    """Clearance to every object along the trajectory, and ``"all"``: the minimum over them.
+    The unseen ball counts only from the moment it was placed."""
+
+    objs = _scene_objects()
+    scenes = {name: Scene([o]) for name, o in objs.items()}
+    clear = clearance_series(lambda name, ts: scenes[name].at(ts), list(objs), t, xy, cfg.robot_radius,
+                             t_sim0=float(t[0]))
+    clear[UNSEEN["name"]] = np.where(t >= placed_at, clear[UNSEEN["name"]], np.inf)
+    clear["all"] = np.min(np.vstack([clear[n] for n in objs]), axis=0)
+    return clear
+
+
+def make_report(cfg: DemoConfig, console: Console) -> dict:
+    root = f"rf/{cfg.robot}"
+    st = load_streams(cfg.out / "recording.mcap", root)
+    t0 = st.t0_ns / 1e9
+    ph = {k: v - t0 for k, v in cfg.phases.items()}
+    t = np.asarray(st.state_t)
+    xy = np.asarray(st.xy).reshape(-1, 2)
+    summary: dict = {"duration_s": st.duration_s, "phases_s": ph}
+    if t.size == 0:
+        console.print("[red]no robot state was recorded[/red]")
+        summary["collisions"] = -1
+        return summary
+    clear = _clearances(cfg, t, xy, ph.get("unseen_obstacle_placed", np.inf))
+    status_t = np.asarray(st.status_t)
+    # an intervention is the filter changing the command to stay safe, not a fail-safe brake
+    inter = np.asarray([is_intervention(x) for x in st.status], dtype=bool)
+    # -- teleop, per class -----------------------------------------------------------------------
+    tele = (ph.get("teleop_start", 0.0), ph.get("teleop_end", 0.0))
+    per_class = {}
+    for obj, _x, _y in TELEOP_TARGETS:
+        others = [o for o, *_ in TELEOP_TARGETS if o != obj]
+        nearest = np.all([clear[obj] <= clear[o] for o in others], axis=0) if others else np.ones(len(t), bool)
+        sel = (t >= tele[0]) & (t <= tele[1]) & nearest
+        if not sel.any():
+            per_class[TRACKED[obj]] = {"first_intervention_m": None, "min_clearance_m": None}
+            continue
+        window = (float(t[sel][0]), float(t[sel][-1]))
+        tfi = first_intervention(status_t, inter, window)
+        per_class[TRACKED[obj]] = {
+            "first_intervention_m": None if tfi is None else distance_at(tfi, t, clear[obj]),
+            "min_clearance_m": float(np.min(clear[obj][sel])),
+        }
+    # -- navigation ---------------------------------------------------------------------------------
+    nav = (ph.get("navigation_start", 0.0), ph.get("navigation_end", ph.get("navigation_timeout", 0.0)))
+    nsel = (t >= nav[0]) & (t <= nav[1])
+    loop = np.asarray(LOOP)
+    # deviation from the loop once the robot has joined it at the first waypoint
+    joined = nsel & (np.cumsum(nsel & (np.linalg.norm(xy - loop[0], axis=1) < 0.3)) > 0)
+    dev = float(polyline_distance(xy[joined], loop).max()) if joined.any() else None
+    unseen_min = float(np.min(clear["unseen_ball"][nsel & (t >= ph.get("unseen_obstacle_placed", np.inf))])) \
+        if (nsel & (t >= ph.get("unseen_obstacle_placed", np.inf))).any() else None
+    navigation = {"completed": "navigation_end" in ph, "max_deviation_m": dev,
+                  "min_clearance_m": float(np.min(clear["all"][nsel])) if nsel.any() else None,
+                  "unseen_obstacle_min_clearance_m": unseen_min}
+    # -- system numbers ------------------------------------------------------------------------------
+    rates = {k: v / max(st.duration_s, 1e-9) for k, v in sorted(st.counts.items())
+             if not k.startswith(("status/", "invalid:"))}
+    ages = [x.esdf_age_ms for x in st.status if x.esdf_age_ms >= 0]
+    solve = [x.solve_us for x in st.status if x.fallback is None]
+    latency = command_latency_ms(st.ref_t, st.safe_t)
+    fallbacks: dict[str, int] = {}
+    for x in st.status:
+        if x.fallback:
+            fallbacks[x.fallback] = fallbacks.get(x.fallback, 0) + 1
+    summary.update({
+        "teleop": per_class, "navigation": navigation,
+        "collisions": collisions(clear["all"]), "min_clearance_m": float(np.min(clear["all"])),
+        "min_clearance_per_object_m": {n: float(np.min(v)) for n, v in clear.items()
+                                       if n != "all" and np.isfinite(np.min(v))},
+        "rates_hz": rates, "esdf_age_ms": _stats(ages), "filter_step_us": _stats(solve),
+        "command_latency_ms": _stats(latency), "fallbacks": fallbacks,
+        "robot_radius_m": cfg.robot_radius,
+    })
+    _print(summary, console)
+    try:
+        _plots(cfg, st, t, clear, ph)
+        summary["plots"] = ["teleop.png", "navigation.png"]
+    except Exception as exc:  # a plot must never lose the numbers
+        console.print(f"[yellow]plots skipped: {exc}[/yellow]")
+    return summary
+
+
+def _print(summary: dict, console: Console) -> None:
+    f = fmt
+    t1 = Table(title="Teleoperation (paper: ball 0.36 / 0.14 m, dog 0.56 / 0.41 m)")
+    for col in ("class", "first intervention (m)", "min clearance (m)"):
+        t1.add_column(col)
+    for name, row in summary["teleop"].items():
+        t1.add_row(name, f(row["first_intervention_m"]), f(row["min_clearance_m"]))
+    nav = summary["navigation"]
+    t2 = Table(title="Navigation loop with an unseen obstacle")
+    for col in ("completed", "max deviation (m)", "min clearance (m)", "unseen obstacle clearance (m)"):
+        t2.add_column(col)
+    t2.add_row(str(nav["completed"]), f(nav["max_deviation_m"]), f(nav["min_clearance_m"]),
+               f(nav["unseen_obstacle_min_clearance_m"]))
+    t3 = Table(title="System")
+    t3.add_column("measure")
+    t3.add_column("value")
+    t3.add_row("collisions (episodes of clearance < 0)", str(summary["collisions"]))
+    t3.add_row("minimum clearance over the run", f(summary["min_clearance_m"], " m"))
+    for key in ("camera/image", "perception/frame", "map/esdf", "state", "cmd/ref", "cmd/safe"):
+        t3.add_row(f"rate {key}", f(summary["rates_hz"].get(key), " Hz", 1))
+    for key, unit, label in (("esdf_age_ms", " ms", "ESDF age at the filter"),
+                             ("filter_step_us", " µs", "filter step (field + QP)"),
+                             ("command_latency_ms", " ms", "cmd/ref → cmd/safe latency")):
+        s = summary[key]
+        t3.add_row(f"{label} median / p99", "–" if s is None else f"{f(s['median'], unit)} / {f(s['p99'], unit)}")
+    t3.add_row("braking reasons", ", ".join(f"{k}: {v}" for k, v in summary["fallbacks"].items()) or "none")
+    out = Console()
+    out.print(t1)
+    out.print(t2)
+    out.print(t3)
+
+
+def _plots(cfg: DemoConfig, st: Streams, t: np.ndarray, clear: dict, ph: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ref_t, safe_t = np.asarray(st.ref_t), np.asarray(st.safe_t)
+    ref = np.asarray([(c.linear[0], c.angular[2]) for c in st.ref]).reshape(-1, 2)
+    safe = np.asarray([(c.linear[0], c.angular[2]) for c in st.safe]).reshape(-1, 2)
+    tele = (ph.get("teleop_start", 0.0), ph.get("teleop_end", t[-1]))
+    fig, axes = plt.subplots(len(TELEOP_TARGETS), 3, figsize=(13, 3.2 * len(TELEOP_TARGETS)), squeeze=False)
+    for row, (obj, _x, _y) in enumerate(TELEOP_TARGETS):
+        sel = (t >= tele[0]) & (t <= tele[1])
+        ax = axes[row]
+        ax[0].plot(t[sel], clear[obj][sel], color="k")
+        ax[0].axhline(0, color="r", lw=0.8)
+        ax[0].set_ylabel(f"{TRACKED[obj]}\nclearance (m)")
+        for k, (label, unit) in enumerate((("v", "m/s"), ("ω", "rad/s"))):
+            rs = (ref_t >= tele[0]) & (ref_t <= tele[1])
+            ss = (safe_t >= tele[0]) & (safe_t <= tele[1])
+            ax[k + 1].plot(ref_t[rs], ref[rs, k], label="reference", color="tab:blue", alpha=0.7)
+            ax[k + 1].plot(safe_t[ss], safe[ss, k], label="safe", color="tab:red")
+            ax[k + 1].set_ylabel(f"{label} ({unit})")
+        ax[1].legend(loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    fig.suptitle("Teleoperation with semantic CBF filtering (cf. the paper's Fig. 5)")
+    fig.tight_layout()
+    fig.savefig(cfg.out / "teleop.png", dpi=110)
+    plt.close(fig)
+
+    xy = np.asarray(st.xy).reshape(-1, 2)
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for obj in _scene_objects().values():
+        if obj.name == UNSEEN["name"]:
+            continue
+        v = np.asarray(obj.world_mesh(0.0)[0])
+        ax.fill(*_hull(v[:, :2]).T, alpha=0.35)
+        if obj.class_name != "wall":
+            ax.annotate(obj.name, v[:, :2].mean(0), fontsize=7, ha="center")
+    ax.plot(*np.asarray(LOOP + LOOP[:1]).T, "k--", lw=0.8, label="waypoint loop")
+    ax.plot(xy[:, 0], xy[:, 1], color="tab:blue", lw=1.2, label="robot")
+    ux, uy = UNSEEN["position"]
+    ax.add_patch(plt.Circle((ux, uy), 0.12, color="tab:orange", label="unseen obstacle"))
+    ax.set_aspect("equal")
+    ax.legend(loc="lower left", fontsize=8)
+    ax.set_title("Overhead view: teleop then navigation (cf. the paper's Fig. 6)")
+    fig.tight_layout()
+    fig.savefig(cfg.out / "navigation.png", dpi=110)
+    plt.close(fig)
+
+
+def _hull(p: np.ndarray) -> np.ndarray:
+    """Convex hull (monotone chain) of 2-D points, closed."""
+    pts = sorted(set(map(tuple, np.round(p, 4))))
+    if len(pts) < 3:
+        return np.asarray(pts + pts[:1])
+
+    def half(points):
+        h: list = []
+        for q in points:
+            while len(h) >= 2 and np.cross(np.subtract(h[-1], h[-2]), np.subtract(q, h[-2])) <= 0:
+                h.pop()
+            h.append(q)
+        return h
+
+    lower, upper = half(pts), half(pts[::-1])
+    hull = lower[:-1] + upper[:-1]
+    return np.asarray(hull + hull[:1])

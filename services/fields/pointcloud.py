@@ -10,16 +10,23 @@ the gradient discontinuities the paper's ESDF is built to avoid. The cloud is un
 point inside an object is just "close to the surface". Built incrementally from the same
 pointmaps as the maps (voxel-downsampled so the tree stays small), it stands in for the
 map-based baseline of the paper's equal-time comparison.
+
+scipy (for the KD-tree) is imported when the tree is first built, so ``riskfield.services.fields``
+imports with numpy alone (the planner example and a robot-level install need no scipy for the
+grid and analytic fields).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from riskfield.services.esdf_field import FieldSample
+from .base import FieldSample
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 @dataclass
@@ -51,6 +58,8 @@ class PointCloudField:
     def build(self) -> None:
         """(Re)build the KD-tree over the points gathered so far."""
         if self._points:
+            from scipy.spatial import cKDTree
+
             self._tree = cKDTree(np.asarray(self._points))
 
     @property

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.protocol import EsdfGrid, decode, encode
-from riskfield.services.esdf_field import EsdfField
-from riskfield.services.safety_filter.analytic import Plane, Sphere, Union, to_esdf, to_grid_message
+from riskfield.services.fields import AnalyticField, EsdfField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Plane, Sphere
 
 GROUPS = ["high", "mid", "low"]
 
@@ -25,7 +25,7 @@ def _points_between(field, rng, n, lo, hi, dmin, dmax, dims=3):
 
 
 def test_plane_is_reproduced_exactly_inside_the_grid():
-    plane = Plane([0.1, -0.2, 0.05], [1.0, 0.3, -0.2], group=2, groups=GROUPS)
+    plane = AnalyticField(Plane.through([0.1, -0.2, 0.05], [1.0, 0.3, -0.2], label=2), groups=GROUPS)
     grid = to_esdf(plane, [-1, -1, -1], [1, 1, 1], 0.1, max_distance=10.0)
     rng = np.random.default_rng(0)
     p = rng.uniform(-1, 1, (500, 3))
@@ -39,7 +39,7 @@ def test_plane_is_reproduced_exactly_inside_the_grid():
 
 
 def test_sphere_distance_gradient_hessian_match_closed_form():
-    sphere = Sphere([0.1, 0.0, -0.1], 0.5, group=1, groups=GROUPS)
+    sphere = AnalyticField(Sphere([0.1, 0.0, -0.1], 0.5, label=1), groups=GROUPS)
     h = 0.05
     grid = to_esdf(sphere, [-2, -2, -2], [2, 2, 2], h)
     rng = np.random.default_rng(1)
@@ -55,7 +55,7 @@ def test_sphere_distance_gradient_hessian_match_closed_form():
 
 
 def test_two_spheres_in_different_groups_report_the_nearest_group():
-    field = Union([Sphere([-0.6, 0, 0], 0.3, group=1), Sphere([0.7, 0, 0], 0.3, group=3)], groups=GROUPS)
+    field = AnalyticField([Sphere([-0.6, 0, 0], 0.3, label=1), Sphere([0.7, 0, 0], 0.3, label=3)], groups=GROUPS)
     grid = to_esdf(field, [-2, -1.5, -1], [2, 1.5, 1], 0.05)
     near_high = np.array([[-0.6, 0.45, 0.0], [-1.1, 0.0, 0.2]])
     near_low = np.array([[0.7, -0.5, 0.0], [1.2, 0.1, -0.1]])
@@ -73,7 +73,7 @@ def test_two_spheres_in_different_groups_report_the_nearest_group():
 
 
 def test_two_d_slice_is_bilinear_and_extruded_along_z():
-    disc = Sphere([0.2, -0.1, 0.0], 0.4, group=3, groups=GROUPS, planar=True)
+    disc = AnalyticField(Sphere([0.2, -0.1, 0.0], 0.4, planar=True, label=3), groups=GROUPS)
     grid = to_esdf(disc, [-2, -2, 0], [2, 2, 0], 0.05, planar=True)
     assert grid.shape[2] == 1 and grid.planar
     rng = np.random.default_rng(3)
@@ -88,7 +88,7 @@ def test_two_d_slice_is_bilinear_and_extruded_along_z():
 
 
 def test_outside_points_are_flagged_and_finite():
-    grid = to_esdf(Sphere([0, 0, 0], 0.3), [-1, -1, -1], [1, 1, 1], 0.1)
+    grid = to_esdf(AnalyticField(Sphere([0, 0, 0], 0.3)), [-1, -1, -1], [1, 1, 1], 0.1)
     p = np.array([[0.5, 0.5, 0.5], [1.0, 1.0, 1.0], [1.01, 0, 0], [0, -1.2, 0], [0, 0, 7.0], [-1, -1, -1]])
     s = grid.query(p, hessian=True)
     assert list(s.inside) == [True, True, False, False, False, True]
@@ -97,7 +97,7 @@ def test_outside_points_are_flagged_and_finite():
 
 
 def test_gradient_at_the_border_is_one_sided_not_halved():
-    plane = Plane([0, 0, 0], [1, 0, 0])
+    plane = AnalyticField(Plane.through([0, 0, 0], [1, 0, 0]))
     grid = to_esdf(plane, [-1, -1, -1], [1, 1, 1], 0.1, max_distance=5)
     p = np.array([[-1.0, 0.0, 0.0], [1.0, 0.3, -1.0], [0.97, 0.99, 0.99]])
     np.testing.assert_allclose(grid.query(p).gradient, [[1, 0, 0]] * 3, atol=1e-5)
@@ -118,7 +118,7 @@ def test_linear_fields_are_exact_anywhere(origin, voxel, normal, frac, planar):
         if np.linalg.norm(n) < 0.1:
             n[0] = 1.0
     shape = np.array([5, 4, 1 if planar else 3])
-    plane = Plane(origin, n, group=1, groups=["a"])
+    plane = AnalyticField(Plane.through(origin, n, label=1), groups=["a"])
     upper = np.array(origin) + voxel * (shape - 1)
     grid = to_esdf(plane, origin, upper + 1e-9, voxel, max_distance=1e6, planar=planar)
     assert grid.shape == tuple(shape)
@@ -127,7 +127,7 @@ def test_linear_fields_are_exact_anywhere(origin, voxel, normal, frac, planar):
     assert got.inside[0]
     tol = 1e-6 * (1 + np.abs(exact.distance[0])) + 1e-4 * voxel
     assert abs(got.distance[0] - exact.distance[0]) <= tol
-    np.testing.assert_allclose(got.gradient[0], plane.normal, atol=1e-3)
+    np.testing.assert_allclose(got.gradient[0], plane.shapes[0].normal, atol=1e-3)
 
 
 @settings(max_examples=40, deadline=None)
@@ -156,7 +156,8 @@ def test_gradient_and_hessian_are_central_differences_through_the_interpolant(se
 
 
 def test_from_grid_message_roundtrip_and_vectorised_equals_single():
-    field = Union([Sphere([0, 0, 0], 0.3, group=1), Plane([0, -0.8, 0], [0, 1, 0], group=2)], groups=GROUPS)
+    field = AnalyticField([Sphere([0, 0, 0], 0.3, label=1), Plane.through([0, -0.8, 0], [0, 1, 0], label=2)],
+                          groups=GROUPS)
     esdf = to_esdf(field, [-1, -1, -0.5], [1, 1, 0.5], 0.1)
     msg = decode(encode(to_grid_message(esdf)), EsdfGrid)
     grid = EsdfField.from_grid(msg)

@@ -1,5 +1,5 @@
-"""Access to a published ESDF grid, shared by the safety filter, the mapping service's queries
-and the benchmarks: distance, gradient, Hessian and risk group.
+"""The ESDF grid field: a published ``EsdfGrid`` read by the safety filter, the mapping service's
+queries and the benchmarks: distance, gradient, Hessian and risk group.
 
 The ESDF is sampled at voxel centres ``origin + voxel_size * (i, j, k)``. Following the paper
 ("ESDF gradients and Hessians are computed by finite differences and evaluated at query
@@ -18,9 +18,20 @@ the stencil leaves the grid the missing layer is extrapolated linearly, which tu
 differences into one-sided ones at the border instead of halving the gradient.
 
 A 2-D slice (``nz == 1``) is extruded along z: the z coordinate of a query is ignored, the
-z-gradient and the z rows of the Hessian are zero. A point is *inside* when it lies within the
-hull of voxel centres (x and y only for a slice); outside points are evaluated at the nearest
-point of that hull and flagged, and the filter brakes on them (fallback ``outside_map``).
+z-gradient and the z rows of the Hessian are zero.
+
+**The in-map rule** (the one rule of the package: ``FieldSample.inside``, the filter's
+``outside_map`` brake and the ``in_map`` flag of ``map/esdf/query`` all use it): a point is
+*inside* when it lies within the hull of voxel centres, ``origin ≤ p ≤ origin + voxel_size ·
+(shape − 1)`` per axis (x and y only for a slice), with a 1e-9 voxel tolerance. That is the
+region where the distance is an *interpolation* of stored voxels. In the half voxel beyond the
+outer centres (the rest of the outer voxels' cubes, which the query service used to count as
+map) the interpolant has no data on the far side: a value there would be the border layer
+clamped or extrapolated — and the 4-point stencil already has to invent its outer layer for the
+derivatives at the border. So the conservative rule is kept: nothing invented is called map,
+and a client is never told "in map" where the filter brakes. Outside points are evaluated at
+the nearest point of the hull and flagged; the filter brakes on them and the query service
+answers them with the value of unknown space (:func:`answer_query`).
 
 The risk group of a query is the ``risk_group`` of the nearest voxel (the mapper stores there
 the group of that voxel's nearest obstacle).
@@ -29,35 +40,15 @@ the group of that voxel's nearest obstacle).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from riskfield.protocol import EsdfGrid
 
+from .base import DistanceField, FieldSample
+
 _OFFS = np.arange(-1, 3)
 _EPS = 1e-9
-
-
-@dataclass(frozen=True)
-class FieldSample:
-    """Field values at N query points (rows in the order of the query)."""
-
-    distance: np.ndarray  # (N,) metres, signed
-    gradient: np.ndarray  # (N, 3)
-    hessian: np.ndarray | None  # (N, 3, 3) when asked for
-    risk_group: np.ndarray  # (N,) int, 1-based index into the field's groups, 0 = none
-    inside: np.ndarray  # (N,) bool
-
-
-class DistanceField(Protocol):
-    """What the filter needs of a field: :class:`EsdfField` and the analytic test fields."""
-
-    @property
-    def groups(self) -> Sequence[str]: ...
-
-    def query(self, points: np.ndarray, hessian: bool = False) -> FieldSample: ...
 
 
 class EsdfField:
@@ -226,3 +217,29 @@ def axis_weights(h: float) -> tuple[np.ndarray, np.ndarray]:
     w0[2] /= h * h
     w1[2] /= h * h
     return w0, w1
+
+
+def unknown_sample(n: int, max_distance: float, unknown_is_occupied: bool) -> FieldSample:
+    """What the query service answers outside the map (or before the first map): the distance of
+    unknown space (−max_distance when it counts as occupied, +max_distance otherwise), a zero
+    gradient, no risk group, ``inside`` False."""
+    d = -max_distance if unknown_is_occupied else max_distance
+    return FieldSample(np.full(n, float(d)), np.zeros((n, 3)), None, np.zeros(n, np.int64), np.zeros(n, bool))
+
+
+def answer_query(field: EsdfField, points: np.ndarray) -> FieldSample:
+    """A ``map/esdf/query`` answer: :meth:`EsdfField.query` where the point is inside (the in-map
+    rule above), :func:`unknown_sample` elsewhere — so a client is told "in map" exactly where the
+    filter acts on the field and is not braking with ``outside_map``."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    s = field.query(p)
+    out = unknown_sample(p.shape[0], field.max_distance, field.unknown_is_occupied)
+    k = s.inside
+    out.distance[k] = s.distance[k]
+    out.gradient[k] = s.gradient[k]
+    out.risk_group[k] = s.risk_group[k]
+    out.inside[k] = True
+    return out
+
+
+__all__ = ["DistanceField", "EsdfField", "FieldSample", "answer_query", "axis_weights", "unknown_sample"]

@@ -1,0 +1,81 @@
+"""The layering of docs/architecture.md, enforced: the import-linter contracts of pyproject.toml.
+
+protocol < services.runtime < services.fields / services.geometry < services and edge <
+riskfield.experiments / riskfield.cli; no service imports another; no shipped module imports
+``riskfield.testing``. Imports inside functions count too (grimp reads every ``import``).
+
+The repository's folders (``protocol/``, ``services/``, ``edge/``) are mapped onto the one
+``riskfield`` package by setup.py, which grimp cannot follow; so the test copies the sources into
+the layout Python sees (``riskfield/services/...``) and lints that copy.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PYPROJECT = ROOT / "pyproject.toml"
+#: repository folder → where it sits in the ``riskfield`` package (as setup.py maps it)
+FOLDERS = {"riskfield": "riskfield", "protocol": "riskfield/protocol", "services": "riskfield/services",
+           "edge": "riskfield/edge"}
+
+
+def _contracts() -> list[str]:
+    config = tomllib.loads(PYPROJECT.read_text())["tool"]["importlinter"]
+    return [c["id"] for c in config["contracts"]]
+
+
+@pytest.fixture(scope="module")
+def package_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    top = tmp_path_factory.mktemp("layers")
+
+    def only_sources(folder: str, names: list[str]) -> list[str]:
+        return [n for n in names if n == "__pycache__" or not (n.endswith(".py") or (Path(folder) / n).is_dir())]
+
+    for folder, target in FOLDERS.items():
+        shutil.copytree(ROOT / folder, top / target, ignore=only_sources, dirs_exist_ok=True)
+    return top
+
+
+def _lint(tree: Path, contract: str) -> subprocess.CompletedProcess:
+    script = Path(sys.executable).with_name("lint-imports")
+    cmd = [str(script)] if script.exists() else [shutil.which("lint-imports") or "lint-imports"]
+    env = {**os.environ, "PYTHONPATH": str(tree), "COLUMNS": "200"}
+    # grimp's cache (keyed by each file's modification time) lives in the copy, so it is rebuilt for
+    # every test session and shared by the contracts of one.
+    return subprocess.run([*cmd, "--cache-dir", str(tree / ".import_linter_cache"), "--contract", contract,
+                           str(PYPROJECT)], cwd=tree, env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_the_copy_is_what_python_imports(package_tree: Path):
+    """The linted tree resolves ``riskfield.services`` to the copy, not to the editable install."""
+    r = subprocess.run([sys.executable, "-c", "import riskfield.services.runtime as m; print(m.__file__)"],
+                       cwd=package_tree, env={**os.environ, "PYTHONPATH": str(package_tree)},
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert Path(r.stdout.strip()).is_relative_to(package_tree)
+
+
+@pytest.mark.parametrize("contract", _contracts())
+def test_import_contract_is_kept(package_tree: Path, contract: str):
+    r = _lint(package_tree, contract)
+    assert r.returncode == 0, r.stdout[-6000:] + r.stderr[-2000:]
+    assert "0 broken" in r.stdout
+
+
+def test_a_broken_contract_is_reported(package_tree: Path, tmp_path: Path):
+    """The check can fail: a service importing another breaks the independence contract."""
+    bad = tmp_path / "tree"
+    shutil.copytree(package_tree, bad, ignore=shutil.ignore_patterns(".import_linter_cache"))
+    victim = bad / "riskfield" / "services" / "relay" / "node.py"
+    victim.write_text(victim.read_text() + "\nfrom riskfield.services.navigator import waypoints  # noqa\n")
+    r = _lint(bad, "services-independent")
+    assert r.returncode != 0
+    assert "riskfield.services.relay" in r.stdout and "riskfield.services.navigator" in r.stdout
