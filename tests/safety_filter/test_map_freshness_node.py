@@ -22,8 +22,11 @@ from riskfield.protocol import (
     VelocityCommand,
     encode,
 )
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Plane, Sphere, render
+from riskfield.services.geometry.transforms import orbit
 from riskfield.services.runtime import Node, NodeSettings
-from riskfield.services.safety_filter.analytic import Plane, Sphere, to_esdf, to_grid_message
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
 
 GROUPS = ["high", "mid", "low"]
@@ -32,13 +35,13 @@ V_REF = 0.5
 
 def wall(x: float) -> EsdfGrid:
     """A low-risk wall across the robot's path at ``x``: d = x − p_x."""
-    return to_grid_message(to_esdf(Plane([x, 0.0, 0.0], [-1.0, 0.0, 0.0], group=3, groups=GROUPS),
-                                   [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
+    plane = AnalyticField(Plane.through([x, 0.0, 0.0], [-1.0, 0.0, 0.0], label=3), groups=GROUPS)
+    return to_grid_message(to_esdf(plane, [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 
 def sphere(x: float) -> EsdfGrid:
-    return to_grid_message(to_esdf(Sphere([x, 0.0, 0.0], 0.3, group=1, groups=GROUPS, planar=True),
-                                   [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
+    ball = AnalyticField(Sphere([x, 0.0, 0.0], 0.3, planar=True, label=1), groups=GROUPS)
+    return to_grid_message(to_esdf(ball, [-1, -1, 0], [2, 1, 0], 0.05, planar=True))
 
 
 def robot_state(x: float = 0.0) -> RobotState:
@@ -193,11 +196,9 @@ def test_seq_backwards_is_refused_and_a_restarted_mapper_is_accepted(router_endp
 
 def frames(n: int) -> list[PerceptionFrame]:
     from riskfield.protocol import ade20k
-    from riskfield.services.mapping.synthetic import Camera, orbit, render
-    from riskfield.services.mapping.synthetic import Plane as SynPlane
 
-    cam = Camera(160, 120, 125.0, 125.0)
-    scene = [SynPlane((1, 0, 0), 1.5, ade20k.index("wall")), SynPlane((0, 0, 1), 0.0, ade20k.index("floor"))]
+    cam = PinholeCamera.centred(160, 120, 125.0)
+    scene = [Plane((1, 0, 0), 1.5, ade20k.index("wall")), Plane((0, 0, 1), 0.0, ade20k.index("floor"))]
     out = []
     for i, T in enumerate(orbit([1.2, 0.0, 0.3], n=n, radius=0.2, height=0.3)):
         pts, conf, lab = render(scene, T, cam)
