@@ -435,3 +435,75 @@ def test_shipped_plain_router_and_client_configs_work_together(tmp_path: Path) -
             put(s, KEYS.esdf, b"x")
             assert got.wait(1) == [b"x"]
             got.close()
+
+
+# -- the shipped ACL covers the product's keys (no router needed) -----------------------------------
+
+
+def _acl() -> dict:
+    import json
+
+    cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "router-secure.json5"))
+    return json.loads(cfg.get_json("access_control"))
+
+
+def _allowed(acl: dict, subject: str, message: str, key: str) -> bool:
+    """Whether ``subject``'s policies allow ingress ``message`` on ``key``, as Zenoh decides it:
+    an allow rule's key expression must include the message's (default deny, no deny rules)."""
+    rules = {r["id"]: r for r in acl["rules"]}
+    ids = [rid for p in acl["policies"] if subject in p["subjects"] for rid in p["rules"]]
+    return any(r["permission"] == "allow" and "ingress" in r.get("flows", ["ingress", "egress"])
+               and message in r["messages"]
+               and any(zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key)) for k in r["key_exprs"])
+               for r in (rules[i] for i in ids))
+
+
+#: Who puts each key of the product (the wire contract, the additive keys, the ROS 2 bridge's).
+PUTS = {
+    "safety-filter": ["cmd/safe", "safety/status"],
+    "mapping": ["map/esdf", "map/esdf3d"],
+    "perception": ["perception/frame"],
+    "simulator": ["camera/image", "camera/depth", "state", "sim/truth"],
+    "limo": ["state", "limo/diagnostics"],
+    "mavlink": ["state"],
+    "joystick": ["cmd/ref"],
+    "teleop": ["cmd/ref"],
+    "navigator": ["cmd/ref"],
+    "operator": ["cmd/ref", "nav/goal", "config/risk", "sim/spawn"],
+    "ros2-bridge": ["cmd/ref", "state"],
+}
+ROS_PUTS = {"ros2-bridge": ["cmd_vel", "riskfield/costmap", "diagnostics", "tf"],
+            "zenoh-bridge-ros2dds": ["cmd_vel_smoothed", "odom", "tf", "tf_static"]}
+SERVICE_OF = {"teleop": "keyboard"}  # the role whose node has another service name
+
+
+def test_every_key_the_product_publishes_has_exactly_its_roles() -> None:
+    from riskfield.protocol.keys import TOPICS
+
+    acl = _acl()
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    keys = Keys(robot="limo1")
+    published = {k for ks in PUTS.values() for k in ks}
+    assert set(TOPICS) - {"map/esdf/query"} <= published  # every key of the contract has a publisher
+    roles = [s["id"] for s in acl["subjects"] if s["id"] not in ("everyone", "routers")]
+    for role in roles:
+        service = SERVICE_OF.get(role, role)
+        own = {keys.key(k) for k in PUTS.get(role, [])} | ({keys.status(service)} if role in PUTS else set())
+        own |= {f"limo1/{t}" for t in ROS_PUTS.get(role, [])}
+        for key in sorted({keys.key(k) for k in published} | {keys.status(service)} | own):
+            assert _allowed(acl, role, "put", key) == (key in own), (role, key)
+        if role in PUTS:
+            assert _allowed(acl, role, "liveliness_token", keys.alive(service))
+            assert not _allowed(acl, role, "liveliness_token", keys.alive("safety-filter")) or role == "safety-filter"
+        for wild in ("**", "rf/limo1/**", "rf/limo1/cmd/*", "rf/*/cmd/*", "limo1/**", "rf/limo1/alive/*"):
+            for msg in ("put", "delete", "liveliness_token"):
+                assert not _allowed(acl, role, msg, wild), (role, msg, wild)
+    assert _allowed(acl, "mapping", "declare_queryable", keys.esdf_query)
+    assert not any(_allowed(acl, r, "declare_queryable", keys.esdf_query) for r in roles if r != "mapping")
+    # a user in no role (matched by "everyone" only) subscribes and queries, and publishes nothing
+    assert _allowed(acl, "everyone", "declare_subscriber", "**") and _allowed(acl, "everyone", "query", "**")
+    assert not any(_allowed(acl, "everyone", m, keys.cmd_safe) for m in ("put", "delete", "liveliness_token"))
+    # certificates bound to users: one identity per subject, user name = certificate common name
+    for s in acl["subjects"]:
+        if s["id"] not in ("everyone", "routers"):
+            assert s["usernames"] == s["cert_common_names"] == [s["id"]], s
