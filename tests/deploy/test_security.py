@@ -471,6 +471,7 @@ PUTS = {
     "navigator": ["cmd/ref"],
     "operator": ["cmd/ref", "nav/goal", "config/risk", "sim/spawn"],
     "ros2-bridge": ["cmd/ref", "state"],
+    "relay": ["relay/out", "relay/esdf"],
 }
 ROS_PUTS = {"ros2-bridge": ["cmd_vel", "riskfield/costmap", "diagnostics", "tf"],
             "zenoh-bridge-ros2dds": ["cmd_vel_smoothed", "odom", "tf", "tf_static"]}
