@@ -5,7 +5,7 @@ Zenoh sessions: mutual TLS, user/password, and access control checked on the sub
 from __future__ import annotations
 
 import contextlib
-import time
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,7 +16,15 @@ import zenoh
 from riskfield.protocol import EsdfGrid, Keys, VelocityCommand
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
-from riskfield.testing import Collector, ServiceProcess, free_port, put, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    free_port,
+    open_when_ready,
+    put,
+    wait_matched,
+    wait_until,
+)
 
 if TYPE_CHECKING:  # the fixture's type; conftest is not imported at run time
     from conftest import Secrets
@@ -98,7 +106,25 @@ def deliver(publisher: zenoh.Session, key: str, msg, collector: Collector, marke
     put(publisher, key, msg)
     put(publisher, marker_key, marker)
     collector.wait(1, timeout_s=5.0)
-    time.sleep(0.3)  # margin for a reordering we do not expect; a denied put never comes
+
+
+def barrier(sender: zenoh.Session, observer: zenoh.Session) -> bool:
+    """``riskfield.testing.query_barrier`` through the one queryable the access control lets a
+    client declare: ``observer`` must hold the mapping role (it serves map/esdf/query). True once
+    a query of ``sender`` reached ``observer``: every put ``sender`` made before, had the router let
+    it through, has reached ``observer``'s subscribers by then (one session's messages keep their
+    order on a path)."""
+    hits = threading.Event()
+    queryable = observer.declare_queryable(KEYS.esdf_query, lambda _query: hits.set())
+    try:
+        return wait_until(lambda: (sender.get(KEYS.esdf_query, timeout=0.5), hits.is_set())[1], 10, period_s=0.05)
+    finally:
+        queryable.undeclare()
+
+
+def observer(secrets: Secrets, server: str):
+    """A session that watches what arrives and can be a barrier's receiver (the mapping role)."""
+    return session(secrets, server, "mapping", "mapping")
 
 
 def sources(collector: Collector) -> list[str]:
@@ -112,7 +138,7 @@ def test_legitimate_client_over_mutual_tls_exchanges_data(secrets: Secrets, serv
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "safety-filter",
                                                                       "safety-filter") as filt:
         got = Collector(limo, KEYS.cmd_safe, VelocityCommand)
-        time.sleep(0.3)
+        assert wait_matched(filt, KEYS.cmd_safe)
         put(filt, KEYS.cmd_safe, cmd("filter"))
         assert [m.source for m in got.wait(1)] == ["filter"]
         got.close()
@@ -157,7 +183,7 @@ def test_teleop_cmd_safe_never_reaches_a_subscriber(secrets: Secrets, server: st
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "teleop", "teleop") as tele:
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
         ref = Collector(limo, KEYS.cmd_ref, VelocityCommand)
-        time.sleep(0.3)
+        assert wait_matched(tele, KEYS.cmd_safe) and wait_matched(tele, KEYS.cmd_ref)
         for _ in range(3):
             deliver(tele, KEYS.cmd_safe, cmd("teleop-forged"), ref, KEYS.cmd_ref, cmd("teleop"))
         assert sources(safe) == []
@@ -172,7 +198,7 @@ def test_only_the_filter_publishes_cmd_safe_and_not_operator_keys(secrets: Secre
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
         ref = Collector(limo, KEYS.cmd_ref, VelocityCommand)
         goal = Collector(limo, KEYS.nav_goal)
-        time.sleep(0.3)
+        assert all(wait_matched(filt, k) for k in (KEYS.cmd_ref, KEYS.nav_goal, KEYS.cmd_safe))
         put(filt, KEYS.cmd_ref, cmd("filter-ref"))
         put(filt, KEYS.nav_goal, b"\x80")
         deliver(filt, KEYS.cmd_safe, cmd("filter"), safe, KEYS.cmd_safe, cmd("filter"))
@@ -186,7 +212,7 @@ def test_data_services_may_not_publish_guarded_keys(secrets: Secrets, server: st
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "mapping", "mapping") as mapping:
         guarded = [Collector(limo, KEYS.key(k), VelocityCommand) for k in ("cmd/safe", "cmd/ref")]
         state = Collector(limo, KEYS.status("mapping"))
-        time.sleep(0.3)
+        assert all(wait_matched(mapping, k) for k in (KEYS.cmd_safe, KEYS.cmd_ref, KEYS.status("mapping")))
         put(mapping, KEYS.cmd_safe, cmd("mapping"))
         put(mapping, KEYS.cmd_ref, cmd("mapping"))
         deliver(mapping, KEYS.risk_config, b"\x80", state, KEYS.status("mapping"), b"ok")
@@ -203,28 +229,29 @@ def test_every_client_may_subscribe_to_the_esdf_but_a_roleless_one_may_not_publi
                     unknown_is_occupied=False)
     with (session(secrets, server, "planner", "planner") as planner,
           session(secrets, server, "mapping", "mapping") as mapping,
-          session(secrets, server, "limo", "limo") as limo):
+          observer(secrets, server) as limo):
         esdf = Collector(planner, KEYS.esdf, EsdfGrid)
         at_limo = Collector(limo, KEYS.esdf, EsdfGrid)
-        time.sleep(0.3)
+        assert wait_matched(planner, KEYS.esdf) and wait_matched(mapping, KEYS.esdf)
         put(planner, KEYS.esdf, grid.model_copy(update={"max_distance": 9.0}))  # forged: denied
         put(mapping, KEYS.esdf, grid)
         assert esdf.wait(1)[0].voxel_size == pytest.approx(0.1)
         at_limo.wait(1)
-        time.sleep(0.3)
+        assert barrier(planner, limo)  # the forged grid, had it passed, is in by now
         assert [g.max_distance for g in at_limo.items] == [2.0]
 
 
 def test_router_role_needs_a_router_certificate(secrets: Secrets, server: str) -> None:
     """The routers subject is user ``router`` AND a router-* certificate: the password alone
     (a leaked one, used with a node's certificate) gives no right to publish cmd/safe."""
-    with (session(secrets, server, "limo", "limo") as limo,
+    with (observer(secrets, server) as limo,
           session(secrets, server, "router", "teleop") as impostor,
           session(secrets, server, "router", "router-robot") as router):
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
-        time.sleep(0.3)
+        assert wait_matched(impostor, KEYS.cmd_safe) and wait_matched(router, KEYS.cmd_safe)
         put(impostor, KEYS.cmd_safe, cmd("impostor"))
         deliver(router, KEYS.cmd_safe, cmd("router"), safe, KEYS.cmd_safe, cmd("router"))
+        assert barrier(impostor, limo)  # the impostor's put, had it passed, is in by now
         assert sources(safe) == ["router", "router"]
 
 
@@ -254,11 +281,11 @@ def test_wildcard_puts_and_deletes_are_refused_by_the_router(secrets: Secrets, s
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, user, user) as attacker:
         guarded = {k: Collector(limo, KEYS.key(k)) for k in GUARDED if k != allowed}
         own = Collector(limo, KEYS.key(allowed))
-        time.sleep(0.3)
+        assert all(wait_matched(attacker, KEYS.key(k)) for k in GUARDED)
         forge(attacker, forbidden)
         deliver(attacker, KEYS.key(allowed), cmd(user), own, KEYS.key(allowed), cmd(user))
+        assert wait_until(lambda: len(own.items) == 2, 5)  # the same session's own key got through, twice
         assert {k: len(c.items) for k, c in guarded.items()} == dict.fromkeys(guarded, 0)
-        assert len(own.items) == 2  # the same session's own key got through, twice
         for c in (*guarded.values(), own):
             c.close()
 
@@ -268,19 +295,19 @@ def test_wildcard_puts_and_deletes_are_refused_by_the_router(secrets: Secrets, s
 def test_a_certificate_works_only_with_its_own_user(secrets: Secrets, server: str, user: str, cert: str) -> None:
     """Certificates are bound to users: a valid certificate of one node with another node's
     (right) password opens a session but gets no role, so it can put neither key."""
-    with (session(secrets, server, "limo", "limo") as limo,
+    with (observer(secrets, server) as watch,
           session(secrets, server, user, cert) as swapped,
           session(secrets, server, "safety-filter", "safety-filter") as filt):
-        safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
-        ref = Collector(limo, KEYS.cmd_ref, VelocityCommand)
-        time.sleep(0.3)
+        safe = Collector(watch, KEYS.cmd_safe, VelocityCommand)
+        ref = Collector(watch, KEYS.cmd_ref, VelocityCommand)
+        assert wait_matched(swapped, KEYS.cmd_safe) and wait_matched(swapped, KEYS.cmd_ref)
         for _ in range(3):
             put(swapped, KEYS.cmd_safe, cmd("swapped"))
             put(swapped, KEYS.cmd_ref, cmd("swapped"))
-        time.sleep(0.3)  # the filter's session is another one: no ordering to synchronise on
-        put(filt, KEYS.cmd_safe, cmd("filter"))
+        assert barrier(swapped, watch)  # the swapped puts, had they passed, are in by now
+        assert wait_matched(filt, KEYS.cmd_safe)
+        put(filt, KEYS.cmd_safe, cmd("filter"))  # the positive control: the filter's own identity
         safe.wait(1)
-        time.sleep(0.3)
         assert sources(safe) == ["filter"] and sources(ref) == []
         safe.close()
         ref.close()
@@ -300,7 +327,10 @@ def test_only_the_filter_may_declare_its_liveliness_token(secrets: Secrets, serv
         tokens = [roleless.liveliness().declare_token(KEYS.alive("safety-filter")),
                   tele.liveliness().declare_token(KEYS.alive("safety-filter")),
                   roleless.liveliness().declare_token(f"rf/{ROBOT}/alive/*")]
-        time.sleep(0.5)
+        # A token's declaration travels its session's link in order: once a later query of each
+        # session reached an observer, the router has seen (and refused) the tokens.
+        with observer(secrets, server) as watch:
+            assert barrier(roleless, watch) and barrier(tele, watch)
         assert alive(limo, "safety-filter") == []
         with session(secrets, server, "safety-filter", "safety-filter") as filt:
             token = filt.liveliness().declare_token(KEYS.alive("safety-filter"))
@@ -315,8 +345,9 @@ def test_a_roleless_client_may_not_serve_the_esdf_query(secrets: Secrets, server
     with (session(secrets, server, "planner", "planner") as roleless,
           session(secrets, server, "limo", "limo") as limo):
         q = roleless.declare_queryable(KEYS.esdf_query, lambda query: query.reply(query.key_expr, b"forged"))
-        time.sleep(0.5)
-        replies = [r for r in limo.get(KEYS.esdf_query, timeout=1.0) if r.ok is not None]
+        with observer(secrets, server) as watch:
+            assert barrier(roleless, watch)  # the declaration, had it passed, is known by now
+            replies = [r for r in limo.get(KEYS.esdf_query, timeout=1.0) if r.ok is not None]
         assert replies == []
         q.undeclare()
 
@@ -324,6 +355,7 @@ def test_a_roleless_client_may_not_serve_the_esdf_query(secrets: Secrets, server
 # -- two sites ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a second router process meshing with the first
 def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
         secrets: Secrets, server: str, tmp_path: Path) -> None:
     """The robot site's router dials the server's with its router certificate and the router
@@ -339,19 +371,29 @@ def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
             # The routers link asynchronously: publish until the far subscriber hears it.
             assert wait_until(lambda: (put(filt, KEYS.cmd_safe, cmd("filter")), bool(at_server.items))[1],
                               timeout_s=15, period_s=0.2)
+            # The teleop's allowed cmd/ref, put after its forged cmd/safe, marks when the latter
+            # would have arrived at each site (one session's puts travel its links in order).
+            ref_server = Collector(remote, KEYS.cmd_ref, VelocityCommand)
+            ref_robot = Collector(local, KEYS.cmd_ref, VelocityCommand)
+            assert wait_until(lambda: (put(tele, KEYS.cmd_ref, cmd("probe")),
+                                       bool(ref_server.items) and bool(ref_robot.items))[1], timeout_s=15, period_s=0.2)
+            assert wait_matched(tele, KEYS.cmd_safe)
             at_server.clear()
             at_robot.clear()
+            ref_server.clear()
+            ref_robot.clear()
             put(tele, KEYS.cmd_safe, cmd("teleop-forged"))
+            put(tele, KEYS.cmd_ref, cmd("teleop"))
             put(filt, KEYS.cmd_safe, cmd("filter"))
-            at_server.wait(1)
-            at_robot.wait(1)
-            time.sleep(0.3)
+            for c in (at_server, at_robot, ref_server, ref_robot):
+                c.wait(1)
             assert set(sources(at_server)) == {"filter"}
             assert set(sources(at_robot)) == {"filter"}
-            at_server.close()
-            at_robot.close()
+            for c in (at_server, at_robot, ref_server, ref_robot):
+                c.close()
 
 
+@pytest.mark.slow  # a second router process and a 3 s absence window
 def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, server: str, tmp_path: Path) -> None:
     """A router whose certificate another CA signed is refused by the server's router."""
     cfg = secrets.router_config("robot", tmp_path)
@@ -368,19 +410,13 @@ def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, s
         with session(secrets, server, "planner", "planner") as remote:
             at_server = Collector(remote, KEYS.cmd_safe, VelocityCommand)
             # Local clients of the rogue router use its (foreign) CA.
-            deadline = time.monotonic() + 20
-            filt = None
-            while filt is None and time.monotonic() < deadline:
-                assert proc.alive(), proc.output
-                with contextlib.suppress(zenoh.ZError):
-                    filt = client(secrets, endpoint, "safety-filter", "safety-filter", cert_dir=secrets.foreign,
-                                  ca=secrets.foreign / "ca.pem")
-                time.sleep(0.2)
-            assert filt is not None, proc.output
+            filt = open_when_ready(lambda: client(secrets, endpoint, "safety-filter", "safety-filter",
+                                                  cert_dir=secrets.foreign, ca=secrets.foreign / "ca.pem"), alive=proc)
             try:
-                for _ in range(15):
-                    put(filt, KEYS.cmd_safe, cmd("rogue"))
-                    time.sleep(0.2)
+                # The claim is an absence over time: while the rogue router retries its link (3 s of
+                # scenario), the server's subscriber never becomes reachable from its side.
+                assert not wait_matched(filt, KEYS.cmd_safe, timeout_s=3.0), proc.output
+                put(filt, KEYS.cmd_safe, cmd("rogue"))
             finally:
                 filt.close()
             assert at_server.items == []
@@ -402,7 +438,7 @@ def test_shipped_secure_client_config_subscribes_to_the_esdf(secrets: Secrets, s
     cfg.insert_json5("transport/auth/usrpwd/password", json.dumps(secrets.passwords["planner"]))
     with zenoh.open(cfg) as planner, session(secrets, server, "mapping", "mapping") as mapping:
         got = Collector(planner, KEYS.esdf)
-        time.sleep(0.3)
+        assert wait_matched(mapping, KEYS.esdf)
         put(mapping, KEYS.esdf, b"esdf-bytes")
         assert got.wait(1) == [b"esdf-bytes"]
         got.close()
@@ -421,17 +457,9 @@ def test_shipped_plain_router_and_client_configs_work_together(tmp_path: Path) -
     with ServiceProcess("router", f"tcp/127.0.0.1:{port}", ["--set", f"zenoh_config={router_cfg}"]) as proc:
         cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "client.json5"))
         cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-        s = None
-        deadline = time.monotonic() + 20
-        while s is None and time.monotonic() < deadline:
-            assert proc.alive(), proc.output
-            with contextlib.suppress(zenoh.ZError):
-                s = zenoh.open(cfg)
-            time.sleep(0.1)
-        assert s is not None
-        with s:
+        with open_when_ready(lambda: zenoh.open(cfg), alive=proc) as s:
             got = Collector(s, KEYS.esdf)
-            time.sleep(0.2)
+            assert wait_matched(s, KEYS.esdf)
             put(s, KEYS.esdf, b"x")
             assert got.wait(1) == [b"x"]
             got.close()
