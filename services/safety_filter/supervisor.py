@@ -2,13 +2,12 @@
 the reference, and the messages the node publishes.
 
 The supervisor holds the newest map, state and reference with the local monotonic time each
-arrived (receive time, not the sender's stamp, so clock offsets between machines cannot make
-data look fresh or stale). The map is also judged by its content: ``admit_map`` refuses a map
-that is stale, from the future, replayed or older than the one in force, and ``tick(now,
-wall_ns)`` brakes with ``stale_map`` once the content in force is older than the map timeout
-plus the clock-offset tolerance (``freshness.MapFreshness``), however recently it arrived.
-``tick(now)`` returns the safe command and its status. It brakes, naming the first problem
-found, in this order:
+arrived, and every input times out by its arrival. The map is also judged by its content:
+``admit_map`` refuses a map that is stale, from the future, replayed or older than the one in
+force, and ``tick(now, wall_ns)`` brakes with ``stale_map`` once the content in force is older
+than the map timeout plus the clock-offset tolerance (``freshness.MapFreshness``), however
+recently it arrived. ``tick`` returns the safe command and its status. It brakes, naming the
+first problem found, in this order:
 
 ``no_map`` / ``invalid_map`` / ``stale_map`` → ``no_state`` / ``invalid_state`` / ``stale_state``
 → ``no_ref`` / ``invalid_ref`` / ``stale_ref`` → the filter's own ``outside_map``,
@@ -100,7 +99,8 @@ class FilterSupervisor:
         if slot.value is None:
             return -1.0
         content = None if self._wall_ns is None else self.freshness.age_s(self._wall_ns)
-        return (now - slot.at) * 1e3 if content is None else content * 1e3
+        # A content age below 0 is a clock offset within the tolerance; -1 stays "no map yet".
+        return (now - slot.at) * 1e3 if content is None else max(content, 0.0) * 1e3
 
     def _problem(self, what: str, now: float) -> str | None:
         slot = self._slots[what]
