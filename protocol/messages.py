@@ -238,7 +238,8 @@ class VelocityCommand(Message):
 
 class SafetyStatus(Message):
     """What the safety filter did on one step and why. ``fallback`` names why it braked
-    (``None`` when it did not); ``esdf_age_ms`` is -1 before any ESDF has arrived."""
+    (``None`` when it did not); ``esdf_age_ms`` is the map's content age (now − its header
+    stamp, the newest sensor data in it), -1 before any ESDF has arrived."""
 
     SCHEMA: ClassVar[str] = "SafetyStatus/1"
 
@@ -250,6 +251,10 @@ class SafetyStatus(Message):
     esdf_age_ms: FiniteFloat
     # Additive: risk-file changes refused since start (the configuration in force was kept).
     risk_errors: Annotated[int, Field(ge=0)] = 0
+    # Additive: publishers seen on map/esdf lately (2 or more: a stuck or rogue second mapper),
+    # and maps refused since start (stale or future content, seq backwards, older than in force).
+    esdf_publishers: Annotated[int, Field(ge=0)] = 0
+    esdf_refused: Annotated[int, Field(ge=0)] = 0
 
 
 class NavGoal(Message):

@@ -139,8 +139,9 @@ class Mapper:
         votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
         self.frames += 1
         self.dirty = True
-        if stamp_ns is not None:
-            self.stamp_ns = int(stamp_ns)
+        # The ESDF's stamp is the newest integrated data's, kept across re-publications; an
+        # unstamped pointmap counts as data of now (its integration), never of a later rebuild.
+        self.stamp_ns = int(stamp_ns) if stamp_ns is not None else time.time_ns()
         if frame_id:
             self.frame_id = frame_id
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
@@ -197,7 +198,7 @@ class Mapper:
         groups = self.occupancy()
         t1 = time.perf_counter()
         out.timings_ms["occupancy"] = (t1 - t0) * 1e3
-        header = Header(stamp_ns=self.stamp_ns or time.time_ns(), frame_id=self.frame_id)
+        header = Header(stamp_ns=self.stamp_ns, frame_id=self.frame_id)  # 0: no data integrated yet
         common = dict(voxel_size=self.volume.voxel_size, groups=self.risk.group_names, max_distance=c.max_distance,
                       unknown_is_occupied=c.unknown_is_occupied)
         if c.output in ("2d", "both"):

@@ -12,8 +12,9 @@ Serves
     ``{prefix}/{robot}/map/esdf/query``    DistanceQuery → DistanceReply (with ``in_map``), from the
                                            grid published on ``map/esdf``
 
-The ESDF header carries the stamp of the newest integrated frame, so its age seen by the
-safety filter includes perception latency. A rejected frame (non-rigid pose, absurd size)
+The ESDF header carries the stamp of the newest integrated frame, also when the grid is only
+re-published (a risk config, a recentring): its content age seen by the safety filter includes
+perception latency and keeps growing while perception is silent. A rejected frame (non-rigid pose, absurd size)
 is counted (``rejected_frames``) and logged at most once per period; the node keeps serving.
 A risk file (``risk_file``, see ``runtime.risk_file``) is loaded at start and re-read when it
 changes; a bad change keeps the configuration in force and is counted (``risk_errors``).

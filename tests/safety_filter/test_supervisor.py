@@ -137,7 +137,7 @@ def test_an_infeasible_step_publishes_the_slack_command_and_says_so():
     """Facing into a wall from inside the margin: the command backs out as asked (not zero), and
     the status names the step ``slack``."""
     sup = FilterSupervisor(SafetyFilter(FilterConfig(v_max=0.2)), 0.3, 0.3, 0.2)
-    sup.on_map(Plane([0.2, 0, 0], [-1.0, 0, 0], group=3, groups=GROUPS), 0.0)
+    sup.on_map(AnalyticField(Plane.through([0.2, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS), 0.0)
     sup.on_state(state(x=0.1), 0.0)
     sup.on_ref(ref(v=-0.15), 0.0)
     cmd, st = sup.tick(0.01)
