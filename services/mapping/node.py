@@ -56,7 +56,10 @@ class MappingNode:
         k = node.keys
         frame_limits = Limits(max_array_bytes=12 * settings.max_pixels)
         # fifo, not latest: under the keyframe protocol (keyframes.py) a dropped new/updated keyframe
-        # would leave its old contribution in the map; 8 bounds the backlog.
+        # would leave its old contribution in the map; 8 bounds the backlog. Frames outside that
+        # protocol (tracking frames, senders without ``kind``) keep latest-value semantics in
+        # ``on_frame``: one with newer frames queued behind it is skipped, never a backlog.
+        self._frame_key = k.perception_frame
         node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="fifo", maxlen=8,
                        limits=frame_limits)
         node.subscribe(k.state, RobotState, self.on_state, queue="latest")
@@ -68,6 +71,9 @@ class MappingNode:
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_frame(self, frame: PerceptionFrame) -> None:
+        if frame.kind in (None, "tracking") and self.node.backlog(self._frame_key) > 0:
+            self.node.stats["superseded_frames"] = self.node.stats.get("superseded_frames", 0) + 1
+            return
         try:
             result = self.mapper.integrate_frame(frame)
         except FrameRejected as exc:

@@ -98,6 +98,11 @@ class Node:
         self.every(settings.status_period_s, self._publish_status)
 
     # -- declarations -----------------------------------------------------------------------
+    def backlog(self, key: str) -> int:
+        """How many samples of the subscription on ``key`` wait behind the one being handled: a
+        handler of a ``fifo`` stream can skip a superseded item when only the newest matters."""
+        return sum(len(sub.slot.items) for sub in self._subs if sub.key == key)
+
     def subscribe(
         self,
         key: str,

@@ -288,3 +288,30 @@ def test_node_follows_the_keyframe_protocol_without_dropping_updates(router_endp
         status.close()
         grids.close()
         assert proc.stop() == 0
+
+
+def test_plain_frames_keep_latest_value_semantics_behind_the_fifo(router_endpoint: str) -> None:
+    """Frames outside the keyframe protocol (no ``kind``) sent back to back: each is integrated or
+    skipped as superseded by a newer one waiting behind it, never both and never lost, and the
+    newest one always reaches the map (its stamp is the ESDF's)."""
+    keys = Keys("t_map_latest")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=50", "--set", "status_period_s=0.2"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        status = Collector(s, keys.status("mapping"), NodeStatus)
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        burst = [f.model_copy(update={"header": f.header.model_copy(update={"stamp_ns": 1_000_000 + i})})
+                 for i, f in enumerate(frames(4) * 2)]
+        for f in burst:
+            put(s, keys.perception_frame, f)
+
+        def settled() -> bool:
+            ex = status.items[-1].extra if status.items else {}
+            return ex.get("frames", 0) + ex.get("superseded_frames", 0) == len(burst)
+
+        assert wait_until(settled, 20), status.items[-1].extra if status.items else proc.output
+        assert wait_until(lambda: any(g.header.stamp_ns == 1_000_000 + len(burst) - 1 for g in grids.items), 10)
+        status.close()
+        grids.close()
+        assert proc.stop() == 0
