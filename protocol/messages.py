@@ -95,6 +95,9 @@ class PerceptionFrame(Message):
     confidence: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
     labels: Annotated[np.ndarray, ArraySpec("<u2", (None, None))]
     keyframe_id: int
+    intrinsics: tuple[PosFloat, PosFloat, FiniteFloat, FiniteFloat] | None = None
+    """Addition: pinhole intrinsics (fx, fy, cx, cy, pixels) of the pointmap's own pixel grid, when
+    the backend knows them (sim, calibrated cameras); the mapper then integrates projectively."""
 
     @model_validator(mode="after")
     def _consistent(self) -> PerceptionFrame:

@@ -69,8 +69,12 @@ class TsdfParams(BaseModel):
     """Points farther than this (m, along the ray) only carve free space up to it."""
     pixel_stride: Annotated[int, Field(ge=1, le=64)] = 2
     """Integrate every n-th pixel in each image direction (a 5 cm voxel at 2.5 m spans ~8 px)."""
-    integration: Literal["merged", "ray"] = "merged"
-    """``merged``: one ray per voxel the frame's points fall in (fast); ``ray``: one per pixel."""
+    integration: Literal["projective", "merged", "ray"] = "projective"
+    """``projective``: frames with intrinsics project the voxels in view into the pointmap, TSDF and
+    label votes in one pass (``projective_integrator.py``), other frames take ``merged``;
+    ``merged``: one ray per voxel the frame's points fall in; ``ray``: one per pixel."""
+    block_size: Annotated[int, Field(ge=2, le=64)] = 8
+    """``projective``: voxels per block edge; only blocks meeting the view frustum are visited."""
     carve: bool = True
     """Also update free space from the camera to the surface band (clears moved obstacles)."""
     carve_stride: Annotated[int, Field(ge=1, le=64)] = 4

@@ -30,6 +30,7 @@ from .esdf_integrator import EsdfIntegrator
 from .layers import SemanticLayer, TsdfLayer
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
+from .projective_integrator import ProjectiveIntegrator
 from .semantic_integrator import SemanticIntegrator
 from .tsdf_integrator import TsdfIntegrator
 from .volume import Volume
@@ -71,6 +72,7 @@ class Mapper:
         self.semantic = SemanticLayer(self.shape)
         self.tsdf_integrator = TsdfIntegrator(c)
         self.semantic_integrator = SemanticIntegrator(c)
+        self.projective_integrator = ProjectiveIntegrator(c)
         self.esdf_integrator = EsdfIntegrator(c)
         self.robot_position: np.ndarray | None = None
         self.field: EsdfField | None = None
@@ -121,8 +123,10 @@ class Mapper:
         return True
 
     def integrate(self, points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray,
-                  stamp_ns: int | None = None, frame_id: str | None = None) -> FrameResult:
-        """Fuse one pointmap (camera frame) with its pose, confidence and labels.
+                  stamp_ns: int | None = None, frame_id: str | None = None,
+                  intrinsics: tuple[float, float, float, float] | None = None) -> FrameResult:
+        """Fuse one pointmap (camera frame) with its pose, confidence and labels; with the pointmap's
+        ``intrinsics`` (fx, fy, cx, cy) and ``integration = "projective"``, in one projective pass.
 
         Raises ``FrameRejected`` (nothing changed) for a non-rigid pose or an absurd pointmap.
         """
@@ -133,8 +137,12 @@ class Mapper:
         if self.robot_position is None:
             shifted = self._follow(np.asarray(T_WC, dtype=np.float64)[:3, 3])
         assert self.volume is not None
-        rays = self.tsdf_integrator.integrate(self.volume, self.tsdf, points, confidence, T_WC)
-        votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
+        if intrinsics is not None and self.config.integration == "projective":
+            rays, votes = self.projective_integrator.integrate(self.volume, self.tsdf, self.semantic, points,
+                                                               confidence, labels, T_WC, intrinsics)
+        else:
+            rays = self.tsdf_integrator.integrate(self.volume, self.tsdf, points, confidence, T_WC)
+            votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
         self.frames += 1
         self.dirty = True
         if stamp_ns is not None:
@@ -145,7 +153,8 @@ class Mapper:
 
     def integrate_frame(self, frame: PerceptionFrame) -> FrameResult:
         return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,
-                              stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id)
+                              stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id,
+                              intrinsics=frame.intrinsics)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel before serving, on a scratch volume,
@@ -161,6 +170,8 @@ class Mapper:
                 a.flags.writeable = not readonly
             self.tsdf_integrator.integrate(scratch, tsdf, arrays[0], arrays[1], arrays[3])
             self.semantic_integrator.integrate(scratch, sem, arrays[0], arrays[1], arrays[2], arrays[3])
+            self.projective_integrator.integrate(scratch, tsdf, sem, arrays[0], arrays[1], arrays[2], arrays[3],
+                                                 (2.0, 2.0, 0.5, 0.5))
         c = self.config
         semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
                            fill_steps=1)
