@@ -138,6 +138,9 @@ class EsdfParams(BaseModel):
     band: tuple[Finite, Finite] = (0.10, 0.60)
     """Height band (m, relative to the robot base z) the 2-D slice covers."""
     threads: Annotated[int, Field(ge=1, le=64)] = 2
+    esdf_update: Literal["incremental", "full"] = "incremental"
+    """3-D grid: ``incremental`` recomputes only the box the changed voxels can reach (max_distance
+    + the largest margin), ``full`` the whole grid every time (the same result)."""
 
     @model_validator(mode="after")
     def _band_order(self) -> EsdfParams:

@@ -81,6 +81,7 @@ class Mapper:
         self.dirty = False
         self.stamp_ns = 0
         self.frame_id = "map"
+        self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -95,6 +96,7 @@ class Mapper:
         self.margins = risk.margins()
         self.unknown_group_id = risk.group_id(unknown)
         self.dirty = True
+        self._last3d = None
 
     def set_robot_position(self, position: np.ndarray) -> bool:
         """The robot base position (world); recentres the volume if needed. True if it shifted."""
@@ -119,6 +121,7 @@ class Mapper:
         self.tsdf.shift(delta)
         self.semantic.shift(delta)
         self.shifts += 1
+        self._last3d = None
         self.dirty = True
         return True
 
@@ -218,7 +221,7 @@ class Mapper:
             out.timings_ms["esdf2d"] = (t2 - t1) * 1e3
             t1 = t2
         if c.output in ("3d", "both"):
-            dist, grp = self.esdf_integrator.compute(groups, self.margins)
+            dist, grp = self._esdf3d(groups)
             out.grid3d = EsdfGrid(header=header.model_copy(), origin=tuple(self.volume.origin.tolist()),
                                   distance=dist, risk_group=grp, **common)
             out.timings_ms["esdf3d"] = (time.perf_counter() - t1) * 1e3
@@ -227,6 +230,16 @@ class Mapper:
         self.dirty = False
         out.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
         return out
+
+    def _esdf3d(self, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The 3-D field, incrementally from the last one when the volume and margins are unchanged."""
+        last = self._last3d
+        if self.config.esdf_update == "incremental" and last is not None and last[0].shape == groups.shape:
+            dist, grp, _ = self.esdf_integrator.update(groups, self.margins, last[0], (last[1], last[2]))
+        else:
+            dist, grp = self.esdf_integrator.compute(groups, self.margins)
+        self._last3d = (groups, dist, grp)
+        return dist, grp
 
     def query(self, points: np.ndarray) -> FieldSample:
         """Distance, gradient, risk group (and in-map flag, ``inside``) of the latest field at world
