@@ -6,6 +6,12 @@ Measured per step: TSDF integration, semantic label voting, occupancy extraction
 ESDF (exact per-group margins vs. the paper's voxel dilation, 3-D grid vs. 2-D ground slice),
 and point queries. The table shows medians and p99 in milliseconds; ``summary.json`` in
 ``--out`` holds every number, plus the error the dilation variant makes on the margins.
+
+A second table (issue 16) sets the current kernels beside the previous implementation, measured
+in the same run on the same frames: TSDF + semantic integration of a frame, projective (the frame's
+intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel semantic rays, at
+full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
+incremental (``EsdfIntegrator.update``) against the full recompute; and the 2-D slice.
 The machine may be shared: CPU time (this process, all threads) is reported beside wall time,
 and the load average at start and end is recorded.
 """
@@ -67,6 +73,58 @@ def _time(fn: Callable[[], object], repeat: int) -> tuple[list[float], list[floa
     return wall, cpu
 
 
+def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
+            threads: int) -> dict[str, dict[str, float]]:
+    """Previous vs current kernels on the same frames: integration and the 3-D ESDF update."""
+    K = (camera.fx, camera.fy, camera.cx, camera.cy)
+    out: dict[str, dict[str, float]] = {}
+    for stride in (1, 2):
+        walls: dict[str, list[float]] = {"previous": [], "now": []}
+        mappers = {k: Mapper(MapperConfig(pixel_stride=stride, threads=threads, integration=i), RiskConfig())
+                   for k, i in (("previous", "merged"), ("now", "projective"))}
+        for m in mappers.values():
+            m.set_robot_position(np.zeros(3))
+            m.warm_up()
+        for (pts, conf, lab), T in zip(rendered, poses, strict=True):
+            for k, m in mappers.items():
+                kk = K if k == "now" else None
+                walls[k].extend(_time(lambda m=m, p=pts, c=conf, la=lab, t=T, kk=kk: m.integrate(
+                    p, c, la, t, intrinsics=kk), 1)[0])
+        label = "full resolution" if stride == 1 else "pixel stride 2"
+        out[f"tsdf+semantic, {label}"] = _ratio(walls)
+    # The 3-D ESDF after each frame (projective map, full resolution): full vs incremental.
+    m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d"), RiskConfig())
+    m.set_robot_position(np.zeros(3))
+    m.warm_up()
+    esdf = m.esdf_integrator
+    walls = {"previous": [], "now": []}
+    slice_ms: list[float] = []
+    occ_ms: list[float] = []
+    prev = None
+    for (pts, conf, lab), T in zip(rendered, poses, strict=True):
+        m.integrate(pts, conf, lab, T, intrinsics=K)
+        t0 = time.perf_counter()
+        groups = m.occupancy()
+        occ_ms.append((time.perf_counter() - t0) * 1e3)
+        w, _ = _time(lambda g=groups: esdf.compute(g, m.margins), 1)
+        full = esdf.compute(groups, m.margins)
+        if prev is not None:
+            walls["previous"].extend(w)
+            walls["now"].extend(_time(lambda g=groups, p=prev: esdf.update(g, m.margins, p[0], p[1]), 1)[0])
+            k_lo, k_hi, _ = m.band_indices()
+            slice_ms.extend(_time(lambda g=groups, a=k_lo, b=k_hi: esdf.compute_slice(g, a, b, m.margins), 1)[0])
+        prev = (groups, full)
+    out["ESDF 3-D after a frame (full → incremental)"] = _ratio(walls)
+    out["ESDF 2-D slice (unchanged)"] = _ratio({"previous": slice_ms, "now": slice_ms})
+    out["occupancy (unchanged)"] = _ratio({"previous": occ_ms, "now": occ_ms})
+    return out
+
+
+def _ratio(walls: dict[str, list[float]]) -> dict[str, float]:
+    a, b = float(np.median(walls["previous"])), float(np.median(walls["now"]))
+    return {"previous_ms": a, "now_ms": b, "ratio": a / b if b > 0 else float("inf"), "n": len(walls["now"])}
+
+
 @app.command()
 def main(
     out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-mapping"),
@@ -87,6 +145,7 @@ def main(
     base = dict(pixel_stride=pixel_stride, threads=threads)
     results: dict[str, dict[str, float]] = {}
     load0 = os.getloadavg()
+    comparison = compare(rendered, poses, camera, threads)
 
     mapper = Mapper(MapperConfig(output="both", **base), RiskConfig())
     mapper.set_robot_position(np.zeros(3))
@@ -147,6 +206,12 @@ def main(
         table.add_row(name, f"{r['median_ms']:.2f}", f"{r['p99_ms']:.2f}" if "p99_ms" in r else "",
                       f"{r['cpu_median_ms']:.2f}")
     console.print(table)
+    ctable = Table(title="issue 16: previous implementation vs now (same run, same frames; medians)")
+    for col in ("step", "previous ms", "now ms", "previous / now"):
+        ctable.add_column(col, justify="left" if col == "step" else "right")
+    for name, r in comparison.items():
+        ctable.add_row(name, f"{r['previous_ms']:.2f}", f"{r['now_ms']:.2f}", f"{r['ratio']:.1f}×")
+    console.print(ctable)
     console.print(f"occupied voxels: {int((groups > 0).sum())}; dilation vs exact |Δd| near obstacles: "
                   f"max {margin_error.max():.3f} m, mean {margin_error.mean():.4f} m")
     budget = 50.0
@@ -164,6 +229,7 @@ def main(
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
                     "load_average_start": list(load0), "load_average_end": list(os.getloadavg())},
         "results": results,
+        "comparison": comparison,
         "dilation_margin_error_m": {"max": float(margin_error.max()), "mean": float(margin_error.mean())},
         "occupied_voxels": int((groups > 0).sum()),
     }
