@@ -12,6 +12,11 @@ in the same run on the same frames: TSDF + semantic integration of a frame, proj
 intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel semantic rays, at
 full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
 incremental (``EsdfIntegrator.update``) against the full recompute; and the 2-D slice.
+
+``--node-seconds`` > 0 also runs the mapping node as its own process over a loopback Zenoh router
+(``output = 3d``, ``esdf_rate_hz = 60``) and feeds it the frames (with intrinsics) at
+``--node-rate`` Hz: the rate of 3-D ESDF publications and the camera stamp → ESDF arrival
+latency (the ESDF's stamp is the newest integrated frame's).
 The machine may be shared: CPU time (this process, all threads) is reported beside wall time,
 and the load average at start and end is recorded.
 """
@@ -22,6 +27,7 @@ import json
 import os
 import platform
 import time
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
@@ -31,7 +37,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from riskfield.protocol import RiskConfig, ade20k
+from riskfield.protocol import RiskConfig, ade20k, decode
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, Sphere, render
 from riskfield.services.geometry.transforms import look_at
@@ -120,6 +126,53 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
     return out
 
 
+def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamera, seconds: float,
+                   rate_hz: float) -> dict[str, float]:
+    """The mapping node in its own process, fed pointmaps at ``rate_hz``: ESDF rate and latency."""
+    from riskfield.experiments.stack import Stack, publish
+    from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, encode
+
+    K = (camera.fx, camera.fy, camera.cx, camera.cy)
+    arrivals: list[tuple[int, int]] = []  # (arrival, stamp) in ns, wall clock
+    with Stack(f"bench_{uuid.uuid4().hex[:6]}") as stack:
+        stack.start("mapping", "mapping", ["--set", "output=3d", "--set", "esdf_rate_hz=60"])
+
+        def on_esdf(sample: object) -> None:
+            t = time.time_ns()
+            msg = decode(sample.payload.to_bytes(), EsdfGrid)  # type: ignore[attr-defined]
+            arrivals.append((t, msg.header.stamp_ns))
+
+        sub = stack.session.declare_subscriber(stack.keys.esdf, on_esdf)
+        try:
+            period = 1.0 / rate_hz
+            frames, t_start = 0, time.perf_counter()
+            next_t = t_start
+            warm = 10  # the first frames build the map and warm the caches: not counted
+            counted_from = 0
+            while time.perf_counter() - t_start < seconds:
+                i = frames % len(poses)
+                (pts, conf, lab), T = rendered[i], poses[i]
+                stamp = time.time_ns()
+                if frames == warm:
+                    counted_from = stamp
+                publish(stack.session, stack.keys.perception_frame, encode(PerceptionFrame(
+                    header=Header(stamp_ns=stamp), T_WC=T, points=pts, confidence=conf, labels=lab,
+                    keyframe_id=i, intrinsics=K)))
+                frames += 1
+                next_t += period
+                time.sleep(max(0.0, next_t - time.perf_counter()))
+            t_end = time.time_ns()
+            time.sleep(0.3)
+        finally:
+            sub.undeclare()
+    got = [(a, s) for a, s in arrivals if s >= counted_from]
+    lat = np.asarray([(a - s) / 1e6 for a, s in got]) if got else np.asarray([np.nan])
+    span = (t_end - counted_from) / 1e9
+    return {"fed_hz": (frames - warm) / span, "esdf_hz": sum(1 for a, _ in got if a <= t_end) / span,
+            "latency_p50_ms": float(np.percentile(lat, 50)), "latency_p99_ms": float(np.percentile(lat, 99)),
+            "esdfs": len(got), "frames": frames - warm}
+
+
 def _ratio(walls: dict[str, list[float]]) -> dict[str, float]:
     a, b = float(np.median(walls["previous"])), float(np.median(walls["now"]))
     return {"previous_ms": a, "now_ms": b, "ratio": a / b if b > 0 else float("inf"), "n": len(walls["now"])}
@@ -134,6 +187,8 @@ def main(
     height: int = 384,
     pixel_stride: Annotated[int, typer.Option(help="Integrate every n-th pixel (default config: 2).")] = 2,
     threads: Annotated[int, typer.Option(help="Threads of the EDT.")] = 2,
+    node_seconds: Annotated[float, typer.Option(help="Feed the mapping node over Zenoh this long (0: skip).")] = 6.0,
+    node_rate: Annotated[float, typer.Option(help="Pointmaps per second fed to the node.")] = 30.0,
 ) -> None:
     """TSDF, ESDF (exact vs. paper dilation, 3-D vs. 2-D slice) and query timings: medians, p99, CPU."""
     console = Console()
@@ -146,6 +201,7 @@ def main(
     results: dict[str, dict[str, float]] = {}
     load0 = os.getloadavg()
     comparison = compare(rendered, poses, camera, threads)
+    node = node_rate_test(rendered, poses, camera, node_seconds, node_rate) if node_seconds > 0 else None
 
     mapper = Mapper(MapperConfig(output="both", **base), RiskConfig())
     mapper.set_robot_position(np.zeros(3))
@@ -212,6 +268,11 @@ def main(
     for name, r in comparison.items():
         ctable.add_row(name, f"{r['previous_ms']:.2f}", f"{r['now_ms']:.2f}", f"{r['ratio']:.1f}×")
     console.print(ctable)
+    if node is not None:
+        console.print(f"mapping node over Zenoh, fed {node['fed_hz']:.1f} Hz pointmaps (3-D output): 3-D ESDF "
+                      f"published at {node['esdf_hz']:.1f} Hz; camera stamp → ESDF arrival p50 "
+                      f"{node['latency_p50_ms']:.1f} ms, p99 {node['latency_p99_ms']:.1f} ms "
+                      f"({node['esdfs']} ESDFs of {node['frames']} frames)")
     console.print(f"occupied voxels: {int((groups > 0).sum())}; dilation vs exact |Δd| near obstacles: "
                   f"max {margin_error.max():.3f} m, mean {margin_error.mean():.4f} m")
     budget = 50.0
@@ -230,6 +291,7 @@ def main(
                     "load_average_start": list(load0), "load_average_end": list(os.getloadavg())},
         "results": results,
         "comparison": comparison,
+        "node": node,
         "dilation_margin_error_m": {"max": float(margin_error.max()), "mean": float(margin_error.mean())},
         "occupied_voxels": int((groups > 0).sum()),
     }
