@@ -13,10 +13,13 @@ intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel
 full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
 incremental (``EsdfIntegrator.update``) against the full recompute; and the 2-D slice.
 
-``--node-seconds`` > 0 also runs the mapping node as its own process over a loopback Zenoh router
-(``output = 3d``, ``esdf_rate_hz = 60``) and feeds it the frames (with intrinsics) at
-``--node-rate`` Hz: the rate of 3-D ESDF publications and the camera stamp → ESDF arrival
-latency (the ESDF's stamp is the newest integrated frame's).
+``--node-seconds`` > 0 also runs the mapping node and the safety filter (50 Hz) as their own
+processes over a loopback Zenoh router (mapping ``output = 3d``, ``esdf_rate_hz = 60``), feeds the
+mapping node the frames (with intrinsics, stamped when sent) at ``--node-rate`` Hz and the filter a
+robot state and a reference at 50 Hz: the rate of 3-D ESDF publications, the camera stamp → ESDF
+arrival latency (the ESDF's stamp is the newest integrated frame's), camera stamp → the first
+``cmd/safe`` after that ESDF arrived, and the ESDF content age at each ``cmd/safe`` (the demo
+report's figures, ``demo.report.camera_to_command_ms`` / ``content_age_ms``), with p50/p99.
 The machine may be shared: CPU time (this process, all threads) is reported beside wall time,
 and the load average at start and end is recorded.
 """
@@ -26,6 +29,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -127,22 +131,41 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
 
 
 def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamera, seconds: float,
-                   rate_hz: float) -> dict[str, float]:
-    """The mapping node in its own process, fed pointmaps at ``rate_hz``: ESDF rate and latency."""
-    from riskfield.experiments.stack import Stack, publish
-    from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, encode
+                   rate_hz: float, output: str = "3d", with_filter: bool = False) -> dict[str, float]:
+    """The mapping node in its own process, fed pointmaps at ``rate_hz``: ESDF rate and latency;
+    ``with_filter``: also the safety filter, and camera → ``cmd/safe`` latency and ESDF content age."""
+    from riskfield.experiments.demo.report import camera_to_command_ms, content_age_ms
+    from riskfield.experiments.stack import FAST_FILTER, Stack, publish
+    from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RobotState, VelocityCommand, encode
 
     K = (camera.fx, camera.fy, camera.cx, camera.cy)
     arrivals: list[tuple[int, int]] = []  # (arrival, stamp) in ns, wall clock
+    safe_ns: list[int] = []
+    stop = threading.Event()
     with Stack(f"bench_{uuid.uuid4().hex[:6]}") as stack:
-        stack.start("mapping", "mapping", ["--set", "output=3d", "--set", "esdf_rate_hz=60"])
+        stack.start("mapping", "mapping", ["--set", f"output={output}", "--set", "esdf_rate_hz=60"])
+        if with_filter:
+            stack.start("filter", "safety-filter", FAST_FILTER)
 
         def on_esdf(sample: object) -> None:
             t = time.time_ns()
             msg = decode(sample.payload.to_bytes(), EsdfGrid)  # type: ignore[attr-defined]
             arrivals.append((t, msg.header.stamp_ns))
 
-        sub = stack.session.declare_subscriber(stack.keys.esdf, on_esdf)
+        def robot() -> None:  # a standing robot whose operator asks for a slow turn
+            state = encode(RobotState(position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
+                                      linear_velocity=(0.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.0)))
+            ref = encode(VelocityCommand(linear=(0.0, 0.0, 0.0), angular=(0.0, 0.0, 0.1), source="bench"))
+            while not stop.is_set():
+                publish(stack.session, stack.keys.state, state)
+                publish(stack.session, stack.keys.cmd_ref, ref)
+                stop.wait(0.02)
+
+        subs = [stack.session.declare_subscriber(stack.keys.esdf, on_esdf),
+                stack.session.declare_subscriber(stack.keys.cmd_safe, lambda _s: safe_ns.append(time.time_ns()))]
+        driver = threading.Thread(target=robot, daemon=True)
+        if with_filter:
+            driver.start()
         try:
             period = 1.0 / rate_hz
             frames, t_start = 0, time.perf_counter()
@@ -164,13 +187,25 @@ def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamer
             t_end = time.time_ns()
             time.sleep(0.3)
         finally:
-            sub.undeclare()
+            stop.set()
+            if with_filter:
+                driver.join(2.0)
+            for sub in subs:
+                sub.undeclare()
     got = [(a, s) for a, s in arrivals if s >= counted_from]
     lat = np.asarray([(a - s) / 1e6 for a, s in got]) if got else np.asarray([np.nan])
     span = (t_end - counted_from) / 1e9
+    secs = [(t - counted_from) / 1e9 for t in sorted(safe_ns) if counted_from <= t <= t_end]
+    esdf_t = [(a - counted_from) / 1e9 for a, _ in got]
+    esdf_s = [(s - counted_from) / 1e9 for _, s in got]
+    cam_cmd = np.asarray(camera_to_command_ms(esdf_t, esdf_s, secs) or [np.nan])
+    age = np.asarray(content_age_ms(esdf_t, esdf_s, secs) or [np.nan])
     return {"fed_hz": (frames - warm) / span, "esdf_hz": sum(1 for a, _ in got if a <= t_end) / span,
             "latency_p50_ms": float(np.percentile(lat, 50)), "latency_p99_ms": float(np.percentile(lat, 99)),
-            "esdfs": len(got), "frames": frames - warm}
+            "camera_to_cmd_safe_p50_ms": float(np.percentile(cam_cmd, 50)),
+            "camera_to_cmd_safe_p99_ms": float(np.percentile(cam_cmd, 99)),
+            "content_age_p50_ms": float(np.percentile(age, 50)), "content_age_p99_ms": float(np.percentile(age, 99)),
+            "cmd_safe_hz": len(secs) / span, "esdfs": len(got), "frames": frames - warm}
 
 
 def _ratio(walls: dict[str, list[float]]) -> dict[str, float]:
@@ -201,7 +236,10 @@ def main(
     results: dict[str, dict[str, float]] = {}
     load0 = os.getloadavg()
     comparison = compare(rendered, poses, camera, threads)
-    node = node_rate_test(rendered, poses, camera, node_seconds, node_rate) if node_seconds > 0 else None
+    node = node_e2e = None
+    if node_seconds > 0:
+        node = node_rate_test(rendered, poses, camera, node_seconds, node_rate)
+        node_e2e = node_rate_test(rendered, poses, camera, node_seconds, node_rate, output="2d", with_filter=True)
 
     mapper = Mapper(MapperConfig(output="both", **base), RiskConfig())
     mapper.set_robot_position(np.zeros(3))
@@ -268,11 +306,17 @@ def main(
     for name, r in comparison.items():
         ctable.add_row(name, f"{r['previous_ms']:.2f}", f"{r['now_ms']:.2f}", f"{r['ratio']:.1f}×")
     console.print(ctable)
-    if node is not None:
+    if node is not None and node_e2e is not None:
         console.print(f"mapping node over Zenoh, fed {node['fed_hz']:.1f} Hz pointmaps (3-D output): 3-D ESDF "
                       f"published at {node['esdf_hz']:.1f} Hz; camera stamp → ESDF arrival p50 "
                       f"{node['latency_p50_ms']:.1f} ms, p99 {node['latency_p99_ms']:.1f} ms "
                       f"({node['esdfs']} ESDFs of {node['frames']} frames)")
+        e = node_e2e
+        console.print(f"with the safety filter (2-D slice, 50 Hz): slice at {e['esdf_hz']:.1f} Hz; camera → first "
+                      f"cmd/safe using it p50 {e['camera_to_cmd_safe_p50_ms']:.1f} ms, p99 "
+                      f"{e['camera_to_cmd_safe_p99_ms']:.1f} ms; ESDF content age at cmd/safe "
+                      f"({e['cmd_safe_hz']:.0f} Hz) p50 {e['content_age_p50_ms']:.1f} ms, p99 "
+                      f"{e['content_age_p99_ms']:.1f} ms")
     console.print(f"occupied voxels: {int((groups > 0).sum())}; dilation vs exact |Δd| near obstacles: "
                   f"max {margin_error.max():.3f} m, mean {margin_error.mean():.4f} m")
     budget = 50.0
@@ -292,6 +336,7 @@ def main(
         "results": results,
         "comparison": comparison,
         "node": node,
+        "node_with_filter": node_e2e,
         "dilation_margin_error_m": {"max": float(margin_error.max()), "mean": float(margin_error.mean())},
         "occupied_voxels": int((groups > 0).sum()),
     }
