@@ -2,8 +2,10 @@
 
     integrate(frame)   pointmap + pose + confidence → TSDF layer      (TsdfIntegrator)
                        labels + confidence          → semantic layer  (SemanticIntegrator, vote rule)
+                       with the frame's intrinsics: both in one projective pass (ProjectiveIntegrator)
     update_esdf()      TSDF surface + solid interior + labels → semantic occupancy (occupancy.py)
-                       → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator)
+                       → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator;
+                       the 3-D grid incrementally from the last one while volume and margins stay)
     query(points)      distance, gradient, risk group of the latest field (fields.EsdfField)
 
 The volume follows the robot: ``set_robot_position`` (from ``RobotState``) recentres it

@@ -35,16 +35,19 @@ that crosses it), so weights grow by a pixel's confidence per frame.
 The grid is cut into cubic blocks of ``block_size`` voxels; a block is visited only if its
 bounding sphere meets the view frustum (the four side planes, in front of the camera, nearer
 than the farthest surface + τ), and the blocks run in parallel (numba ``prange``): each block
-writes only its own voxels, so the threads never share a voxel.
+writes only its own voxels, so the threads never share a voxel (``integration_threads``, 1 by
+default: see its note in ``config.py``).
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from .config import MapperConfig
 from .layers import SemanticLayer, TsdfLayer
+from .pointmap import FrameRejected
 from .semantic_integrator import vote
 from .volume import Volume
 
@@ -212,10 +215,20 @@ class ProjectiveIntegrator:
         c = self.config
         K = np.asarray(intrinsics, dtype=np.float64).reshape(4)
         if not (np.isfinite(K).all() and K[0] > 0 and K[1] > 0):
-            raise ValueError(f"intrinsics {K.tolist()}: fx, fy must be positive and all finite")
+            raise FrameRejected(f"intrinsics {K.tolist()}: fx, fy must be positive and all finite")
         T = np.asarray(T_WC, dtype=np.float64)
         pts = np.asarray(points, dtype=np.float32)
         conf = np.asarray(confidence, dtype=np.float32)
+        threads = numba.get_num_threads()
+        numba.set_num_threads(min(c.integration_threads, numba.config.NUMBA_NUM_THREADS))  # this thread only
+        try:
+            return self._integrate(volume, tsdf, semantic, pts, conf, labels, T, K)
+        finally:
+            numba.set_num_threads(threads)
+
+    def _integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer | None, pts: np.ndarray,
+                   conf: np.ndarray, labels: np.ndarray | None, T: np.ndarray, K: np.ndarray) -> tuple[int, int]:
+        c = self.config
         far = float(_far_range(pts, conf, c.min_confidence, c.min_depth, c.max_depth))
         if far < 0.0:
             return 0, 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,6 +15,7 @@ from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.layers import NO_LABEL, SemanticLayer, TsdfLayer
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.occupancy import surface_support
+from riskfield.services.mapping.pointmap import FrameRejected
 from riskfield.services.mapping.projective_integrator import ProjectiveIntegrator
 from riskfield.services.mapping.tsdf_integrator import TsdfIntegrator
 from riskfield.services.mapping.volume import Volume
@@ -116,10 +118,12 @@ def test_labels_vote_in_the_same_pass_and_view_points_away_from_the_camera() -> 
 
 
 def test_block_size_changes_nothing() -> None:
-    """Blocks only decide what is visited (and by which thread): the result is the same."""
+    """Blocks only decide what is visited (and by which thread): the result is the same, with one
+    thread or two."""
     scene = [Plane((1, 0, 0), 1.1, 2), Box((0.5, -0.2, -0.3), (0.7, 0.2, 0.1), 4)]
     poses = orbit([1.0, 0.0, 0.0], n=2, radius=0.3, height=0.1)
-    out = [fuse(scene, poses, MapperConfig(half_extent=(1.5, 1.0, 1.0), block_size=b), True) for b in (3, 8, 64)]
+    out = [fuse(scene, poses, MapperConfig(half_extent=(1.5, 1.0, 1.0), block_size=b, integration_threads=t), True)
+           for b, t in ((3, 1), (8, 1), (64, 1), (8, 2))]
     for _, layer, sem in out[1:]:
         np.testing.assert_array_equal(layer.tsdf, out[0][1].tsdf)
         np.testing.assert_array_equal(layer.weight, out[0][1].weight)
@@ -159,3 +163,12 @@ def test_mapper_integrates_frames_with_intrinsics_projectively(room: list) -> No
     # the same obstacles: nearly every occupied voxel of one is occupied in the other
     both = ((proj > 0) & (merged > 0)).sum()
     assert both > 0.8 * min((proj > 0).sum(), (merged > 0).sum())
+
+
+def test_bad_intrinsics_reject_the_frame() -> None:
+    cfg = MapperConfig(half_extent=(0.5, 0.5, 0.5))
+    vol = Volume.centred(cfg.voxel_size, cfg.shape, np.zeros(3))
+    pts, conf, lab = render([Plane((1, 0, 0), 0.3, 0)], np.eye(4), CAM)
+    with pytest.raises(FrameRejected, match="intrinsics"):
+        ProjectiveIntegrator(cfg).integrate(vol, TsdfLayer(vol.shape, cfg.truncation), None, pts, conf, lab,
+                                            np.eye(4), (0.0, 1.0, 0.0, 0.0))
