@@ -198,14 +198,17 @@ def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamer
     secs = [(t - counted_from) / 1e9 for t in sorted(safe_ns) if counted_from <= t <= t_end]
     esdf_t = [(a - counted_from) / 1e9 for a, _ in got]
     esdf_s = [(s - counted_from) / 1e9 for _, s in got]
-    cam_cmd = np.asarray(camera_to_command_ms(esdf_t, esdf_s, secs) or [np.nan])
-    age = np.asarray(content_age_ms(esdf_t, esdf_s, secs) or [np.nan])
-    return {"fed_hz": (frames - warm) / span, "esdf_hz": sum(1 for a, _ in got if a <= t_end) / span,
-            "latency_p50_ms": float(np.percentile(lat, 50)), "latency_p99_ms": float(np.percentile(lat, 99)),
-            "camera_to_cmd_safe_p50_ms": float(np.percentile(cam_cmd, 50)),
-            "camera_to_cmd_safe_p99_ms": float(np.percentile(cam_cmd, 99)),
-            "content_age_p50_ms": float(np.percentile(age, 50)), "content_age_p99_ms": float(np.percentile(age, 99)),
-            "cmd_safe_hz": len(secs) / span, "esdfs": len(got), "frames": frames - warm}
+    out = {"fed_hz": (frames - warm) / span, "esdf_hz": sum(1 for a, _ in got if a <= t_end) / span,
+           "latency_p50_ms": float(np.percentile(lat, 50)), "latency_p99_ms": float(np.percentile(lat, 99)),
+           "esdfs": len(got), "frames": frames - warm}
+    if with_filter:
+        cam_cmd = np.asarray(camera_to_command_ms(esdf_t, esdf_s, secs) or [np.nan])
+        age = np.asarray(content_age_ms(esdf_t, esdf_s, secs) or [np.nan])
+        out.update({"camera_to_cmd_safe_p50_ms": float(np.percentile(cam_cmd, 50)),
+                    "camera_to_cmd_safe_p99_ms": float(np.percentile(cam_cmd, 99)),
+                    "content_age_p50_ms": float(np.percentile(age, 50)),
+                    "content_age_p99_ms": float(np.percentile(age, 99)), "cmd_safe_hz": len(secs) / span})
+    return out
 
 
 def _ratio(walls: dict[str, list[float]]) -> dict[str, float]:
