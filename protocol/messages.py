@@ -100,6 +100,9 @@ class PerceptionFrame(Message):
     ``keyframe_update`` — keyframe ``keyframe_id`` again, re-posed or with a refined pointmap, carrying
     its full pointmap: replace its previous contribution; ``tracking`` — a tracked frame, not integrated
     (its stamp says the map is current). ``None`` (older senders): an independent observation, integrated."""
+    intrinsics: tuple[PosFloat, PosFloat, FiniteFloat, FiniteFloat] | None = None
+    """Addition: pinhole intrinsics (fx, fy, cx, cy, pixels) of the pointmap's own pixel grid, when
+    the backend knows them (sim, calibrated cameras); the mapper then integrates projectively."""
 
     @model_validator(mode="after")
     def _consistent(self) -> PerceptionFrame:

@@ -2,8 +2,10 @@
 
     integrate(frame)   pointmap + pose + confidence → TSDF layer      (TsdfIntegrator)
                        labels + confidence          → semantic layer  (SemanticIntegrator, vote rule)
+                       with the frame's intrinsics: both in one projective pass (ProjectiveIntegrator)
     update_esdf()      TSDF surface + solid interior + labels → semantic occupancy (occupancy.py)
-                       → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator)
+                       → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator;
+                       the 3-D grid incrementally from the last one while volume and margins stay)
     query(points)      distance, gradient, risk group of the latest field (fields.EsdfField)
 
 The volume follows the robot: ``set_robot_position`` (from ``RobotState``) recentres it
@@ -31,6 +33,7 @@ from .keyframes import KeyframeMap
 from .layers import SemanticLayer, TsdfLayer
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
+from .projective_integrator import ProjectiveIntegrator
 from .semantic_integrator import SemanticIntegrator
 from .tsdf_integrator import TsdfIntegrator
 from .volume import Volume
@@ -72,6 +75,7 @@ class Mapper:
         self.semantic = SemanticLayer(self.shape)
         self.tsdf_integrator = TsdfIntegrator(c)
         self.semantic_integrator = SemanticIntegrator(c)
+        self.projective_integrator = ProjectiveIntegrator(c)
         self.esdf_integrator = EsdfIntegrator(c)
         self.robot_position: np.ndarray | None = None
         self.field: EsdfField | None = None
@@ -80,6 +84,7 @@ class Mapper:
         self.dirty = False
         self.stamp_ns = 0
         self.frame_id = "map"
+        self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
         self.keyframes = KeyframeMap(self.config)  # the keyframe map-update protocol (keyframes.py)
 
@@ -95,6 +100,7 @@ class Mapper:
         self.margins = risk.margins()
         self.unknown_group_id = risk.group_id(unknown)
         self.dirty = True
+        self._last3d = None
 
     def set_robot_position(self, position: np.ndarray) -> bool:
         """The robot base position (world); recentres the volume if needed. True if it shifted."""
@@ -119,12 +125,15 @@ class Mapper:
         self.tsdf.shift(delta)
         self.semantic.shift(delta)
         self.shifts += 1
+        self._last3d = None
         self.dirty = True
         return True
 
     def integrate(self, points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray,
-                  stamp_ns: int | None = None, frame_id: str | None = None) -> FrameResult:
-        """Fuse one pointmap (camera frame) with its pose, confidence and labels.
+                  stamp_ns: int | None = None, frame_id: str | None = None,
+                  intrinsics: tuple[float, float, float, float] | None = None) -> FrameResult:
+        """Fuse one pointmap (camera frame) with its pose, confidence and labels; with the pointmap's
+        ``intrinsics`` (fx, fy, cx, cy) and ``integration = "projective"``, in one projective pass.
 
         Raises ``FrameRejected`` (nothing changed) for a non-rigid pose or an absurd pointmap.
         """
@@ -135,8 +144,12 @@ class Mapper:
         if self.robot_position is None:
             shifted = self._follow(np.asarray(T_WC, dtype=np.float64)[:3, 3])
         assert self.volume is not None
-        rays = self.tsdf_integrator.integrate(self.volume, self.tsdf, points, confidence, T_WC)
-        votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
+        if intrinsics is not None and self.config.integration == "projective":
+            rays, votes = self.projective_integrator.integrate(self.volume, self.tsdf, self.semantic, points,
+                                                               confidence, labels, T_WC, intrinsics)
+        else:
+            rays = self.tsdf_integrator.integrate(self.volume, self.tsdf, points, confidence, T_WC)
+            votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
         self.frames += 1
         self.dirty = True
         # The ESDF's stamp is the newest integrated data's, kept across re-publications; an
@@ -150,7 +163,8 @@ class Mapper:
         if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
             return self.keyframes.integrate_frame(self, frame)
         return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,
-                              stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id)
+                              stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id,
+                              intrinsics=frame.intrinsics)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel before serving, on a scratch volume,
@@ -166,6 +180,8 @@ class Mapper:
                 a.flags.writeable = not readonly
             self.tsdf_integrator.integrate(scratch, tsdf, arrays[0], arrays[1], arrays[3])
             self.semantic_integrator.integrate(scratch, sem, arrays[0], arrays[1], arrays[2], arrays[3])
+            self.projective_integrator.integrate(scratch, tsdf, sem, arrays[0], arrays[1], arrays[2], arrays[3],
+                                                 (2.0, 2.0, 0.5, 0.5))
         c = self.config
         semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
                            fill_steps=1)
@@ -212,7 +228,7 @@ class Mapper:
             out.timings_ms["esdf2d"] = (t2 - t1) * 1e3
             t1 = t2
         if c.output in ("3d", "both"):
-            dist, grp = self.esdf_integrator.compute(groups, self.margins)
+            dist, grp = self._esdf3d(groups)
             out.grid3d = EsdfGrid(header=header.model_copy(), origin=tuple(self.volume.origin.tolist()),
                                   distance=dist, risk_group=grp, **common)
             out.timings_ms["esdf3d"] = (time.perf_counter() - t1) * 1e3
@@ -221,6 +237,16 @@ class Mapper:
         self.dirty = False
         out.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
         return out
+
+    def _esdf3d(self, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The 3-D field, incrementally from the last one when the volume and margins are unchanged."""
+        last = self._last3d
+        if self.config.esdf_update == "incremental" and last is not None and last[0].shape == groups.shape:
+            dist, grp, _ = self.esdf_integrator.update(groups, self.margins, last[0], (last[1], last[2]))
+        else:
+            dist, grp = self.esdf_integrator.compute(groups, self.margins)
+        self._last3d = (groups, dist, grp)
+        return dist, grp
 
     def query(self, points: np.ndarray) -> FieldSample:
         """Distance, gradient, risk group (and in-map flag, ``inside``) of the latest field at world

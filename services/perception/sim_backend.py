@@ -242,13 +242,15 @@ class SimBackend:
     def _message(self, kf: _Keyframe, obs: Observation, m: Matches | None, stamp_ns: int) -> PerceptionFrame:
         f = kf.fusion
         header = Header(stamp_ns=stamp_ns, frame_id=self.config.frame_id)
+        cam = self._camera  # the keyframe's pixel grid is the camera's: the same intrinsics
+        K = (cam.fx, cam.fy, cam.cx, cam.cy)
         if self.config.publish == "keyframe":
             return PerceptionFrame(header=header, T_WC=kf.T_WK, points=f.X.reshape(f.height, f.width, 3),
                                    confidence=f.C.reshape(f.height, f.width),
-                                   labels=f.labels.reshape(f.height, f.width), keyframe_id=f.id)
+                                   labels=f.labels.reshape(f.height, f.width), keyframe_id=f.id, intrinsics=K)
         labels = obs.labels
         if m is not None:
             trusted = m.valid_match_k & (m.Qk > self.config.Q_conf)
             labels = scatter_to_frame(f.labels, m.idx_f2k, trusted, obs.labels)
         return PerceptionFrame(header=header, T_WC=obs.T_WC, points=obs.points, confidence=obs.confidence,
-                               labels=labels, keyframe_id=f.id)
+                               labels=labels, keyframe_id=f.id, intrinsics=K)

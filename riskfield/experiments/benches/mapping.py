@@ -6,6 +6,20 @@ Measured per step: TSDF integration, semantic label voting, occupancy extraction
 ESDF (exact per-group margins vs. the paper's voxel dilation, 3-D grid vs. 2-D ground slice),
 and point queries. The table shows medians and p99 in milliseconds; ``summary.json`` in
 ``--out`` holds every number, plus the error the dilation variant makes on the margins.
+
+A second table (issue 16) sets the current kernels beside the previous implementation, measured
+in the same run on the same frames: TSDF + semantic integration of a frame, projective (the frame's
+intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel semantic rays, at
+full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
+incremental (``EsdfIntegrator.update``) against the full recompute; and the 2-D slice.
+
+``--node-seconds`` > 0 also runs the mapping node and the safety filter (50 Hz) as their own
+processes over a loopback Zenoh router (mapping ``output = 3d``, ``esdf_rate_hz = 60``), feeds the
+mapping node the frames (with intrinsics, stamped when sent) at ``--node-rate`` Hz and the filter a
+robot state and a reference at 50 Hz: the rate of 3-D ESDF publications, the camera stamp → ESDF
+arrival latency (the ESDF's stamp is the newest integrated frame's), camera stamp → the first
+``cmd/safe`` after that ESDF arrived, and the ESDF content age at each ``cmd/safe`` (the demo
+report's figures, ``demo.report.camera_to_command_ms`` / ``content_age_ms``), with p50/p99.
 The machine may be shared: CPU time (this process, all threads) is reported beside wall time,
 and the load average at start and end is recorded.
 """
@@ -15,7 +29,9 @@ from __future__ import annotations
 import json
 import os
 import platform
+import threading
 import time
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
@@ -25,7 +41,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from riskfield.protocol import RiskConfig, ade20k
+from riskfield.protocol import RiskConfig, ade20k, decode
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, Sphere, render
 from riskfield.services.geometry.transforms import look_at
@@ -67,6 +83,139 @@ def _time(fn: Callable[[], object], repeat: int) -> tuple[list[float], list[floa
     return wall, cpu
 
 
+def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
+            threads: int) -> dict[str, dict[str, float]]:
+    """Previous vs current kernels on the same frames: integration and the 3-D ESDF update."""
+    K = (camera.fx, camera.fy, camera.cx, camera.cy)
+    out: dict[str, dict[str, float]] = {}
+    for stride in (1, 2):
+        walls: dict[str, list[float]] = {"previous": [], "now": []}
+        mappers = {k: Mapper(MapperConfig(pixel_stride=stride, threads=threads, integration=i), RiskConfig())
+                   for k, i in (("previous", "merged"), ("now", "projective"))}
+        for m in mappers.values():
+            m.set_robot_position(np.zeros(3))
+            m.warm_up()
+        for (pts, conf, lab), T in zip(rendered, poses, strict=True):
+            for k, m in mappers.items():
+                kk = K if k == "now" else None
+                walls[k].extend(_time(lambda m=m, p=pts, c=conf, la=lab, t=T, kk=kk: m.integrate(
+                    p, c, la, t, intrinsics=kk), 1)[0])
+        label = "full resolution" if stride == 1 else "pixel stride 2"
+        out[f"tsdf+semantic, {label}"] = _ratio(walls)
+    # The 3-D ESDF after each frame (projective map, full resolution): full vs incremental.
+    m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d"), RiskConfig())
+    m.set_robot_position(np.zeros(3))
+    m.warm_up()
+    esdf = m.esdf_integrator
+    walls = {"previous": [], "now": []}
+    slice_ms: list[float] = []
+    occ_ms: list[float] = []
+    prev = None
+    for (pts, conf, lab), T in zip(rendered, poses, strict=True):
+        m.integrate(pts, conf, lab, T, intrinsics=K)
+        t0 = time.perf_counter()
+        groups = m.occupancy()
+        occ_ms.append((time.perf_counter() - t0) * 1e3)
+        w, _ = _time(lambda g=groups: esdf.compute(g, m.margins), 1)
+        full = esdf.compute(groups, m.margins)
+        if prev is not None:
+            walls["previous"].extend(w)
+            walls["now"].extend(_time(lambda g=groups, p=prev: esdf.update(g, m.margins, p[0], p[1]), 1)[0])
+            k_lo, k_hi, _ = m.band_indices()
+            slice_ms.extend(_time(lambda g=groups, a=k_lo, b=k_hi: esdf.compute_slice(g, a, b, m.margins), 1)[0])
+        prev = (groups, full)
+    out["ESDF 3-D after a frame (full → incremental)"] = _ratio(walls)
+    out["ESDF 2-D slice (unchanged)"] = _ratio({"previous": slice_ms, "now": slice_ms})
+    out["occupancy (unchanged)"] = _ratio({"previous": occ_ms, "now": occ_ms})
+    return out
+
+
+def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamera, seconds: float,
+                   rate_hz: float, output: str = "3d", with_filter: bool = False) -> dict[str, float]:
+    """The mapping node in its own process, fed pointmaps at ``rate_hz``: ESDF rate and latency;
+    ``with_filter``: also the safety filter, and camera → ``cmd/safe`` latency and ESDF content age."""
+    from riskfield.experiments.demo.report import camera_to_command_ms, content_age_ms
+    from riskfield.experiments.stack import FAST_FILTER, Stack, publish
+    from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RobotState, VelocityCommand, encode
+
+    K = (camera.fx, camera.fy, camera.cx, camera.cy)
+    arrivals: list[tuple[int, int]] = []  # (arrival, stamp) in ns, wall clock
+    safe_ns: list[int] = []
+    stop = threading.Event()
+    with Stack(f"bench_{uuid.uuid4().hex[:6]}") as stack:
+        stack.start("mapping", "mapping", ["--set", f"output={output}", "--set", "esdf_rate_hz=60"])
+        if with_filter:
+            stack.start("filter", "safety-filter", FAST_FILTER)
+
+        def on_esdf(sample: object) -> None:
+            t = time.time_ns()
+            msg = decode(sample.payload.to_bytes(), EsdfGrid)  # type: ignore[attr-defined]
+            arrivals.append((t, msg.header.stamp_ns))
+
+        def robot() -> None:  # a standing robot whose operator asks for a slow turn
+            state = encode(RobotState(position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
+                                      linear_velocity=(0.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.0)))
+            ref = encode(VelocityCommand(linear=(0.0, 0.0, 0.0), angular=(0.0, 0.0, 0.1), source="bench"))
+            while not stop.is_set():
+                publish(stack.session, stack.keys.state, state)
+                publish(stack.session, stack.keys.cmd_ref, ref)
+                stop.wait(0.02)
+
+        subs = [stack.session.declare_subscriber(stack.keys.esdf, on_esdf),
+                stack.session.declare_subscriber(stack.keys.cmd_safe, lambda _s: safe_ns.append(time.time_ns()))]
+        driver = threading.Thread(target=robot, daemon=True)
+        if with_filter:
+            driver.start()
+        try:
+            period = 1.0 / rate_hz
+            frames, t_start = 0, time.perf_counter()
+            next_t = t_start
+            warm = 10  # the first frames build the map and warm the caches: not counted
+            counted_from = 0
+            while time.perf_counter() - t_start < seconds:
+                i = frames % len(poses)
+                (pts, conf, lab), T = rendered[i], poses[i]
+                stamp = time.time_ns()
+                if frames == warm:
+                    counted_from = stamp
+                publish(stack.session, stack.keys.perception_frame, encode(PerceptionFrame(
+                    header=Header(stamp_ns=stamp), T_WC=T, points=pts, confidence=conf, labels=lab,
+                    keyframe_id=i, intrinsics=K)))
+                frames += 1
+                next_t += period
+                time.sleep(max(0.0, next_t - time.perf_counter()))
+            t_end = time.time_ns()
+            time.sleep(0.3)
+        finally:
+            stop.set()
+            if with_filter:
+                driver.join(2.0)
+            for sub in subs:
+                sub.undeclare()
+    got = [(a, s) for a, s in arrivals if s >= counted_from]
+    lat = np.asarray([(a - s) / 1e6 for a, s in got]) if got else np.asarray([np.nan])
+    span = (t_end - counted_from) / 1e9
+    secs = [(t - counted_from) / 1e9 for t in sorted(safe_ns) if counted_from <= t <= t_end]
+    esdf_t = [(a - counted_from) / 1e9 for a, _ in got]
+    esdf_s = [(s - counted_from) / 1e9 for _, s in got]
+    out = {"fed_hz": (frames - warm) / span, "esdf_hz": sum(1 for a, _ in got if a <= t_end) / span,
+           "latency_p50_ms": float(np.percentile(lat, 50)), "latency_p99_ms": float(np.percentile(lat, 99)),
+           "esdfs": len(got), "frames": frames - warm}
+    if with_filter:
+        cam_cmd = np.asarray(camera_to_command_ms(esdf_t, esdf_s, secs) or [np.nan])
+        age = np.asarray(content_age_ms(esdf_t, esdf_s, secs) or [np.nan])
+        out.update({"camera_to_cmd_safe_p50_ms": float(np.percentile(cam_cmd, 50)),
+                    "camera_to_cmd_safe_p99_ms": float(np.percentile(cam_cmd, 99)),
+                    "content_age_p50_ms": float(np.percentile(age, 50)),
+                    "content_age_p99_ms": float(np.percentile(age, 99)), "cmd_safe_hz": len(secs) / span})
+    return out
+
+
+def _ratio(walls: dict[str, list[float]]) -> dict[str, float]:
+    a, b = float(np.median(walls["previous"])), float(np.median(walls["now"]))
+    return {"previous_ms": a, "now_ms": b, "ratio": a / b if b > 0 else float("inf"), "n": len(walls["now"])}
+
+
 @app.command()
 def main(
     out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-mapping"),
@@ -76,6 +225,8 @@ def main(
     height: int = 384,
     pixel_stride: Annotated[int, typer.Option(help="Integrate every n-th pixel (default config: 2).")] = 2,
     threads: Annotated[int, typer.Option(help="Threads of the EDT.")] = 2,
+    node_seconds: Annotated[float, typer.Option(help="Feed the mapping node over Zenoh this long (0: skip).")] = 6.0,
+    node_rate: Annotated[float, typer.Option(help="Pointmaps per second fed to the node.")] = 30.0,
 ) -> None:
     """TSDF, ESDF (exact vs. paper dilation, 3-D vs. 2-D slice) and query timings: medians, p99, CPU."""
     console = Console()
@@ -87,6 +238,11 @@ def main(
     base = dict(pixel_stride=pixel_stride, threads=threads)
     results: dict[str, dict[str, float]] = {}
     load0 = os.getloadavg()
+    comparison = compare(rendered, poses, camera, threads)
+    node = node_e2e = None
+    if node_seconds > 0:
+        node = node_rate_test(rendered, poses, camera, node_seconds, node_rate)
+        node_e2e = node_rate_test(rendered, poses, camera, node_seconds, node_rate, output="2d", with_filter=True)
 
     mapper = Mapper(MapperConfig(output="both", **base), RiskConfig())
     mapper.set_robot_position(np.zeros(3))
@@ -147,6 +303,23 @@ def main(
         table.add_row(name, f"{r['median_ms']:.2f}", f"{r['p99_ms']:.2f}" if "p99_ms" in r else "",
                       f"{r['cpu_median_ms']:.2f}")
     console.print(table)
+    ctable = Table(title="issue 16: previous implementation vs now (same run, same frames; medians)")
+    for col in ("step", "previous ms", "now ms", "previous / now"):
+        ctable.add_column(col, justify="left" if col == "step" else "right")
+    for name, r in comparison.items():
+        ctable.add_row(name, f"{r['previous_ms']:.2f}", f"{r['now_ms']:.2f}", f"{r['ratio']:.1f}×")
+    console.print(ctable)
+    if node is not None and node_e2e is not None:
+        console.print(f"mapping node over Zenoh, fed {node['fed_hz']:.1f} Hz pointmaps (3-D output): 3-D ESDF "
+                      f"published at {node['esdf_hz']:.1f} Hz; camera stamp → ESDF arrival p50 "
+                      f"{node['latency_p50_ms']:.1f} ms, p99 {node['latency_p99_ms']:.1f} ms "
+                      f"({node['esdfs']} ESDFs of {node['frames']} frames)")
+        e = node_e2e
+        console.print(f"with the safety filter (2-D slice, 50 Hz): slice at {e['esdf_hz']:.1f} Hz; camera → first "
+                      f"cmd/safe using it p50 {e['camera_to_cmd_safe_p50_ms']:.1f} ms, p99 "
+                      f"{e['camera_to_cmd_safe_p99_ms']:.1f} ms; ESDF content age at cmd/safe "
+                      f"({e['cmd_safe_hz']:.0f} Hz) p50 {e['content_age_p50_ms']:.1f} ms, p99 "
+                      f"{e['content_age_p99_ms']:.1f} ms")
     console.print(f"occupied voxels: {int((groups > 0).sum())}; dilation vs exact |Δd| near obstacles: "
                   f"max {margin_error.max():.3f} m, mean {margin_error.mean():.4f} m")
     budget = 50.0
@@ -164,6 +337,9 @@ def main(
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
                     "load_average_start": list(load0), "load_average_end": list(os.getloadavg())},
         "results": results,
+        "comparison": comparison,
+        "node": node,
+        "node_with_filter": node_e2e,
         "dilation_margin_error_m": {"max": float(margin_error.max()), "mean": float(margin_error.mean())},
         "occupied_voxels": int((groups > 0).sum()),
     }

@@ -10,7 +10,13 @@ saved run: ``riskfield demo --report-only --out DIR``. The metrics are the exper
 - first intervention distance = that clearance when the safety filter first modifies the
   operator's command while the robot is heading at the object;
 - command latency = time from a ``cmd/ref`` sample to the next ``cmd/safe`` sample (both as
-  received by the recorder, so both Zenoh hops are included).
+  received by the recorder, so both Zenoh hops are included);
+- camera → ``cmd/safe`` latency = from a camera frame's stamp (carried by the ESDF built from it:
+  its ``header.stamp_ns`` is the newest integrated frame's, the image's stamp) to the first
+  ``cmd/safe`` received after that ESDF; ESDF content age = at each ``cmd/safe``, its receive time
+  minus the stamp of the newest ESDF received before it (the age of what the map shows, where the
+  filter's own ``esdf_age_ms`` counts from the ESDF's arrival). Stamps and receive times are both
+  wall clock of this machine.
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from riskfield.protocol import DecodeError, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
+from riskfield.protocol import DecodeError, EsdfGrid, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
 from riskfield.services.recorder.mcap_io import read_records
 from riskfield.services.simulator.scene import Scene
 
@@ -50,6 +56,8 @@ class Streams:
     ref: list[VelocityCommand] = field(default_factory=list)
     safe_t: list[float] = field(default_factory=list)
     safe: list[VelocityCommand] = field(default_factory=list)
+    esdf_t: list[float] = field(default_factory=list)
+    esdf_stamp: list[float] = field(default_factory=list)  # header stamps, same time base as the ``_t``
     counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     node_status: dict[str, NodeStatus] = field(default_factory=dict)
     duration_s: float = 0.0
@@ -82,6 +90,9 @@ def load_streams(mcap_path: str | Path, root: str) -> Streams:
             elif rel == "cmd/safe":
                 s.safe_t.append(t)
                 s.safe.append(decode(rec.payload, VelocityCommand))
+            elif rel == "map/esdf":
+                s.esdf_t.append(t)
+                s.esdf_stamp.append((decode(rec.payload, EsdfGrid).header.stamp_ns - first) / 1e9)
             elif rel.startswith("status/"):
                 s.node_status[rel.split("/", 1)[1]] = decode(rec.payload, NodeStatus)
         except DecodeError:
@@ -106,6 +117,34 @@ def command_latency_ms(ref_t: list[float], safe_t: list[float]) -> list[float]:
         i = int(np.searchsorted(safe, t, side="left"))
         if i < len(safe):
             out.append((safe[i] - t) * 1e3)
+    return out
+
+
+def camera_to_command_ms(esdf_t: list[float], esdf_stamp: list[float], safe_t: list[float]) -> list[float]:
+    """For each new ESDF content (a new stamp), camera stamp → first ``cmd/safe`` after its arrival (ms)."""
+    safe = np.asarray(safe_t)
+    out, seen = [], set()
+    for t, stamp in zip(esdf_t, esdf_stamp, strict=True):
+        if stamp in seen:
+            continue
+        seen.add(stamp)
+        i = int(np.searchsorted(safe, t, side="left"))
+        if i < len(safe):
+            out.append((safe[i] - stamp) * 1e3)
+    return out
+
+
+def content_age_ms(esdf_t: list[float], esdf_stamp: list[float], safe_t: list[float]) -> list[float]:
+    """At each ``cmd/safe``: its time minus the newest stamp among the ESDFs received before it (ms)."""
+    if not esdf_t:
+        return []
+    newest = np.maximum.accumulate(np.asarray(esdf_stamp))
+    arrived = np.asarray(esdf_t)
+    out = []
+    for t in safe_t:
+        i = int(np.searchsorted(arrived, t, side="right")) - 1
+        if i >= 0:
+            out.append((t - newest[i]) * 1e3)
     return out
 
 
@@ -194,6 +233,8 @@ def make_report(cfg: DemoConfig, console: Console) -> dict:
                                        if n != "all" and np.isfinite(np.min(v))},
         "rates_hz": rates, "esdf_age_ms": _stats(ages), "filter_step_us": _stats(solve),
         "command_latency_ms": _stats(latency), "fallbacks": fallbacks,
+        "camera_to_cmd_safe_ms": _stats(camera_to_command_ms(st.esdf_t, st.esdf_stamp, st.safe_t)),
+        "esdf_content_age_ms": _stats(content_age_ms(st.esdf_t, st.esdf_stamp, st.safe_t)),
         "robot_radius_m": cfg.robot_radius,
     })
     _print(summary, console)
@@ -225,7 +266,9 @@ def _print(summary: dict, console: Console) -> None:
     t3.add_row("minimum clearance over the run", f(summary["min_clearance_m"], " m"))
     for key in ("camera/image", "perception/frame", "map/esdf", "state", "cmd/ref", "cmd/safe"):
         t3.add_row(f"rate {key}", f(summary["rates_hz"].get(key), " Hz", 1))
-    for key, unit, label in (("esdf_age_ms", " ms", "ESDF age at the filter"),
+    for key, unit, label in (("esdf_age_ms", " ms", "ESDF arrival age at the filter"),
+                             ("esdf_content_age_ms", " ms", "ESDF content age (camera stamp) at cmd/safe"),
+                             ("camera_to_cmd_safe_ms", " ms", "camera frame → first cmd/safe using it"),
                              ("filter_step_us", " µs", "filter step (field + QP)"),
                              ("command_latency_ms", " ms", "cmd/ref → cmd/safe latency")):
         s = summary[key]
