@@ -61,7 +61,7 @@ class AuthorsResult:
 
 
 def esdf_variants(case, frames: Sequence[Frame], budget_s: float, voxel: float, risk: RiskConfig,
-                  modes: Sequence[str]) -> tuple[dict[str, EsdfField], dict]:
+                  modes: Sequence[str], scene: bool = False) -> tuple[dict[str, EsdfField], dict]:
     """The ESDF variants from one semantic TSDF fed within the budget: ``plain``, ``target:<tier>``
     for each tier with a non-zero margin, ``scene``."""
     half = tuple(float(h) for h in (case.hi - case.lo) / 2 + 0.3)
@@ -84,6 +84,8 @@ def esdf_variants(case, frames: Sequence[Frame], budget_s: float, voxel: float, 
     if "scene" in modes:
         variants.append(("scene", risk))
     fields, finalize = {}, {}
+    if "scene" not in modes and scene:
+        variants.append(("scene", risk))
     for key, r in variants:
         mapper.set_risk_config(r)
         t0 = time.perf_counter()
@@ -160,7 +162,7 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
         if not pairs:
             continue
         stream = [perceive(snap, T) for T in camera_poses(case, frames)]
-        fields, esdf_info = esdf_variants(case, stream, map_budget_s, voxel, risk, modes)
+        fields, esdf_info = esdf_variants(case, stream, map_budget_s, voxel, risk, modes, scene=riskfield)
         row["esdf"] = esdf_info
         controls: dict[str, Callable] = {ESDF: _HocbfStep(A.field_barrier(fields["plain"], cfg.radius), cfg)}
         if baseline:
@@ -173,7 +175,7 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
             controls[SEM_SCENE] = _HocbfStep(A.field_barrier(fields["scene"], cfg.radius), cfg)
         if riskfield:
             fc = FilterConfig(model="double3d", robot_radius=cfg.radius, rate_hz=1.0 / cfg.dt)
-            controls[RISKFIELD] = _RiskfieldStep(SafetyFilter(fc, risk), fields.get("scene", fields["plain"]))
+            controls[RISKFIELD] = _RiskfieldStep(SafetyFilter(fc, risk), fields["scene"])
         if on_scene:
             on_scene(f"{sc.name}: roll-outs", 0)
         for pair in pairs:
