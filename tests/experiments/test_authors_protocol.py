@@ -280,3 +280,19 @@ def test_bench_cli_authors_target_low_rows_identical(tmp_path):
     cells = [c.strip() for c in low_row.strip("|").split("|")]
     assert cells[2:6] == cells[6:10]  # ESDF columns == semantic columns
     assert "Table II" in md and "Table III" in md and "Paper" in md
+
+
+def test_results_document_assembles_runs_and_keeps_unrun_sections(tmp_path):
+    from riskfield.experiments.results import KEPT, assemble
+
+    run = tmp_path / "safety_authors_gt"
+    run.mkdir()
+    (run / "tables.md").write_text("# title\n\n**Table II (authors' protocol).** numbers\n")
+    (run / "summary.json").write_text(json.dumps({"wall_time_s": 123.4}))
+    previous = "# old\n\n## `riskfield bench teleop --perception gt` (462 s wall)\n\nteleop table\n"
+    doc = assemble(tmp_path, previous, commit="abc1234")
+    assert "`abc1234`" in doc and "Two safety protocols" in doc
+    assert "## `riskfield bench safety --protocol authors --semantic both --perception gt` (123 s wall)" in doc
+    assert "**Table II (authors' protocol).** numbers" in doc and "# title" not in doc
+    assert "teleop table" in doc and doc.count(KEPT) == 1
+    assert assemble(tmp_path, doc, commit="x").count(KEPT) == 1  # re-assembling does not pile up notes
