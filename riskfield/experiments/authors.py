@@ -279,12 +279,20 @@ class Hocbf:
         return res.u
 
 
-def field_barrier(field: DistanceField, radius: float) -> Barrier:
-    """``h = d − r`` of a distance field at the robot's centre, with the field's gradient and Hessian."""
+def field_barrier(field: DistanceField, radius: float, hessian: bool = False) -> Barrier:
+    """``h = d − r`` of a distance field at the robot's centre, with the field's gradient and (when
+    ``hessian``) its Hessian, else ∇²h = 0.
+
+    The grid ESDF's Hessian (second differences of a trilinear field) spikes on the ridges between
+    obstacles, where the gradient also turns; with SaferSplat's unbounded QP the curvature term then
+    asks for accelerations of tens of m/s², and in discrete time the robot chatters across the ridge
+    and is flung out of the room (seen in this benchmark: progress values of 10–10⁴). The authors'
+    ESDF roll-outs show no such runs, so the ESDF rows use the gradient only (∇²h = 0 is also what a
+    distance field's value is to first order along the path)."""
 
     def barrier(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        s = field.query(p[None], hessian=True)
-        hess = s.hessian if s.hessian is not None else np.zeros((1, 3, 3))
+        s = field.query(p[None], hessian=hessian)
+        hess = s.hessian if hessian and s.hessian is not None else np.zeros((1, 3, 3))
         return s.distance - radius, s.gradient, hess
 
     return barrier
