@@ -11,7 +11,12 @@
 ARG PYTHON_IMAGE=python:3.11-slim-bookworm
 
 FROM ${PYTHON_IMAGE} AS build
+# pipefail: the install check below pipes `pip show` into grep.
+SHELL ["/bin/bash", "-o", "pipefail", "-c"]
 # Compilers only in the build stage, for a dependency without a wheel on this platform.
+# Debian/Ubuntu package versions follow the base image's suite (security updates); exact pins
+# break as soon as the mirror moves on.
+# hadolint ignore=DL3008
 RUN apt-get update \
  && apt-get install -y --no-install-recommends build-essential \
  && rm -rf /var/lib/apt/lists/*
@@ -23,10 +28,15 @@ COPY riskfield riskfield
 COPY protocol protocol
 COPY services services
 COPY edge edge
+# "." is this repository: its dependencies' version ranges live in pyproject.toml.
+# hadolint ignore=DL3013
 RUN pip install ".[robot]" \
  && ! pip show open3d torch numba 2>/dev/null | grep -q '^Name:'
 
 FROM ${PYTHON_IMAGE}
+# Debian/Ubuntu package versions follow the base image's suite (security updates); exact pins
+# break as soon as the mirror moves on.
+# hadolint ignore=DL3008
 RUN apt-get update \
  && apt-get install -y --no-install-recommends libusb-1.0-0 \
  && rm -rf /var/lib/apt/lists/*
@@ -36,7 +46,8 @@ ENV PATH=/opt/venv/bin:$PATH PYTHONUNBUFFERED=1 RISKFIELD_MODE=client
 RUN useradd --system --create-home --uid 10001 --groups dialout riskfield \
  && (getent group input >/dev/null || groupadd --system input) \
  && usermod -aG input riskfield
-USER riskfield
+# Numeric: a host or orchestrator (runAsNonRoot) can check it without the image's passwd.
+USER 10001
 WORKDIR /home/riskfield
 ENTRYPOINT ["riskfield"]
 CMD ["services"]

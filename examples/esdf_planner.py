@@ -37,6 +37,31 @@ def _slice(grid: EsdfGrid, z: float) -> np.ndarray:
     return np.asarray(grid.distance[:, :, k], dtype=float)
 
 
+def bounds(grid: EsdfGrid) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The (x, y) ranges the grid's cells cover, map frame: cell i spans o + (i ± ½)·s."""
+    nx, ny = grid.distance.shape[:2]
+    ox, oy, vs = grid.origin[0], grid.origin[1], grid.voxel_size
+    return (ox - vs / 2, ox + (nx - 0.5) * vs), (oy - vs / 2, oy + (ny - 0.5) * vs)
+
+
+def unplannable(grid: EsdfGrid, start: tuple[float, float], goal: tuple[float, float], clearance: float,
+                z: float = 0.0) -> str | None:
+    """Why no path can exist before searching: an end outside the map or too close to an
+    obstacle; ``None`` when both ends are usable."""
+    (x0, x1), (y0, y1) = bounds(grid)
+    d = _slice(grid, z)
+    for name, (x, y) in (("start", start), ("goal", goal)):
+        if not (x0 <= x < x1 and y0 <= y < y1):
+            return (f"the {name} ({x:g}, {y:g}) is outside the map, which covers x {x0:.2f}..{x1:.2f} m "
+                    f"and y {y0:.2f}..{y1:.2f} m")
+        i = min(round((x - grid.origin[0]) / grid.voxel_size), d.shape[0] - 1)
+        j = min(round((y - grid.origin[1]) / grid.voxel_size), d.shape[1] - 1)
+        if d[i, j] < clearance:
+            return (f"the {name} ({x:g}, {y:g}) is {max(d[i, j], 0.0):.2f} m from an obstacle, "
+                    f"less than the clearance {clearance:g} m")
+    return None
+
+
 def plan(grid: EsdfGrid, start: tuple[float, float], goal: tuple[float, float], clearance: float,
          z: float = 0.0, weight: float = 0.5) -> np.ndarray | None:
     """A* on the 8-connected cells of the slice; ``None`` when no path keeps ``clearance``
@@ -127,9 +152,13 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         sub.undeclare()
         grid = got[-1]
+        reason = unplannable(grid, tuple(args.start), tuple(args.goal), args.clearance, args.z)
+        if reason is not None:
+            print(f"no path: {reason}", file=sys.stderr)
+            return 1
         path = plan(grid, tuple(args.start), tuple(args.goal), args.clearance, args.z)
         if path is None:
-            print("no path keeps the requested clearance", file=sys.stderr)
+            print(f"no path keeps the clearance {args.clearance:g} m between start and goal", file=sys.stderr)
             return 1
         waypoints = simplify(path)
         print(json.dumps({"cells": len(path), "waypoints": waypoints.round(3).tolist()}))

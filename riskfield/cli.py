@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from riskfield import __version__
@@ -16,6 +19,27 @@ from riskfield import __version__
 app = typer.Typer(help="Semantic-risk safety filtering from one RGB camera, as Zenoh services.",
                   no_args_is_help=True, add_completion=False)
 console = Console(stderr=True, soft_wrap=True, highlight=False)
+
+
+def _missing_extras_in_one_line(command: Callable[..., Any]) -> Callable[..., Any]:
+    """A command whose missing optional dependency (``MODULE_EXTRAS``) ends in one line
+    naming the extra to install, exit code 2, instead of a traceback."""
+
+    @functools.wraps(command)  # typer reads the signature through __wrapped__
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return command(*args, **kwargs)
+        except ModuleNotFoundError as exc:
+            from riskfield.services.runtime.service import missing_extra
+
+            line = missing_extra(exc)
+            if line is None:
+                raise
+            console.print(f"[red]{escape(line)}[/red]")
+            raise typer.Exit(2) from None
+
+    return wrapper
+
 
 #: ``riskfield bench NAME`` runs ``riskfield.experiments.benches.NAME:app``, imported only when asked for.
 BENCHES: tuple[str, ...] = ("codec", "filter", "mapping", "latency", "safety", "teleop", "navigation", "sim",
@@ -51,9 +75,11 @@ def _overrides(connect, listen, mode, robot, prefix, config, log_level, sets) ->
     return out
 
 
-@app.command()
+@app.command(add_help_option=False)
 def run(
-    service: Annotated[str, typer.Argument(help="router, mapping, safety-filter, ... (see `riskfield services`)")],
+    ctx: typer.Context,
+    service: Annotated[str | None, typer.Argument(
+        help="router, mapping, safety-filter, ... (see `riskfield services`)", show_default=False)] = None,
     connect: Connect = None,
     listen: Listen = None,
     mode: Annotated[str | None, typer.Option(help="peer, client or router.")] = None,
@@ -63,25 +89,71 @@ def run(
     log_level: Annotated[str | None, typer.Option(help="DEBUG, INFO, WARNING.")] = None,
     set_: Annotated[list[str] | None, typer.Option("--set", "-s", help="Setting as key=value (repeatable).")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+    help_: Annotated[bool, typer.Option("--help", "-h", help="Show this message (with SERVICE: its settings) "
+                                        "and exit.")] = False,
 ) -> None:
     """Start one node in this process; Ctrl-C or SIGTERM stops it cleanly (exit code 0)."""
     from pydantic import ValidationError
 
     from riskfield.services.runtime import ServiceUnavailable, UnknownSetting, run_service
 
+    if help_:
+        typer.echo(ctx.get_help())
+        if service is not None:
+            _print_settings(service)
+        raise typer.Exit(0)
+    if service is None:
+        console.print("[red]missing SERVICE: riskfield run SERVICE (see `riskfield services`)[/red]")
+        raise typer.Exit(2)
     try:
         code = run_service(service, _overrides(connect, listen, mode, robot, prefix, config, log_level, set_),
                            duration_s=duration)
     except (ServiceUnavailable, UnknownSetting) as exc:
-        console.print(f"[red]{exc}[/red]")
+        console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
     except (ValidationError, ValueError, FileNotFoundError) as exc:
-        console.print(f"[red]invalid configuration for {service}:[/red] {exc}")
+        console.print(f"[red]invalid configuration for {escape(service)}:[/red] {escape(str(exc))}")
         raise typer.Exit(2) from None
     except ConnectionError as exc:
-        console.print(f"[red]{exc}[/red]")
+        console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(3) from None
     raise typer.Exit(code)
+
+
+def _type_name(annotation: Any) -> str:
+    name = getattr(annotation, "__name__", None)
+    text = name if name and not getattr(annotation, "__args__", None) else str(annotation)
+    return text.replace("typing.", "").replace("pathlib.", "").replace("NoneType", "None")
+
+
+def _print_settings(service: str) -> None:
+    """The settings of one service from its settings model: its own first, then the ones every
+    node shares (names only)."""
+    from pydantic_core import PydanticUndefined
+
+    from riskfield.services.runtime import ServiceUnavailable, load_service
+    from riskfield.services.runtime.settings import NodeSettings
+
+    try:
+        spec = load_service(service)
+    except ServiceUnavailable as exc:
+        console.print(f"[yellow]{escape(str(exc))}[/yellow]")
+        return
+    # One line per setting (not a table), so that a narrow terminal or grep keeps each whole.
+    print(f"\n{service} settings (--set key=value, the {service} section of a config file, or RISKFIELD_<KEY>):")
+    common = NodeSettings.model_fields
+    for name, field in spec.settings.model_fields.items():
+        if name in common:
+            continue
+        if field.default_factory is not None:
+            default = repr(field.default_factory())
+        else:
+            value = field.default
+            default = ("(required)" if value is PydanticUndefined
+                       else str(value) if isinstance(value, Path) else repr(value))
+        about = f"  — {field.description}" if field.description else ""
+        print(f"  {name}: {_type_name(field.annotation)} = {default}{about}")
+    print(f"common to every node: {', '.join(common)}")
 
 
 @app.command()
@@ -128,7 +200,7 @@ def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
     try:
         code = run_service(service, {k: v for k, v in overrides.items() if v is not None}, duration_s=duration)
     except (ServiceUnavailable, FileNotFoundError, ValueError, ConnectionError) as exc:
-        console.print(f"[red]{exc}[/red]")
+        console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
     raise typer.Exit(code)
 
@@ -215,6 +287,7 @@ def replay(
 
 
 @app.command()
+@_missing_extras_in_one_line
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder: summary.json, plots, recording.mcap, logs.")] = Path(
         "out/demo"),
@@ -255,33 +328,43 @@ def schema(outdir: Annotated[Path, typer.Argument(help="Folder for <Name>.schema
 
 @app.command()
 def services() -> None:
-    """List the services and whether they can start here."""
+    """List the services, the extra each needs and whether it can start here."""
     from riskfield.services.runtime import SERVICES, ServiceUnavailable, load_service
+    from riskfield.services.runtime.service import EXTRAS
 
-    table = Table("service", "module", "status")
-    for name, target in SERVICES.items():
+    table = Table("service", "extra", "status")
+    for name in SERVICES:
         try:
             load_service(name)
             status = "[green]ok[/green]"
-        except ServiceUnavailable as exc:
-            status = f"[yellow]{exc}[/yellow]"
-        table.add_row(name, target, status)
-    Console().print(table)
+        except ServiceUnavailable as exc:  # the hint holds [brackets]: escaped, not markup
+            status = f"[yellow]{escape(str(exc))}[/yellow]"
+        extra = EXTRAS.get(name)
+        table.add_row(name, escape(f"riskfield[{extra}]") if extra else "(base)", status)
+    Console(soft_wrap=True).print(table)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)
+@_missing_extras_in_one_line
 def bench(
     ctx: typer.Context,
-    name: Annotated[str, typer.Argument(help=f"One of: {', '.join(BENCHES)}.")],
+    name: Annotated[str | None, typer.Argument(help=f"One of: {', '.join(BENCHES)}.", show_default=False)] = None,
 ) -> None:
-    """Run a benchmark (pass --help after its name for its options)."""
+    """Run a benchmark; `riskfield bench NAME --help` lists that benchmark's options."""
+    if name is None or name in ("--help", "-h"):
+        typer.echo(ctx.get_help())
+        raise typer.Exit(0)
     if name not in BENCHES:
-        console.print(f"[red]unknown benchmark {name!r}; known: {', '.join(BENCHES)}[/red]")
+        console.print(f"[red]unknown benchmark {escape(repr(name))}; known: {', '.join(BENCHES)}[/red]")
         raise typer.Exit(2)
+    from riskfield.services.runtime.service import missing_extra
+
     try:
         sub = importlib.import_module(f"riskfield.experiments.benches.{name}").app
     except ModuleNotFoundError as exc:
-        console.print(f"[red]benchmark {name!r} is not available: {exc}[/red]")
+        if missing_extra(exc) is not None:
+            raise  # one line naming the extra, from the decorator
+        console.print(f"[red]benchmark {name!r} is not available: {escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
     sub(list(ctx.args), prog_name=f"riskfield bench {name}", standalone_mode=True)
 

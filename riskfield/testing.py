@@ -12,16 +12,17 @@ process that holds a Zenoh session.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import signal
 import subprocess
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import zenoh
 
-from riskfield.protocol import ENCODING, Message, decode, encode
+from riskfield.protocol import ENCODING, Message, NodeStatus, decode, encode
 from riskfield.services.runtime.processes import (  # noqa: F401  (re-exported test API)
     Child,
     EmbeddedRouter,
@@ -85,6 +86,78 @@ class Collector:
         self._sub.undeclare()
 
 
+def open_when_ready(open_fn: Callable[[], zenoh.Session], timeout_s: float = 20.0,
+                    alive: ServiceProcess | None = None) -> zenoh.Session:
+    """``open_fn()``, retried while it fails with ``zenoh.ZError`` (the router it dials is still
+    starting), for at most ``timeout_s``; with ``alive``, a router process that died fails at once."""
+    sessions: list[zenoh.Session] = []
+
+    def opened() -> bool:
+        if alive is not None and not alive.alive():
+            raise RuntimeError(f"{alive.name} exited:\n{alive.output}")
+        with contextlib.suppress(zenoh.ZError):
+            sessions.append(open_fn())
+        return bool(sessions)
+
+    if not wait_until(opened, timeout_s, period_s=0.1):
+        raise TimeoutError(f"no session in {timeout_s} s" + (f"; output:\n{alive.output}" if alive else ""))
+    return sessions[0]
+
+
+def wait_matched(session: zenoh.Session, key: str, timeout_s: float = 10.0) -> bool:
+    """Wait until ``session`` knows a subscriber matching ``key``, i.e. a put from it now reaches
+    that subscriber (declarations propagate through the router asynchronously; a put sent before
+    they arrive is not routed to the new subscriber). Uses the publisher's matching status."""
+    pub = session.declare_publisher(key)
+    try:
+        return wait_until(lambda: pub.matching_status.matching, timeout_s)
+    finally:
+        pub.undeclare()
+
+
+def query_barrier(sender: zenoh.Session, receiver: zenoh.Session, timeout_s: float = 10.0) -> bool:
+    """An ordering barrier from ``sender`` to ``receiver``: True once a query sent by ``sender``
+    reached a queryable of ``receiver``. Messages of one session travel its links in order, so
+    every put ``sender`` made before the call that was going to reach ``receiver`` has reached
+    it by then. This is how a test sees that a denied or dropped put never arrives, without
+    waiting for a fixed time."""
+    key = f"rf_test/barrier/{next(_BARRIER_IDS)}"
+    hits = threading.Event()
+    queryable = receiver.declare_queryable(key, lambda _query: hits.set())
+    try:
+        # Retried: the queryable's declaration reaches the sender asynchronously.
+        return wait_until(lambda: (sender.get(key, timeout=0.5), hits.is_set())[1], timeout_s, period_s=0.05)
+    finally:
+        queryable.undeclare()
+
+
+_BARRIER_IDS = itertools.count()
+
+
+class StatusWatch:
+    """Keeps the ``NodeStatus`` a service publishes on ``{prefix}/{robot}/status/{service}`` and
+    waits on its counters (run the service with ``--set status_period_s=0.1`` to hear it often)."""
+
+    def __init__(self, session: zenoh.Session, key: str):
+        self._collector = Collector(session, key, NodeStatus)
+
+    @property
+    def latest(self) -> NodeStatus | None:
+        items = self._collector.items
+        return items[-1] if items else None
+
+    def wait(self, predicate: Callable[[NodeStatus], bool], timeout_s: float = 10.0) -> NodeStatus:
+        """The first status (from now on, or the latest one) for which ``predicate`` holds."""
+        if not wait_until(lambda: (st := self.latest) is not None and predicate(st), timeout_s):
+            raise TimeoutError(f"no status satisfied the condition in {timeout_s} s; last: {self.latest}")
+        status = self.latest
+        assert status is not None
+        return status
+
+    def close(self) -> None:
+        self._collector.close()
+
+
 class ServiceProcess:
     """``riskfield run NAME --connect ENDPOINT ARGS...`` in its own interpreter, output kept.
 
@@ -126,6 +199,18 @@ class ServiceProcess:
             with contextlib.suppress(RuntimeError):
                 self.stop()
         self._child.join_output()
+
+
+def put_each_rejected(session: zenoh.Session, key: str, payloads: Sequence[bytes], status: StatusWatch,
+                      counter: str, timeout_s: float = 10.0) -> int:
+    """Put each payload, then wait until the node's ``invalid[counter]`` has counted it before
+    sending the next (a latest-value queue would otherwise skip some of them undecoded), so
+    every one of them is decoded and rejected. Returns the final invalid count."""
+    count = status.latest.invalid.get(counter, 0) if status.latest is not None else 0
+    for payload in payloads:
+        put(session, key, payload)
+        count = status.wait(lambda st, n=count: st.invalid.get(counter, 0) > n, timeout_s).invalid[counter]
+    return count
 
 
 def hostile_payloads(valid: Message, n: int = 1000, seed: int = 0) -> list[bytes]:

@@ -1,12 +1,21 @@
-"""Shared fixtures: a real Zenoh router session on a free loopback port."""
+"""Shared fixtures: a real Zenoh router session on a free loopback port; hypothesis settings."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import settings
 
 from riskfield.testing import ZenohRouter
+
+# Property tests are deterministic (the same examples on every run, so a red CI run is red on
+# every machine) and carry no timing assertion (hypothesis' default 200 ms deadline fails
+# them on a busy machine). HYPOTHESIS_PROFILE=explore draws new examples, for hunting bugs.
+settings.register_profile("riskfield", derandomize=True, deadline=None, print_blob=True)
+settings.register_profile("explore", deadline=None, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "riskfield"))
 
 
 @pytest.fixture(scope="session")

@@ -96,6 +96,22 @@ class OccupancyParams(BaseModel):
     """Surface support needs at least this TSDF weight."""
     surface_band_vox: Annotated[float, Field(gt=0, le=3.0)] = 0.75
     """A voxel supports the surface when |tsdf| ≤ this × voxel_size; labels are voted in the same band."""
+    obstacle_interior: Literal["solid", "shell"] = "solid"
+    """``solid``: observed voxels behind a surface (weight ≥ ``min_weight``, TSDF < 0) belong to the
+    obstacle, with the risk group of their nearest labelled surface voxel, so the distance is
+    negative inside; ``shell``: only the surface band is occupied (obstacles are hollow). See
+    ``occupancy.py``."""
+    unobserved_behind_surface: Literal["free", "solid"] = "solid"
+    """Never-observed voxels behind an obstacle's observed interior (beyond the truncation):
+    ``solid`` fills them up to ``behind_surface_depth`` along the viewing direction (the shadow
+    of the surface; observed voxels stop it), so a box, a person or a wall seen from one side is
+    negative inside; ``free`` leaves them free (an obstacle is then only ``truncation`` deep)."""
+    behind_surface_depth: Annotated[float, Field(ge=0, le=5.0, allow_inf_nan=False)] = 0.5
+    """Depth (m) of the ``solid`` fill. 0.5 m (with the 0.15 m truncation) makes objects up to
+    0.65 m through along the line of sight solid when one side is seen; the price: never-observed
+    gaps narrower than this behind an obstacle (a doorway's part hidden by its jamb) read closed
+    until the camera looks into them. Deeper closes more gaps, shallower leaves big objects hollow
+    at the back."""
     unknown_is_occupied: bool = False
     """Treat never-observed voxels as obstacles (of ``unknown_group``)."""
     unknown_group: str | None = None
@@ -154,3 +170,10 @@ class MapperConfig(EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
     @property
     def surface_band(self) -> float:
         return self.surface_band_vox * self.voxel_size
+
+    @property
+    def fill_steps(self) -> int:
+        """Voxel steps of the never-observed fill behind surfaces (0 unless ``solid``)."""
+        if self.obstacle_interior != "solid" or self.unobserved_behind_surface != "solid":
+            return 0
+        return int(self.behind_surface_depth / self.voxel_size + 1e-9)

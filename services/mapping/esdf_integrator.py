@@ -30,7 +30,8 @@ e_g − v/2 − m_g < max_distance, and the distance to g's bounding box is a lo
 so the box only has to hold the voxels whose distance to that bounding box passes both tests.
 People, pets and furniture cost little; walls (no margin) ride on the union.
 The inside depth e_f is one voxel for every occupied voxel with a free face neighbour; only
-deeper voxels need an EDT.
+deeper voxels need an EDT. Solid obstacles are deep almost everywhere; then a single
+multi-label EDT yields e_U and e_f together.
 
 **Paper-faithful variant** (``inflation = "dilate"``): each group's occupancy is dilated by
 a ball of round(m_g / v) voxels, then the ESDF of the union is taken with no further margin
@@ -122,12 +123,13 @@ class EsdfIntegrator:
         union = np.zeros(shape, dtype=bool)
         for m in masks.values():
             union |= m
-        depth = self._inside(union)
+        depth, dist = self._inside(union)
         # The base term: the union's signed distance less the smallest margin stands for the
         # group L with that margin (the largest such group, usually walls and structure).
         m_min = min(float(margins[g]) for g in masks)
         base = max((g for g in masks if float(margins[g]) == m_min), key=lambda g: int(masks[g].sum()))
-        dist = self._edt((~union).view(np.uint8))
+        if dist is None:
+            dist = self._edt((~union).view(np.uint8))
         e_union = dist.copy()
         dist -= np.float32(0.5 * v + m_min)
         dist[union] = -(depth[union] - np.float32(0.5 * v)) - np.float32(m_min)
@@ -182,18 +184,22 @@ class EsdfIntegrator:
         assert box is not None  # the group's own voxels are always near
         return tuple(slice(lo.start + b.start, lo.start + b.stop) for lo, b in zip(loose, box, strict=True))
 
-    def _inside(self, union: np.ndarray) -> np.ndarray:
-        """Distance from each occupied voxel to the nearest unoccupied centre (0 elsewhere).
+    def _inside(self, union: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Distance from each occupied voxel to the nearest unoccupied centre (0 elsewhere), and
+        the outside distance e_U (0 on occupied voxels) when it came for free, else None.
 
         An occupied voxel with a free face neighbour is exactly one voxel deep; only the rest
-        (rare for the thin shells of surface support) needs an EDT, on their bounding box grown
-        by the clip depth — no free voxel within it means deeper than the clip (inf).
+        needs an EDT, on their bounding box grown by the clip depth — no free voxel within it
+        means deeper than the clip (inf). Solid obstacles (walls, filled interiors) have deep
+        voxels everywhere, so that box is most of the grid: then one multi-label EDT of
+        (free = 1, occupied = 2) gives both sides at once — the ``edt`` package measures each
+        voxel's distance to the nearest voxel of another label — cheaper than two binary ones.
         """
         c = self.config
         depth = np.zeros(union.shape, dtype=np.float32)
         box = _bbox(union, 0)
         if box is None:
-            return depth
+            return depth, None
         sub = union[box]
         exposed = np.zeros(sub.shape, dtype=bool)
         for a in range(sub.ndim):
@@ -214,15 +220,21 @@ class EsdfIntegrator:
         exposed &= sub
         depth[box] = np.where(exposed, np.float32(c.voxel_size), np.float32(0.0))
         deep = sub & ~exposed
-        if deep.any():
-            deep_full = np.zeros(union.shape, dtype=bool)
-            deep_full[box] = deep
-            dbox = _bbox(deep_full, math.ceil((c.max_distance + c.voxel_size) / c.voxel_size) + 1)
-            assert dbox is not None
-            e = self._edt(union[dbox].view(np.uint8))
-            d = depth[dbox]
-            d[deep_full[dbox]] = e[deep_full[dbox]]
-        return depth
+        if not deep.any():
+            return depth, None
+        deep_full = np.zeros(union.shape, dtype=bool)
+        deep_full[box] = deep
+        dbox = _bbox(deep_full, math.ceil((c.max_distance + c.voxel_size) / c.voxel_size) + 1)
+        assert dbox is not None
+        if math.prod(s.stop - s.start for s in dbox) > union.size // 2:
+            both = self._edt(union.view(np.uint8) + np.uint8(1))
+            depth[deep_full] = both[deep_full]
+            both[union] = 0.0
+            return depth, both
+        e = self._edt(union[dbox].view(np.uint8))
+        d = depth[dbox]
+        d[deep_full[dbox]] = e[deep_full[dbox]]
+        return depth, None
 
     def _dilate(self, masks: dict[int, np.ndarray], margins: np.ndarray) -> dict[int, np.ndarray]:
         """The paper's voxel inflation: each group's occupancy dilated by round(m_g / v) voxels."""

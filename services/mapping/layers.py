@@ -1,7 +1,9 @@
 """Per-voxel layers of the map, all on the same ``Volume`` grid (C order, index (i, j, k)).
 
 * ``TsdfLayer``: truncated signed distance (m, + in front of the surface) and its weight
-  (sum of observation confidences, capped). Weight 0 means never observed (unknown).
+  (sum of observation confidences, capped). Weight 0 means never observed (unknown). ``view``
+  holds, for voxels seen behind a surface, the direction (×127, int8) of the last ray that saw
+  them so: where the never-observed space behind that surface lies.
 * ``SemanticLayer``: the fused ADE20K label and its vote weight (the paper's eq. 7–8 state).
   ``NO_LABEL`` marks a voxel that never received a vote.
 """
@@ -21,14 +23,17 @@ class TsdfLayer:
         self.truncation = float(truncation)
         self.tsdf = np.full(shape, self.truncation, dtype=np.float32)
         self.weight = np.zeros(shape, dtype=np.float32)
+        self.view = np.zeros((*shape, 3), dtype=np.int8)
 
     def shift(self, delta: np.ndarray) -> None:
         shift_array(self.tsdf, delta, self.truncation)
         shift_array(self.weight, delta, 0.0)
+        shift_array(self.view, delta, 0)
 
     def clear(self) -> None:
         self.tsdf.fill(self.truncation)
         self.weight.fill(0.0)
+        self.view.fill(0)
 
     @property
     def observed(self) -> np.ndarray:

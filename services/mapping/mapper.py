@@ -2,7 +2,7 @@
 
     integrate(frame)   pointmap + pose + confidence → TSDF layer      (TsdfIntegrator)
                        labels + confidence          → semantic layer  (SemanticIntegrator, vote rule)
-    update_esdf()      TSDF surface support + labels → semantic occupancy (occupancy.py)
+    update_esdf()      TSDF surface + solid interior + labels → semantic occupancy (occupancy.py)
                        → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator)
     query(points)      distance, gradient, risk group of the latest field (fields.EsdfField)
 
@@ -149,7 +149,7 @@ class Mapper:
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel before serving, on a scratch volume,
-        for writable and read-only (decoded, zero-copy) arrays alike."""
+        for writable and read-only (decoded, zero-copy) arrays alike, and the occupancy's."""
         scratch = Volume(self.config.voxel_size, (3, 3, 3))
         tsdf, sem = TsdfLayer(scratch.shape, self.config.truncation), SemanticLayer(scratch.shape)
         pts = np.zeros((2, 2, 3), np.float32)
@@ -161,13 +161,17 @@ class Mapper:
                 a.flags.writeable = not readonly
             self.tsdf_integrator.integrate(scratch, tsdf, arrays[0], arrays[1], arrays[3])
             self.semantic_integrator.integrate(scratch, sem, arrays[0], arrays[1], arrays[2], arrays[3])
+        c = self.config
+        semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
+                           fill_steps=1)
 
     # -- outputs --------------------------------------------------------------------------------
     def occupancy(self) -> np.ndarray:
         """Per-voxel obstacle risk group (0 = not an obstacle) of the current map."""
         c = self.config
         return semantic_occupancy(self.tsdf, self.semantic, self.label_to_group, c.min_weight, c.surface_band,
-                                  self.unknown_group_id if c.unknown_is_occupied else 0)
+                                  self.unknown_group_id if c.unknown_is_occupied else 0,
+                                  interior=c.obstacle_interior, fill_steps=c.fill_steps)
 
     def band_indices(self) -> tuple[int, int, float]:
         """z-voxel range [k_lo, k_hi) whose centres lie in the height band, and the slice's z."""

@@ -8,6 +8,7 @@ return an object with ``close()`` (called after the loop ends).
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,6 +54,50 @@ EXTRAS: dict[str, str] = {
 }
 
 
+#: Optional third-party module (top-level import name) → the pip extra that installs it: the
+#: one table every "install riskfield[X]" hint reads (pyproject.toml lists the extras).
+MODULE_EXTRAS: dict[str, str] = {
+    "rerun": "viz",
+    "mcap": "tools",
+    "mcap_protobuf": "tools",
+    "foxglove_schemas_protobuf": "tools",
+    "matplotlib": "tools",
+    "osqp": "robot",
+    "serial": "robot",
+    "pymavlink": "robot",
+    "evdev": "robot",
+    "numba": "mapping",
+    "edt": "mapping",
+    "open3d": "sim",
+    "PIL": "sim",
+    "torch": "perception",
+    "rosbags": "ros2",
+    "scipy": "robot",
+}
+
+#: Modules a service imports only once it runs (so that importing its module stays cheap):
+#: checked before it starts and by ``riskfield services``.
+RUNTIME_NEEDS: dict[str, tuple[str, ...]] = {"viewer": ("rerun",)}
+
+
+def install_hint(module: str | None, service: str | None = None) -> str:
+    """``pip install 'riskfield[X]'`` for a missing optional module, the service's extra when
+    the module is not in the table; empty when neither is known."""
+    top = (module or "").split(".")[0]
+    extra = EXTRAS.get(service or "") if service in EXTRAS else None
+    extra = extra or MODULE_EXTRAS.get(top)
+    return f"pip install 'riskfield[{extra}]'" if extra else ""
+
+
+def missing_extra(exc: ModuleNotFoundError) -> str | None:
+    """One line for a missing optional module (``exc.name`` in ``MODULE_EXTRAS``), else None
+    (a missing module of riskfield itself, or an unknown one, stays a real error)."""
+    top = (exc.name or "").split(".")[0]
+    if top not in MODULE_EXTRAS:
+        return None
+    return f"this needs the Python package {top!r}: {install_hint(top)}"
+
+
 @dataclass(frozen=True)
 class ServiceSpec:
     name: str
@@ -71,11 +116,15 @@ def load_service(name: str) -> ServiceSpec:
     module, attr = target.split(":")
     try:
         spec = getattr(importlib.import_module(module), attr)
+        for needed in RUNTIME_NEEDS.get(name, ()):
+            if importlib.util.find_spec(needed) is None:
+                raise ModuleNotFoundError(f"No module named {needed!r}", name=needed)
     except ModuleNotFoundError as exc:
         if exc.name and not exc.name.startswith("riskfield"):
-            extra = EXTRAS.get(name)
-            hint = f": pip install 'riskfield[{extra}]'" if extra else ""
-            raise ServiceUnavailable(f"service {name!r} needs the Python package {exc.name!r}{hint}") from exc
+            top = exc.name.split(".")[0]
+            hint = install_hint(top, name)
+            raise ServiceUnavailable(f"service {name!r} needs the Python package {top!r}"
+                                     f"{': ' + hint if hint else ''}") from exc
         raise ServiceUnavailable(f"service {name!r} is not available in this build ({exc})") from exc
     return spec
 

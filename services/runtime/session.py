@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -18,6 +19,41 @@ from .settings import NodeSettings
 
 log = logging.getLogger("riskfield.session")
 
+#: Zenoh's endpoint form, ``<protocol>/<address>[?<metadata>][#<config>]`` (upstream:
+#: eclipse-zenoh/zenoh, commons/zenoh-protocol/src/core/endpoint.rs, ``EndPoint::try_from``).
+_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9+.-]*)/(?P<address>[^?#]+)(\?[^#]*)?(#.*)?$")
+#: Protocols whose address is ``host:port`` (IPv6 hosts in brackets).
+_HOST_PORT = frozenset({"tcp", "udp", "tls", "quic", "ws"})
+_HOST_PORT_ADDR = re.compile(r"^(?P<host>\[[0-9A-Fa-f:.%a-zA-Z]+\]|[A-Za-z0-9_.-]+):(?P<port>\d{1,5})$")
+#: Rust source locations Zenoh appends to its errors (`` at /root/.cargo/.../config.rs:86.``).
+_RUST_PATH = re.compile(r"\s+at\s+\S+\.rs:\d+(:\d+)?\.?")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` if it is a Zenoh endpoint, else a ValueError saying what form it needs,
+    before anything is dialled."""
+    example = "e.g. tcp/127.0.0.1:7447"
+    m = _ENDPOINT.match(endpoint) if isinstance(endpoint, str) else None
+    if m is None:
+        if isinstance(endpoint, str) and _HOST_PORT_ADDR.match(endpoint):
+            raise ValueError(f"endpoint {endpoint!r} has no protocol: did you mean tcp/{endpoint}?")
+        raise ValueError(f"endpoint {endpoint!r} is not <protocol>/<address>, {example}")
+    if m["proto"] in _HOST_PORT:
+        a = _HOST_PORT_ADDR.match(m["address"])
+        if a is None or int(a["port"]) > 65535:
+            raise ValueError(f"endpoint {endpoint!r}: a {m['proto']} address is host:port with a port up to "
+                             f"65535, {example}")
+    return endpoint
+
+
+def zenoh_message(exc: BaseException | str) -> str:
+    """A Zenoh error as one readable line: Rust source paths and Json5 wrapping removed."""
+    text = _RUST_PATH.sub("", str(exc))
+    inner = re.search(r'msg: "(.*?)"(, location|\s*\})', text)
+    if inner:
+        text = inner.group(1)
+    return " ".join(text.split()).rstrip(".!") or type(exc).__name__
+
 
 def endpoint_config(mode: str = "client", connect: Sequence[str] = (), listen: Sequence[str] = (), *,
                     multicast_scouting: bool = False, base: Path | None = None,
@@ -26,6 +62,8 @@ def endpoint_config(mode: str = "client", connect: Sequence[str] = (), listen: S
     followed by ``extra`` (config path → value). Multicast scouting stays off unless asked
     for: sessions connect to the endpoints they are given, which is what works across
     containers and in tests."""
+    for e in (*connect, *listen):
+        check_endpoint(e)
     cfg = zenoh.Config.from_file(str(base)) if base else zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     connect = [e for e in connect if e not in listen]  # a router never dials itself
@@ -67,15 +105,34 @@ def zenoh_config(s: NodeSettings) -> zenoh.Config:
 
 
 def open_session(s: NodeSettings) -> zenoh.Session:
-    """Open a session, retrying while the router is not up yet (up to ``connect_timeout_s``)."""
+    """Open a session, retrying while the router is not up yet (up to ``connect_timeout_s``).
+
+    The wait is said once, then counted down every ``_COUNTDOWN_S``; a config Zenoh rejects
+    (not a missing router) fails at once."""
+    cfg = zenoh_config(s)  # endpoint syntax is checked here, before anything is dialled
     deadline = time.monotonic() + s.connect_timeout_s
     delay = 0.05
+    said_at: float | None = None
     while True:
         try:
-            return zenoh.open(zenoh_config(s))
+            return zenoh.open(cfg)
         except zenoh.ZError as exc:
-            if time.monotonic() + delay > deadline:
-                raise ConnectionError(f"could not open a Zenoh session ({s.mode} → {s.connect}): {exc}") from exc
-            log.info("waiting for a Zenoh router at %s (%s)", ", ".join(s.connect), exc)
+            now = time.monotonic()
+            if s.listen and "listener" in str(exc):  # our own port (busy, bad address): no router will fix it
+                raise ConnectionError(f"cannot listen on {', '.join(s.listen)}: {zenoh_message(exc)}") from exc
+            where = ", ".join(s.connect) or "(no endpoint)"
+            if now + delay > deadline:
+                raise ConnectionError(f"no Zenoh router at {where} after {s.connect_timeout_s:g} s "
+                                      f"({s.mode}): {zenoh_message(exc)}") from exc
+            if said_at is None:
+                log.info("waiting for a Zenoh router at %s (giving up in %.0f s)", where, deadline - now)
+                said_at = now
+            elif now - said_at >= _COUNTDOWN_S:
+                log.info("still no router at %s, %.0f s left", where, deadline - now)
+                said_at = now
             time.sleep(delay)
             delay = min(delay * 2, 1.0)
+            cfg = zenoh_config(s)  # a Config is consumed by zenoh.open
+
+
+_COUNTDOWN_S = 10.0

@@ -1,8 +1,16 @@
 """Pure conversions from riskfield messages to things one can draw (no Rerun import here).
 
-Colours: the ESDF slice is shown free-space green → yellow near obstacles → black inside the
-inflated set, tinted by the nearest obstacle's risk group (red high, orange mid, grey low);
-pointmap points carry a fixed colour per ADE20K class.
+Frames: ``world`` is the map frame (x forward, y left, z up); ``world/robot`` is the base frame
+(``T_WR`` from ``RobotState``); the camera is an optical frame (x right, y down, z forward, the
+pinhole convention) placed in the robot frame by ``T_RC = T_WR⁻¹ · T_WC``.
+
+The ESDF slice at height z is a Rerun ``GridMap`` of distances as stored (metres). Rerun draws
+a grid map's first image row at the top: the texture's top-left corner at grid
+``(0, height·cell_size)`` and its rows running along −y from there, with ``translation`` the
+lower-left corner (upstream: rerun-io/rerun, crates/viewer/re_view_spatial/src/visualizers/
+grid_map.rs, ``textured_rect_from_grid_map``). So image row ``r`` holds y index ``ny − 1 − r``
+and column ``i`` x index ``i``, like a map seen from above with y up; the lower-left corner is
+``(o_x − s/2, o_y − s/2)``, the corner of cell (0, 0), whose centre is the origin ``o``.
 """
 
 from __future__ import annotations
@@ -10,8 +18,12 @@ from __future__ import annotations
 import numpy as np
 
 from riskfield.protocol import EsdfGrid, PerceptionFrame, RobotState
+from riskfield.protocol.ade20k import CLASSES
 
 GROUP_TINT = {"high": (230, 40, 40), "mid": (245, 150, 30), "low": (150, 150, 150)}
+
+#: A camera looking along the robot's x axis: optical x (right) = −y, y (down) = −z, z (ahead) = x.
+R_ROBOT_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 def label_palette(n: int = 65536) -> np.ndarray:
@@ -24,7 +36,10 @@ def label_palette(n: int = 65536) -> np.ndarray:
     return (rgb * 255).astype(np.uint8)
 
 
-_PALETTE = label_palette(256)
+def ade20k_classes() -> list[tuple[int, str, tuple[int, int, int]]]:
+    """(class id, ADE20K name, colour) for every class: the pointmap's annotation context."""
+    pal = label_palette(len(CLASSES))
+    return [(i, name, tuple(int(c) for c in pal[i])) for i, name in enumerate(CLASSES)]
 
 
 def slice_index(grid: EsdfGrid, z: float) -> int:
@@ -34,39 +49,105 @@ def slice_index(grid: EsdfGrid, z: float) -> int:
     return min(max(k, 0), grid.distance.shape[2] - 1)
 
 
-def esdf_slice_rgb(grid: EsdfGrid, z: float = 0.1) -> np.ndarray:
-    """An (ny, nx, 3) uint8 image of the signed distance at height z; row 0 is the lowest y."""
+def esdf_slice(grid: EsdfGrid, z: float = 0.1) -> tuple[np.ndarray, tuple[float, float, float]]:
+    """The signed distance at height z as an (ny, nx) float32 grid-map image (row r ↔ y index
+    ny − 1 − r, column i ↔ x index i: the top row is the highest y), and the map-frame
+    position of its lower-left corner."""
     k = slice_index(grid, z)
-    d = np.asarray(grid.distance[:, :, k], dtype=float)
-    g = np.asarray(grid.risk_group[:, :, k])
-    t = np.clip(d / max(grid.max_distance, 1e-6), 0.0, 1.0)[..., None]
-    free = (1 - t) * np.array([250, 220, 60]) + t * np.array([40, 170, 80])
-    tint = np.zeros((*d.shape, 3))
-    for gid, name in enumerate(grid.groups, start=1):
-        tint[g == gid] = GROUP_TINT.get(name, (120, 120, 220))
-    near = np.exp(-np.maximum(d, 0.0) / 0.3)[..., None] * (g > 0)[..., None]
-    rgb = free * (1 - 0.6 * near) + tint * 0.6 * near
-    rgb[d < 0] = np.array([20, 20, 20])
-    return np.ascontiguousarray(np.transpose(rgb, (1, 0, 2)).astype(np.uint8))
+    d = np.ascontiguousarray(np.asarray(grid.distance[:, :, k], dtype=np.float32).T[::-1])
+    s = grid.voxel_size
+    corner = (grid.origin[0] - s / 2, grid.origin[1] - s / 2, grid.origin[2] + k * s)
+    return d, corner
+
+
+def map_bounds(grid: EsdfGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(min corner, size) of the box the grid's cells cover, map frame."""
+    s = grid.voxel_size
+    lo = np.asarray(grid.origin, dtype=float) - s / 2
+    return lo, np.asarray(grid.distance.shape, dtype=float) * s
+
+
+def inside_voxels(grid: EsdfGrid) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, 3) of the voxels inside the inflated set and their risk-group tint (N, 3)."""
+    idx = np.argwhere(np.asarray(grid.distance) < 0)
+    centres = np.asarray(grid.origin, dtype=float) + idx * grid.voxel_size
+    groups = np.asarray(grid.risk_group)[tuple(idx.T)] if len(idx) else np.zeros(0, np.uint8)
+    table = np.array([(120, 120, 220)] + [GROUP_TINT.get(n, (120, 120, 220)) for n in grid.groups], np.uint8)
+    return centres, table[np.minimum(groups, len(table) - 1)]
 
 
 def pointmap_world(frame: PerceptionFrame, stride: int = 4, min_confidence: float = 0.0
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame points (N, 3) and their label colours (N, 3) from a camera-frame pointmap."""
+    """World-frame points (N, 3) and their ADE20K class ids (N,) from a camera-frame pointmap."""
     p = np.asarray(frame.points[::stride, ::stride], dtype=float).reshape(-1, 3)
     c = np.asarray(frame.confidence[::stride, ::stride]).reshape(-1)
     lab = np.asarray(frame.labels[::stride, ::stride]).reshape(-1)
-    keep = (c > min_confidence) & (p[:, 2] > 0)
+    keep = (c > min_confidence) & (p[:, 2] > 0) & np.isfinite(p).all(axis=1)
     T = np.asarray(frame.T_WC, dtype=float)
     world = p[keep] @ T[:3, :3].T + T[:3, 3]
-    return world, _PALETTE[lab[keep] % 256]
+    return world, lab[keep].astype(np.uint16)
 
 
-def footprint(state: RobotState, radius: float, n: int = 32) -> np.ndarray:
-    """A closed circle of the robot's radius around its position, plus a heading tick."""
+def footprint(radius: float, n: int = 32) -> np.ndarray:
+    """The robot's outline in its own frame: a closed circle of ``radius`` and a heading tick
+    along +x (drawn as a child of ``world/robot``, so it moves with the robot's transform)."""
     a = np.linspace(0, 2 * np.pi, n + 1)
-    x, y, z = state.position
-    circle = np.column_stack([x + radius * np.cos(a), y + radius * np.sin(a), np.full(n + 1, z)])
-    yaw = state.yaw
-    tick = np.array([[x, y, z], [x + radius * np.cos(yaw), y + radius * np.sin(yaw), z]])
+    circle = np.column_stack([radius * np.cos(a), radius * np.sin(a), np.zeros(n + 1)])
+    tick = np.array([[0.0, 0.0, 0.0], [radius, 0.0, 0.0]])
     return np.vstack([circle, tick])
+
+
+def robot_pose(state: RobotState) -> np.ndarray:
+    """``T_WR`` (4×4) from a state's position and xyzw quaternion."""
+    x, y, z, w = (float(v) for v in state.orientation)
+    n = np.sqrt(x * x + y * y + z * z + w * w) or 1.0
+    x, y, z, w = x / n, y / n, z / n, w / n
+    T = np.eye(4)
+    T[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    T[:3, 3] = state.position
+    return T
+
+
+def camera_in_robot(T_WC: np.ndarray, T_WR: np.ndarray) -> np.ndarray:
+    """``T_RC = T_WR⁻¹ · T_WC``: the camera's pose in the robot frame."""
+    return np.linalg.solve(np.asarray(T_WR, dtype=float), np.asarray(T_WC, dtype=float))
+
+
+def intrinsics_from_pointmap(points: np.ndarray) -> tuple[float, float, float, float] | None:
+    """(fx, fy, cx, cy) of the pinhole that best explains a camera-frame pointmap.
+
+    Pixel (u, v) holds a point (X, Y, Z) with ``u = fx·X/Z + cx`` and ``v = fy·Y/Z + cy``: two
+    least-squares line fits over the valid pixels. None when fewer than 3 pixels are valid or
+    the fit is degenerate (all points on one column or row)."""
+    p = np.asarray(points, dtype=float)
+    h, w = p.shape[:2]
+    v, u = np.mgrid[0:h, 0:w]
+    ok = np.isfinite(p).all(axis=2) & (p[..., 2] > 1e-6)
+    if ok.sum() < 3:
+        return None
+    a, b = p[..., 0][ok] / p[..., 2][ok], p[..., 1][ok] / p[..., 2][ok]
+    out = []
+    for ray, pix in ((a, u[ok]), (b, v[ok])):
+        if np.ptp(ray) < 1e-9:
+            return None
+        f, c = np.polyfit(ray, pix.astype(float), 1)
+        out.append((f, c))
+    (fx, cx), (fy, cy) = out
+    if fx <= 0 or fy <= 0:
+        return None
+    return float(fx), float(fy), float(cx), float(cy)
+
+
+class OnChange:
+    """Passes a value only when it differs from the last one passed (text logs on change)."""
+
+    def __init__(self) -> None:
+        self._last: object = object()
+
+    def __call__(self, value: object) -> bool:
+        if value == self._last:
+            return False
+        self._last = value
+        return True

@@ -4,13 +4,13 @@ systemd would (EnvironmentFile lines, then ExecStart with %i) against a router e
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,9 +22,19 @@ import zenoh
 from riskfield import cli
 from riskfield.protocol import Keys, VelocityCommand
 from riskfield.services.runtime import SERVICES
+from riskfield.services.runtime.service import EXTRAS
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
-from riskfield.testing import Collector, ServiceProcess, client_session, free_port, put, wait_alive, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    client_session,
+    free_port,
+    open_when_ready,
+    put,
+    wait_alive,
+    wait_until,
+)
 
 if TYPE_CHECKING:
     from conftest import Secrets
@@ -173,6 +183,7 @@ def staged_robot(tmp_path: Path, server: str, robot: str, *extra: str) -> Iterat
     yield tmp_path
 
 
+@pytest.mark.slow  # two routers and a node as processes
 def test_installed_units_bring_the_robot_up_against_a_router_elsewhere(tmp_path: Path, router_endpoint: str) -> None:
     """The robot's router starts even while the server's router is unreachable, its nodes work
     locally, and the server sees them once the link exists. (`relay` stands in for a bridge.)"""
@@ -196,6 +207,7 @@ def test_installed_units_bring_the_robot_up_against_a_router_elsewhere(tmp_path:
             assert r.stop() == 0 and relay.stop() == 0, (r.output, relay.output)
 
 
+@pytest.mark.slow  # two TLS routers and a node as processes
 def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets: Secrets) -> None:
     """--secrets: the robot's router dials the server's over mutual TLS as user `router`; its
     node authenticates with its own certificate and user."""
@@ -229,13 +241,7 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
                 watcher = NodeSettings(connect=[server], tls_root_ca=secrets.tls / "ca.pem",
                                        tls_cert=secrets.tls / "planner.pem", tls_key=secrets.tls / "planner.key",
                                        tls_mtls=True, user="planner", password=secrets.passwords["planner"])
-                session = None
-                deadline = time.monotonic() + 20
-                while session is None and time.monotonic() < deadline:
-                    with contextlib.suppress(zenoh.ZError):
-                        session = zenoh.open(zenoh_config(watcher))
-                    time.sleep(0.2)
-                assert session is not None, srv.output
+                session = open_when_ready(lambda: zenoh.open(zenoh_config(watcher)), alive=srv)
                 try:
                     assert wait_alive(session, keys.alive("relay"), timeout_s=30), (r.output, relay.output)
                 finally:
@@ -245,3 +251,62 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
                 assert wait_until(lambda: " up as router" in r.output, 20), r.output
                 assert r.stop() == 0 and relay.stop() == 0, (r.output, relay.output)
     assert srv.proc is not None and srv.proc.returncode == 0, srv.output
+
+
+# -- the robot image's install step -----------------------------------------------------------------
+
+#: The robot-side modules: the safety filter and the hardware bridges (what `riskfield run` loads).
+ROBOT_MODULES = ("riskfield.services.safety_filter.node", "riskfield.edge.limo.node", "riskfield.edge.joystick.node",
+                 "riskfield.edge.mavlink.node")
+
+
+def _build_context(dockerfile: Path, dest: Path) -> None:
+    """Copy what the Dockerfile's first (build) stage COPYs from the repository into ``dest``."""
+    for line in dockerfile.read_text().split("\nFROM ")[1].splitlines():
+        words = line.split()
+        if words[:1] == ["COPY"] and not any(w.startswith("--from") for w in words):
+            *sources, target = words[1:]
+            for src in sources:
+                to = dest / (src if target.endswith("/") or target == "./" else target)
+                if (REPO / src).is_dir():
+                    shutil.copytree(REPO / src, to, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+                else:
+                    to.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copy(REPO / src, to)
+
+
+@pytest.mark.slow
+def test_robot_image_install_step_works_in_a_clean_venv_without_open3d_or_torch(tmp_path: Path) -> None:
+    """deploy/Dockerfile.robot's build stage without Docker: its COPYs into a context, then
+    `pip install ".[robot]"` into a fresh venv. Every robot service loads from it, and neither
+    open3d nor torch is installed or imported."""
+    import venv
+
+    context, env_dir = tmp_path / "src", tmp_path / "venv"
+    try:
+        _build_context(REPO / "deploy" / "Dockerfile.robot", context)
+        assert (context / "pyproject.toml").is_file() and (context / "services").is_dir()
+        venv.create(env_dir, with_pip=True)
+        py = str(env_dir / "bin" / "python")
+        # Wheels come from pip's configured index and cache; nothing is fetched by the product.
+        proc = subprocess.run([py, "-m", "pip", "install", "-q", "--disable-pip-version-check", ".[robot]"],
+                              cwd=context, capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        robot_services = sorted(n for n, extra in EXTRAS.items() if extra == "robot")
+        code = (
+            "import importlib, importlib.util, json, sys\n"
+            "from riskfield.services.runtime.service import load_service\n"
+            f"for name in {robot_services!r}: load_service(name)\n"
+            f"for mod in {ROBOT_MODULES!r}: importlib.import_module(mod)\n"
+            "print(json.dumps({'imported': sorted(m for m in ('open3d', 'torch') if m in sys.modules),\n"
+            "                  'installed': sorted(m for m in ('open3d', 'torch') if importlib.util.find_spec(m)),\n"
+            "                  'file': importlib.import_module('riskfield').__file__}))\n"
+        )
+        out = subprocess.run([py, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                             env={k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")})
+        assert out.returncode == 0, out.stderr[-3000:]
+        report = json.loads(out.stdout.strip().splitlines()[-1])
+        assert report["imported"] == [] and report["installed"] == [], report
+        assert report["file"].startswith(str(env_dir)), report  # the installed copy, not this checkout
+    finally:
+        shutil.rmtree(tmp_path, ignore_errors=True)  # a venv is hundreds of MB

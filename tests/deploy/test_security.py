@@ -5,7 +5,6 @@ Zenoh sessions: mutual TLS, user/password, and access control checked on the sub
 from __future__ import annotations
 
 import contextlib
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,7 +15,16 @@ import zenoh
 from riskfield.protocol import EsdfGrid, Keys, VelocityCommand
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
-from riskfield.testing import Collector, ServiceProcess, free_port, put, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    free_port,
+    open_when_ready,
+    put,
+    query_barrier,
+    wait_matched,
+    wait_until,
+)
 
 if TYPE_CHECKING:  # the fixture's type; conftest is not imported at run time
     from conftest import Secrets
@@ -98,7 +106,6 @@ def deliver(publisher: zenoh.Session, key: str, msg, collector: Collector, marke
     put(publisher, key, msg)
     put(publisher, marker_key, marker)
     collector.wait(1, timeout_s=5.0)
-    time.sleep(0.3)  # margin for a reordering we do not expect; a denied put never comes
 
 
 def sources(collector: Collector) -> list[str]:
@@ -112,7 +119,7 @@ def test_legitimate_client_over_mutual_tls_exchanges_data(secrets: Secrets, serv
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "safety-filter",
                                                                       "safety-filter") as filt:
         got = Collector(limo, KEYS.cmd_safe, VelocityCommand)
-        time.sleep(0.3)
+        assert wait_matched(filt, KEYS.cmd_safe)
         put(filt, KEYS.cmd_safe, cmd("filter"))
         assert [m.source for m in got.wait(1)] == ["filter"]
         got.close()
@@ -157,7 +164,7 @@ def test_teleop_cmd_safe_never_reaches_a_subscriber(secrets: Secrets, server: st
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "teleop", "teleop") as tele:
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
         ref = Collector(limo, KEYS.cmd_ref, VelocityCommand)
-        time.sleep(0.3)
+        assert wait_matched(tele, KEYS.cmd_safe) and wait_matched(tele, KEYS.cmd_ref)
         for _ in range(3):
             deliver(tele, KEYS.cmd_safe, cmd("teleop-forged"), ref, KEYS.cmd_ref, cmd("teleop"))
         assert sources(safe) == []
@@ -172,7 +179,7 @@ def test_only_the_filter_publishes_cmd_safe_and_not_operator_keys(secrets: Secre
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
         ref = Collector(limo, KEYS.cmd_ref, VelocityCommand)
         goal = Collector(limo, KEYS.nav_goal)
-        time.sleep(0.3)
+        assert all(wait_matched(filt, k) for k in (KEYS.cmd_ref, KEYS.nav_goal, KEYS.cmd_safe))
         put(filt, KEYS.cmd_ref, cmd("filter-ref"))
         put(filt, KEYS.nav_goal, b"\x80")
         deliver(filt, KEYS.cmd_safe, cmd("filter"), safe, KEYS.cmd_safe, cmd("filter"))
@@ -186,7 +193,7 @@ def test_data_services_may_not_publish_guarded_keys(secrets: Secrets, server: st
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "mapping", "mapping") as mapping:
         guarded = [Collector(limo, KEYS.key(k), VelocityCommand) for k in ("cmd/safe", "cmd/ref")]
         state = Collector(limo, KEYS.key("status/probe"))
-        time.sleep(0.3)
+        assert all(wait_matched(mapping, k) for k in (KEYS.cmd_safe, KEYS.cmd_ref, KEYS.key("status/probe")))
         put(mapping, KEYS.cmd_safe, cmd("mapping"))
         put(mapping, KEYS.cmd_ref, cmd("mapping"))
         deliver(mapping, KEYS.risk_config, b"\x80", state, KEYS.key("status/probe"), b"ok")
@@ -206,12 +213,12 @@ def test_every_client_may_subscribe_to_the_esdf_but_a_roleless_one_may_not_publi
           session(secrets, server, "limo", "limo") as limo):
         esdf = Collector(planner, KEYS.esdf, EsdfGrid)
         at_limo = Collector(limo, KEYS.esdf, EsdfGrid)
-        time.sleep(0.3)
+        assert wait_matched(planner, KEYS.esdf) and wait_matched(mapping, KEYS.esdf)
         put(planner, KEYS.esdf, grid.model_copy(update={"max_distance": 9.0}))  # forged: denied
         put(mapping, KEYS.esdf, grid)
         assert esdf.wait(1)[0].voxel_size == pytest.approx(0.1)
         at_limo.wait(1)
-        time.sleep(0.3)
+        assert query_barrier(planner, limo)  # the forged grid, had it passed, is in by now
         assert [g.max_distance for g in at_limo.items] == [2.0]
 
 
@@ -222,15 +229,17 @@ def test_router_role_needs_a_router_certificate(secrets: Secrets, server: str) -
           session(secrets, server, "router", "teleop") as impostor,
           session(secrets, server, "router", "router-robot") as router):
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
-        time.sleep(0.3)
+        assert wait_matched(impostor, KEYS.cmd_safe) and wait_matched(router, KEYS.cmd_safe)
         put(impostor, KEYS.cmd_safe, cmd("impostor"))
         deliver(router, KEYS.cmd_safe, cmd("router"), safe, KEYS.cmd_safe, cmd("router"))
+        assert query_barrier(impostor, limo)  # the impostor's put, had it passed, is in by now
         assert sources(safe) == ["router", "router"]
 
 
 # -- two sites ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a second router process meshing with the first
 def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
         secrets: Secrets, server: str, tmp_path: Path) -> None:
     """The robot site's router dials the server's with its router certificate and the router
@@ -246,19 +255,29 @@ def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
             # The routers link asynchronously: publish until the far subscriber hears it.
             assert wait_until(lambda: (put(filt, KEYS.cmd_safe, cmd("filter")), bool(at_server.items))[1],
                               timeout_s=15, period_s=0.2)
+            # The teleop's allowed cmd/ref, put after its forged cmd/safe, marks when the latter
+            # would have arrived at each site (one session's puts travel its links in order).
+            ref_server = Collector(remote, KEYS.cmd_ref, VelocityCommand)
+            ref_robot = Collector(local, KEYS.cmd_ref, VelocityCommand)
+            assert wait_until(lambda: (put(tele, KEYS.cmd_ref, cmd("probe")),
+                                       bool(ref_server.items) and bool(ref_robot.items))[1], timeout_s=15, period_s=0.2)
+            assert wait_matched(tele, KEYS.cmd_safe)
             at_server.clear()
             at_robot.clear()
+            ref_server.clear()
+            ref_robot.clear()
             put(tele, KEYS.cmd_safe, cmd("teleop-forged"))
+            put(tele, KEYS.cmd_ref, cmd("teleop"))
             put(filt, KEYS.cmd_safe, cmd("filter"))
-            at_server.wait(1)
-            at_robot.wait(1)
-            time.sleep(0.3)
+            for c in (at_server, at_robot, ref_server, ref_robot):
+                c.wait(1)
             assert set(sources(at_server)) == {"filter"}
             assert set(sources(at_robot)) == {"filter"}
-            at_server.close()
-            at_robot.close()
+            for c in (at_server, at_robot, ref_server, ref_robot):
+                c.close()
 
 
+@pytest.mark.slow  # a second router process and a 3 s absence window
 def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, server: str, tmp_path: Path) -> None:
     """A router whose certificate another CA signed is refused by the server's router."""
     cfg = secrets.router_config("robot", tmp_path)
@@ -275,19 +294,13 @@ def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, s
         with session(secrets, server, "planner", "planner") as remote:
             at_server = Collector(remote, KEYS.cmd_safe, VelocityCommand)
             # Local clients of the rogue router use its (foreign) CA.
-            deadline = time.monotonic() + 20
-            filt = None
-            while filt is None and time.monotonic() < deadline:
-                assert proc.alive(), proc.output
-                with contextlib.suppress(zenoh.ZError):
-                    filt = client(secrets, endpoint, "safety-filter", "safety-filter", cert_dir=secrets.foreign,
-                                  ca=secrets.foreign / "ca.pem")
-                time.sleep(0.2)
-            assert filt is not None, proc.output
+            filt = open_when_ready(lambda: client(secrets, endpoint, "safety-filter", "safety-filter",
+                                                  cert_dir=secrets.foreign, ca=secrets.foreign / "ca.pem"), alive=proc)
             try:
-                for _ in range(15):
-                    put(filt, KEYS.cmd_safe, cmd("rogue"))
-                    time.sleep(0.2)
+                # The claim is an absence over time: while the rogue router retries its link (3 s of
+                # scenario), the server's subscriber never becomes reachable from its side.
+                assert not wait_matched(filt, KEYS.cmd_safe, timeout_s=3.0), proc.output
+                put(filt, KEYS.cmd_safe, cmd("rogue"))
             finally:
                 filt.close()
             assert at_server.items == []
@@ -309,7 +322,7 @@ def test_shipped_secure_client_config_subscribes_to_the_esdf(secrets: Secrets, s
     cfg.insert_json5("transport/auth/usrpwd/password", json.dumps(secrets.passwords["planner"]))
     with zenoh.open(cfg) as planner, session(secrets, server, "mapping", "mapping") as mapping:
         got = Collector(planner, KEYS.esdf)
-        time.sleep(0.3)
+        assert wait_matched(mapping, KEYS.esdf)
         put(mapping, KEYS.esdf, b"esdf-bytes")
         assert got.wait(1) == [b"esdf-bytes"]
         got.close()
@@ -328,17 +341,9 @@ def test_shipped_plain_router_and_client_configs_work_together(tmp_path: Path) -
     with ServiceProcess("router", f"tcp/127.0.0.1:{port}", ["--set", f"zenoh_config={router_cfg}"]) as proc:
         cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "client.json5"))
         cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-        s = None
-        deadline = time.monotonic() + 20
-        while s is None and time.monotonic() < deadline:
-            assert proc.alive(), proc.output
-            with contextlib.suppress(zenoh.ZError):
-                s = zenoh.open(cfg)
-            time.sleep(0.1)
-        assert s is not None
-        with s:
+        with open_when_ready(lambda: zenoh.open(cfg), alive=proc) as s:
             got = Collector(s, KEYS.esdf)
-            time.sleep(0.2)
+            assert wait_matched(s, KEYS.esdf)
             put(s, KEYS.esdf, b"x")
             assert got.wait(1) == [b"x"]
             got.close()

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 HEAVY = ("open3d", "torch", "numba", "edt", "matplotlib")
 
 
@@ -24,6 +26,7 @@ def test_edge_nodes_import_nothing_heavy() -> None:
     assert evdev == "False"  # imported only when a real device is opened
 
 
+@pytest.mark.slow  # the bench itself: router, relay and probe processes
 def test_latency_bench_runs_with_the_relay(tmp_path: Path) -> None:
     """Only that it measures every event and writes its summary; the numbers are for the bench."""
     res = subprocess.run(
@@ -32,4 +35,3 @@ def test_latency_bench_runs_with_the_relay(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stdout + res.stderr
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["lost"] == 0 and summary["total"]["n"] == 10
-    assert 0 < summary["total"]["p50_ms"] < 1000

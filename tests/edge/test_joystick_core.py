@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import select
-import time
 from pathlib import Path
 
 import pytest
@@ -33,6 +32,7 @@ from riskfield.edge.joystick.source import (
     pack_event,
     packets,
 )
+from riskfield.testing import wait_until
 
 X, Y, RZ, THR, TRIG = (CODES[n] for n in ("ABS_X", "ABS_Y", "ABS_RZ", "ABS_THROTTLE", "BTN_TRIGGER"))
 
@@ -241,37 +241,36 @@ def test_fd_waker_wakes_once_per_burst() -> None:
     from riskfield.edge.joystick.waker import FdWaker
 
     r, w = os.pipe()
-    woke = []
-    waker = FdWaker(lambda: woke.append(1), max_wait_s=0.2)
+    r2, w2 = os.pipe()
+    woke: list[tuple[int, ...]] = []  # at each wake: which of r, r2 were readable
+    # max_wait_s is long: within the test only drained() lets the waker wake again.
+    waker = FdWaker(lambda: woke.append(tuple(select.select([r, r2], [], [], 0)[0])), max_wait_s=60)
     try:
         waker.watch(r)
         os.write(w, b"abc")
-        end = time.monotonic() + 2
-        while not woke and time.monotonic() < end:
-            time.sleep(0.005)
-        assert woke
-        time.sleep(0.05)
-        assert len(woke) == 1  # not drained yet: no second wake before max_wait_s
+        assert wait_until(lambda: len(woke) == 1, 5)
+        waker.drained()  # the loop did not read: still readable, so one more wake
+        assert wait_until(lambda: len(woke) == 2, 5)
         os.read(r, 10)
-        waker.drained()
-        time.sleep(0.05)
-        assert len(woke) == 1  # nothing readable any more
+        waker.drained()  # drained for real: nothing readable, no wake
         waker.watch(-1)
-        os.write(w, b"x")
-        time.sleep(0.1)
-        assert len(woke) == 1  # not watching
+        os.write(w, b"x")  # readable again, but not watched: no wake
+        waker.watch(r2)
+        os.write(w2, b"y")
+        # The third wake is r2's (both readable then): a wake on the empty or unwatched r would
+        # have come first, seen r2 empty, and blocked the waker until drained().
+        assert wait_until(lambda: len(woke) == 3, 5)
+        assert woke == [(r,), (r,), (r, r2)]
     finally:
         waker.close()
-        os.close(r)
-        os.close(w)
+        for fd in (r, w, r2, w2):
+            os.close(fd)
 
 
 def test_uinput_device_through_evdev(tmp_path: Path) -> None:
     """A virtual Extreme 3D Pro via uinput, read back by EvdevSource (skips without /dev/uinput)."""
     if not os.path.exists("/dev/uinput") or not os.access("/dev/uinput", os.W_OK):
         pytest.skip("/dev/uinput is not available here")
-    import time
-
     import evdev
     from evdev import AbsInfo, UInput, ecodes
 
@@ -284,9 +283,19 @@ def test_uinput_device_through_evdev(tmp_path: Path) -> None:
                         (ecodes.ABS_THROTTLE, AbsInfo(0, 0, 255, 0, 0, 0))],
     }
     with UInput(caps, name="Logitech Extreme 3D pro (test)", vendor=0x046D, product=0xC215) as ui:
-        time.sleep(0.5)
         src = EvdevSource()
-        info = src.open()
+        infos = []
+
+        def opened() -> bool:
+            try:
+                infos.append(src.open())
+            except DeviceUnavailable:
+                return False
+            return True
+
+        # The kernel creates the event node asynchronously: open as soon as it exists.
+        assert wait_until(opened, 5.0)
+        info = infos[-1]
         try:
             assert info.ranges[ecodes.ABS_Y] == (0, 1023)
             g = JoystickGateway()
@@ -294,10 +303,7 @@ def test_uinput_device_through_evdev(tmp_path: Path) -> None:
             ui.write(ecodes.EV_KEY, ecodes.BTN_TRIGGER, 1)
             ui.write(ecodes.EV_ABS, ecodes.ABS_Y, 0)
             ui.syn()
-            end = time.monotonic() + 2
-            while time.monotonic() < end and g.command.is_zero:
-                g.on_events(src.read())
-                time.sleep(0.01)
+            assert wait_until(lambda: (g.on_events(src.read()), not g.command.is_zero)[1], 2.0, period_s=0.01)
             assert g.command.vx > 0
         finally:
             src.close()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 import uuid
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from riskfield.testing import Collector, ServiceProcess, client_session, wait_al
 Y, RZ, THR, TRIG = (CODES[n] for n in ("ABS_Y", "ABS_RZ", "ABS_THROTTLE", "BTN_TRIGGER"))
 
 
-def test_recorded_joystick_publishes_at_rate_and_zero_on_release_and_loss(
+def test_recorded_joystick_publishes_zero_on_release_and_loss(
         router_endpoint: str, tmp_path: Path) -> None:
     robot = f"t_js_{uuid.uuid4().hex[:6]}"
     keys = Keys(robot)
@@ -34,9 +33,7 @@ def test_recorded_joystick_publishes_at_rate_and_zero_on_release_and_loss(
                 "--set", "reconnect_s=0.5", "--set", "max_linear=0.4"]
         with ServiceProcess("joystick", router_endpoint, args) as node:
             assert wait_alive(s, keys.alive("joystick")), node.output
-            t0 = time.monotonic()
             assert wait_until(lambda: any(m.angular[2] > 0 for m in refs.items), 10.0), node.output
-            elapsed = time.monotonic() - t0
             msgs = list(refs.items)
             assert node.stop() == 0
             output = node.output
@@ -50,7 +47,6 @@ def test_recorded_joystick_publishes_at_rate_and_zero_on_release_and_loss(
     i_zero = first_drive + after.index(0.0)
     assert all(v == 0.0 for v in vx[i_zero:])  # loss and the second session keep vx at zero
     assert msgs[-1].angular[2] == pytest.approx(1.0) and msgs[-1].source == "joystick"
-    assert len(msgs) >= 0.7 * 20 * elapsed  # fixed rate (the first second: startup)
     assert "joystick lost" in output and output.count("open (") == 2  # lost once, reopened
 
 
@@ -61,32 +57,28 @@ def test_raw_event_fifo_drives_the_node(router_endpoint: str, tmp_path: Path) ->
     os.mkfifo(fifo)
     with client_session(router_endpoint) as s:
         refs = Collector(s, keys.cmd_ref, VelocityCommand)
-        # poll_s = 0.5: only the descriptor wake-up can deliver an event within 0.15 s.
+        # Neither the poll (every 600 s) nor the fixed-rate publication (every 1000 s) comes due
+        # during the test: only the descriptor wake-up can deliver an event at all.
         args = ["--robot", robot, "--set", "source=raw", "--set", f"device={fifo}", "--set", "speed_scale=",
-                "--set", "rate_hz=5", "--set", "poll_s=0.5"]
+                "--set", "rate_hz=0.001", "--set", "poll_s=600"]
         with ServiceProcess("joystick", router_endpoint, args) as node:
             assert wait_alive(s, keys.alive("joystick")), node.output
-            assert wait_until(lambda: len(refs.items) >= 1, 5.0)
             w = os.open(fifo, os.O_WRONLY)
             try:
                 # Garbage-free but odd input: unknown codes and a lone SYN are ignored.
                 os.write(w, pack_event(EV_ABS, 0x28, 5) + pack_event(EV_SYN, SYN_REPORT, 0))
-                t_send = time.monotonic()
                 os.write(w, pack_event(EV_KEY, TRIG, 1) + pack_event(EV_ABS, Y, 1023)
                          + pack_event(EV_SYN, SYN_REPORT, 0))
-                # A change is published at once, not at the next 5 Hz tick.
-                assert wait_until(lambda: any(m.linear[0] < 0 for m in refs.items), 3.0), node.output
-                assert time.monotonic() - t_send < 0.15
+                # A change is published at once, not at the next tick.
+                assert wait_until(lambda: any(m.linear[0] < 0 for m in refs.items), 10.0), node.output
                 assert refs.items[-1].linear[0] == pytest.approx(-0.5)  # stick back, no speed scale
             finally:
                 os.close(w)
             # A new writer after the first left (the FIFO hung up in between) is heard just as fast.
             w = os.open(fifo, os.O_WRONLY)
             try:
-                t_send = time.monotonic()
                 os.write(w, pack_event(EV_ABS, Y, 0) + pack_event(EV_SYN, SYN_REPORT, 0))
-                assert wait_until(lambda: refs.items[-1].linear[0] > 0, 3.0), node.output
-                assert time.monotonic() - t_send < 0.15
+                assert wait_until(lambda: refs.items[-1].linear[0] > 0, 10.0), node.output
             finally:
                 os.close(w)
             assert node.stop() == 0

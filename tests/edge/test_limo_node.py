@@ -11,14 +11,17 @@ from pathlib import Path
 from riskfield.edge.limo import protocol as p
 from riskfield.edge.limo.emulator import ChassisEmulator
 from riskfield.edge.limo.messages import LimoDiagnostics, decode_diagnostics
-from riskfield.protocol import Keys, NodeStatus, RobotState, VelocityCommand
-from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
-
-
-def rejected_or_skipped(st: NodeStatus) -> int:
-    """Bad payloads the node refused, plus those a latest-value queue skipped under load; at least one refused."""
-    invalid = st.invalid.get("cmd/safe", 0)
-    return invalid + st.dropped.get("cmd/safe", 0) if invalid else 0
+from riskfield.protocol import Keys, RobotState, VelocityCommand
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    StatusWatch,
+    client_session,
+    put,
+    put_each_rejected,
+    wait_alive,
+    wait_until,
+)
 
 
 def cmd(vx: float, wz: float = 0.0) -> VelocityCommand:
@@ -35,7 +38,7 @@ def diag(col: Collector) -> LimoDiagnostics:
 
 def start(robot: str, endpoint: str, port: str, *extra: str) -> ServiceProcess:
     return ServiceProcess("limo", endpoint, ["--robot", robot, "--set", f"port={port}",
-                                             "--set", "reconnect_s=0.1", *extra])
+                                             "--set", "reconnect_s=0.1", "--set", "status_period_s=0.05", *extra])
 
 
 def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_path: Path) -> None:
@@ -47,18 +50,19 @@ def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_pa
         with start(robot, router_endpoint, emu.port) as node:
             assert wait_alive(s, keys.alive("limo")), node.output
             assert wait_until(lambda: emu.model.control_mode == 1, 5.0), node.output
-            # Drive: commands at 25 Hz, one beyond the platform limit.
-            for i in range(15):
-                put(s, keys.cmd_safe, cmd(0.4, 0.3) if i < 14 else cmd(5.0))
-                time.sleep(0.04)
+            # Drive: a teleop-like stream at ~25 Hz (the period is the scenario: one command alone
+            # would expire in the watchdog) until the chassis moved and turned, then one command
+            # beyond the platform limit.
+            assert wait_until(lambda: (put(s, keys.cmd_safe, cmd(0.4, 0.3)), emu.model.x > 0.1 and
+                                       any(m == p.MotionCommand(0.4, 0.3) for m in motions(emu)))[1],
+                              10.0, period_s=0.04), node.output
+            put(s, keys.cmd_safe, cmd(5.0))
             assert wait_until(lambda: any(m.linear == 1.0 for m in motions(emu)), 2.0)
-            assert any(m == p.MotionCommand(0.4, 0.3) for m in motions(emu))
             assert all(abs(m.linear) <= 1.0 for m in motions(emu))
-            # Watchdog: no more commands → a stop frame within the period (+ poll and transport).
+            # Watchdog: no more commands → a stop frame (its timing is checked with injected time in
+            # test_limo_bridge.py; here only that the process does it).
             t_last = time.perf_counter()
-            assert wait_until(lambda: any(m.is_stop for m in motions(emu, t_last)), 1.0)
-            t_stop = min(t for t, m in emu.frames(p.MotionCommand) if t >= t_last and m.is_stop)
-            assert t_stop - t_last < 0.2 + 0.1
+            assert wait_until(lambda: any(m.is_stop for m in motions(emu, t_last)), 5.0)
             assert emu.model.v == 0.0
             # State: the estimate moved forward and turned left, all values finite.
             states.wait(5)
@@ -88,26 +92,24 @@ def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str,
     with ChassisEmulator(link=str(tmp_path / "limo")) as emu, client_session(router_endpoint) as s:
         diags = Collector(s, keys.key("limo/diagnostics"))
         states = Collector(s, keys.state)
-        status = Collector(s, keys.status("limo"), NodeStatus)
+        status = StatusWatch(s, keys.status("limo"))
         with start(robot, router_endpoint, emu.port) as node:
             assert wait_alive(s, keys.alive("limo")), node.output
             assert wait_until(lambda: emu.model.control_mode == 1, 5.0)
-            for payload in bad_velocity_payloads:
-                put(s, keys.cmd_safe, payload)
-                time.sleep(0.02)  # a latest-value queue would otherwise skip some of them
+            n_bad = len(bad_velocity_payloads)
+            assert put_each_rejected(s, keys.cmd_safe, bad_velocity_payloads, status, "cmd/safe") == n_bad
             t0 = time.perf_counter()
             put(s, keys.cmd_safe, cmd(0.25))
             assert wait_until(lambda: any(m.linear == 0.25 for m in motions(emu, t0)), 3.0), node.output
             assert not any(m.linear not in (0.0, 0.25) for m in motions(emu, t0))
-            n_bad = len(bad_velocity_payloads)
-            assert wait_until(lambda: status.items and rejected_or_skipped(status.items[-1]) >= n_bad, 5.0), \
-                status.items[-1:]
             # The port disappears: the node keeps serving and says so.
             emu.disconnect()
             assert wait_until(lambda: diags.items and not diag(diags).connected, 3.0), node.output
             n_states = len(states.items)
+            last = status.wait(lambda st: True)
+            received = status.wait(lambda st: st.uptime_s > last.uptime_s).received.get("cmd/safe", 0)  # a fresh one
             put(s, keys.cmd_safe, cmd(0.3))  # nowhere to go: must not crash the node
-            time.sleep(0.3)
+            status.wait(lambda st: st.received.get("cmd/safe", 0) > received)
             assert node.alive()
             assert len(states.items) <= n_states + 1  # no state without feedback
             assert "LIMO serial link lost" in node.output

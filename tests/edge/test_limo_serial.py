@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from riskfield.edge.limo import protocol as p
@@ -12,15 +13,18 @@ from riskfield.edge.limo.serial_link import SerialLink
 from riskfield.testing import wait_until
 
 
-def pump(link: SerialLink, bridge: LimoBridge, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
+def pump_until(link: SerialLink, bridge: LimoBridge, predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+    """Feed the chassis' bytes to the bridge until ``predicate`` holds (False on a lost link or timeout)."""
+
+    def step() -> bool:
         try:
             bridge.on_bytes(link.read(), time.monotonic())
         except ConnectionError:
             bridge.on_disconnected()
-            return
-        time.sleep(0.005)
+            raise
+        return predicate()
+
+    return wait_until(step, timeout_s, period_s=0.005)
 
 
 def test_bridge_drives_the_emulated_chassis_over_a_pty(tmp_path: Path) -> None:
@@ -33,18 +37,20 @@ def test_bridge_drives_the_emulated_chassis_over_a_pty(tmp_path: Path) -> None:
             link.write(bridge.on_command(0.5, 0.0, 0.0, time.monotonic()))
             assert wait_until(lambda: any(m == p.MotionCommand(0.5) for _, m in emu.frames()), 2.0)
             assert emu.model.control_mode == 1 and emu.model.v == 0.5
-            pump(link, bridge, 0.4)
-            assert bridge.diag.command_mode_confirmed
+            def driven() -> bool:
+                s = bridge.state(time.monotonic())
+                return bridge.diag.command_mode_confirmed and s is not None and s.x > 0.1
+
+            assert pump_until(link, bridge, driven)
             s = bridge.state(time.monotonic())
-            assert s is not None and s.x > 0.1 and s.vx == 0.5
+            assert s is not None and s.vx == 0.5
             assert bridge.diag.frames_bad == 0
             # Noise and a corrupt frame on the line: counted, and feedback keeps coming.
             bad = bytearray(p.encode(p.Odometry(9.0, 9.0)))
             bad[13] ^= 0x55
             emu.inject(b"\xde\xad\x55" + bytes(bad))
             ok_before = bridge.diag.frames_ok
-            pump(link, bridge, 0.2)
-            assert bridge.diag.frames_bad >= 1 and bridge.diag.frames_ok > ok_before
+            assert pump_until(link, bridge, lambda: bridge.diag.frames_bad >= 1 and bridge.diag.frames_ok > ok_before)
             assert bridge.odometry.jumps == 0
         finally:
             link.close()
@@ -56,16 +62,16 @@ def test_link_detects_loss_and_reopens_the_repointed_path(tmp_path: Path) -> Non
         try:
             assert link.try_open(time.monotonic())
             emu.disconnect()
-            lost = False
-            end = time.monotonic() + 2.0
-            while time.monotonic() < end and not lost:
+
+            def lost() -> bool:
                 try:
                     link.read()
                     link.write(p.encode(p.MotionCommand()))
                 except ConnectionError:
-                    lost = True
-                time.sleep(0.01)
-            assert lost and not link.is_open
+                    return True
+                return False
+
+            assert wait_until(lost, 2.0, period_s=0.01) and not link.is_open
             assert not link.try_open(time.monotonic() + 1)  # nothing at the path yet
             emu.reconnect()
             assert Path(emu.port).resolve() == Path(emu.path)

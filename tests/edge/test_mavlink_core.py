@@ -61,8 +61,9 @@ def test_limits_scale_uniformly(vx: float, vy: float, vz: float, wz: float) -> N
     sp = command_to_setpoint((3 * vx, 3 * vy, 3 * vz), 3 * wz, lim)
     assert math.hypot(sp.vx, sp.vy) <= lim.max_horizontal + 1e-9
     assert abs(sp.vz) <= lim.max_vertical + 1e-9 and abs(sp.yaw_rate) <= lim.max_yaw_rate + 1e-9
-    if vx != 0 and wz != 0:
-        assert sp.yaw_rate / sp.vx == pytest.approx(-wz / vx)
+    # One scale for every axis: (vx, −wz) and the setpoint's (vx, yaw rate) are parallel (a cross
+    # product, not a ratio: a subnormal vx scales to 0.0).
+    assert sp.yaw_rate * vx + wz * sp.vx == pytest.approx(0.0, abs=1e-12)
 
 
 def test_non_finite_command_is_zero() -> None:

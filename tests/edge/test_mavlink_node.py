@@ -11,20 +11,23 @@ import numpy as np
 import pytest
 
 from riskfield.edge.mavlink.fake_vehicle import FakeVehicle, VehicleModel
-from riskfield.protocol import Keys, NodeStatus, RobotState, VelocityCommand
-from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+from riskfield.protocol import Keys, RobotState, VelocityCommand
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    StatusWatch,
+    client_session,
+    put,
+    put_each_rejected,
+    wait_alive,
+    wait_until,
+)
 
 
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def rejected_or_skipped(st: NodeStatus) -> int:
-    """Bad payloads the node refused, plus those a latest-value queue skipped under load; at least one refused."""
-    invalid = st.invalid.get("cmd/safe", 0)
-    return invalid + st.dropped.get("cmd/safe", 0) if invalid else 0
 
 
 def cmd(vx: float, wz: float = 0.0) -> VelocityCommand:
@@ -38,34 +41,31 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
     port = free_udp_port()
     with client_session(router_endpoint) as s:
         states = Collector(s, keys.state, RobotState)
-        status = Collector(s, keys.status("mavlink"), NodeStatus)
-        args = ["--robot", robot, "--set", f"url=udpin:127.0.0.1:{port}"]
+        status = StatusWatch(s, keys.status("mavlink"))
+        args = ["--robot", robot, "--set", f"url=udpin:127.0.0.1:{port}", "--set", "status_period_s=0.05"]
         with ServiceProcess("mavlink", router_endpoint, args) as node, \
                 FakeVehicle(f"udpout:127.0.0.1:{port}", autopilot, VehicleModel(x=5.0, yaw=0.0)) as veh:
             assert wait_alive(s, keys.alive("mavlink")), node.output
-            # Streaming before any command: zero setpoints at >= 10 Hz, GCS heartbeat at 1 Hz.
-            assert wait_until(lambda: len(veh.setpoints()) >= 5, 10.0), node.output
-            t0, n0 = time.monotonic(), len(veh.setpoints())
-            time.sleep(1.0)
-            rate = (len(veh.setpoints()) - n0) / (time.monotonic() - t0)
-            assert rate >= 10, rate
+            # Streaming before any command: zero setpoints and a GCS heartbeat (their rates are the
+            # bench's business, not this test's).
+            assert wait_until(lambda: len(veh.setpoints()) >= 5 and len(veh.received.gcs_heartbeats) >= 1,
+                              10.0), node.output
             assert all(m.vx == 0 and m.yaw_rate == 0 for _, m in veh.setpoints())
-            assert len(veh.received.gcs_heartbeats) >= 1
             assert any(c.command == 511 and int(c.param1) in (30, 32) for c in veh.received.commands)
             _, sp = veh.setpoints()[-1]
             assert (sp.target_system, sp.target_component, sp.coordinate_frame, sp.type_mask) == (1, 1, 8, 0x5C7)
             # Drive: forward and turning left (CCW) → body FRD vx > 0 and a negative (clockwise) yaw rate.
-            for _ in range(20):
-                put(s, keys.cmd_safe, cmd(0.5, 0.2))
-                time.sleep(0.05)
+            # A teleop-like stream at ~20 Hz (the period is the scenario: a single command would
+            # expire in the node's watchdog) until the vehicle has moved.
+            assert wait_until(lambda: (put(s, keys.cmd_safe, cmd(0.5, 0.2)), veh.model.x > 5.2)[1], 10.0,
+                              period_s=0.05), node.output
             _, sp = veh.setpoints()[-1]
             assert (sp.vx, sp.vy, sp.yaw_rate) == pytest.approx((0.5, 0.0, -0.2))
             assert veh.model.x > 5.2  # moved north
             # Watchdog: cmd/safe stops → zero setpoints keep streaming.
             t_last = time.perf_counter()
-            assert wait_until(lambda: any(t > t_last + 0.1 and m.vx == 0 for t, m in veh.setpoints()), 2.0)
-            t_zero = min(t for t, m in veh.setpoints() if t > t_last and m.vx == 0)
-            assert t_zero - t_last < 0.2 + 0.1
+            # (its timing is checked with injected time in test_mavlink_core.py)
+            assert wait_until(lambda: any(t > t_last and m.vx == 0 for t, m in veh.setpoints()), 5.0)
             # State: ENU, north → +y, heading turned clockwise in NED → ENU yaw = π/2 − yaw_NED.
             assert states.wait(10)
             st = states.items[-1]
@@ -73,22 +73,19 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
             assert math.cos(st.yaw - (math.pi / 2 - veh.model.yaw)) == pytest.approx(1.0, abs=1e-3)
             assert all(np.isfinite(m.position).all() for m in states.items)
             # Bad input on both sides: Zenoh garbage and UDP garbage from the vehicle's address.
-            for payload in bad_velocity_payloads:
-                put(s, keys.cmd_safe, payload)
-                time.sleep(0.02)
+            n_bad = len(bad_velocity_payloads)
+            assert put_each_rejected(s, keys.cmd_safe, bad_velocity_payloads, status, "cmd/safe") == n_bad
             veh.conn.port.sendto(bytes(range(256)) * 2, ("127.0.0.1", port))
             put(s, keys.cmd_safe, cmd(0.3))
             t1 = time.perf_counter()
             assert wait_until(lambda: any(t >= t1 and m.vx == pytest.approx(0.3) for t, m in veh.setpoints()), 3.0)
-            n_bad = len(bad_velocity_payloads)
-            assert wait_until(lambda: status.items and rejected_or_skipped(status.items[-1]) >= n_bad, 5.0)
             assert node.alive()
             # Shutdown: the last word is a zero setpoint.
+            t2 = time.perf_counter()
             put(s, keys.cmd_safe, cmd(0.3))
-            time.sleep(0.1)
+            assert wait_until(lambda: any(t >= t2 and m.vx == pytest.approx(0.3) for t, m in veh.setpoints()), 3.0)
             assert node.stop() == 0
-            time.sleep(0.2)
-            _, last = veh.setpoints()[-1]
-            assert last.vx == 0 and last.yaw_rate == 0
+            # Nothing is sent after the process ended: wait for the final datagram to be read.
+            assert wait_until(lambda: veh.setpoints()[-1][1].vx == 0 and veh.setpoints()[-1][1].yaw_rate == 0, 2.0)
         states.close()
         status.close()

@@ -4,7 +4,6 @@ full service stack (simulator → perception relay → mapping → safety filter
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -75,6 +74,7 @@ def test_perception_modes():
         perception_args("lidar")
 
 
+@pytest.mark.slow
 def test_navigator_drives_the_full_stack_round_a_ball():
     """Goal straight behind the ball: the navigator's reference, filtered on the live semantic
     ESDF, gets the LIMO to the goal without touching the ball (ground truth)."""
@@ -88,7 +88,9 @@ def test_navigator_drives_the_full_stack_round_a_ball():
         keys = {"state": (stack.keys.state, RobotState), "status": (stack.keys.safety_status, SafetyStatus)}
         goal = np.array([[1.5, 0.0, 0.0]])  # the ball sits at (0.5, 0) on the straight line from (-3, 0)
         with recording(stack.session, keys) as rec:
-            time.sleep(1.0)
+            # The goal is sent once the first ESDF has reached the filter (the stack is up).
+            assert wait_until(lambda: any(s.esdf_age_ms >= 0 for _, s in rec.snapshot("status")), 60.0), \
+                stack.procs["filter"].output[-2000:]
             put(stack.session, stack.keys.nav_goal, NavGoal(waypoints=goal, tolerance=0.2, loop=False))
 
             def arrived() -> bool:

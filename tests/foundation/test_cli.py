@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
+import os
 import signal
 import subprocess
 import sys
-import time
 
 from riskfield import __version__
 from riskfield.testing import client_session, free_port, wait_alive
@@ -18,9 +19,11 @@ def _run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([*RF, *args], capture_output=True, text=True, timeout=timeout)
 
 
-def test_version():
+def test_version_matches_the_installed_distribution():
+    """What `--version` prints is the version pip installed (pyproject.toml), not only a constant."""
     r = _run("--version")
-    assert r.returncode == 0 and r.stdout.strip() == f"riskfield {__version__}"
+    assert r.returncode == 0 and r.stdout.strip() == f"riskfield {importlib.metadata.version('riskfield')}"
+    assert __version__ == importlib.metadata.version("riskfield")
 
 
 def test_schema_export(tmp_path):
@@ -62,12 +65,11 @@ def test_up_starts_and_stops_a_set_of_processes(tmp_path):
 
 def test_up_exits_non_zero_when_a_service_dies():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    t0 = time.monotonic()
-    r = subprocess.run([*RF, "up", "relay", "--listen", endpoint, "--duration", "60",
+    # --duration is far beyond the subprocess timeout: returning at all means it did not wait for it.
+    r = subprocess.run([*RF, "up", "relay", "--listen", endpoint, "--duration", "3600",
                         "--config", "/nonexistent/riskfield.yaml"], capture_output=True, text=True, timeout=90)
     assert r.returncode == 1
     assert "exited with code" in r.stderr + r.stdout
-    assert time.monotonic() - t0 < 45  # it did not wait for --duration
 
 
 def test_bench_codec_writes_a_summary(tmp_path):
@@ -75,6 +77,141 @@ def test_bench_codec_writes_a_summary(tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "summary.json").read_text())
     row = summary["decode PerceptionFrame 512x384"]
-    assert row["n"] == 3 and 0 < row["median_ms"] < 1000
+    assert row["n"] == 3 and row["median_ms"] > 0  # measured; how fast is the bench's report, not a test
     assert any(k.startswith("zenoh round trip") for k in summary)
     assert _run("bench", "nope").returncode == 2
+
+
+# -- messages a new user reads --------------------------------------------------------------------
+
+def _run_without(modules: tuple[str, ...], *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """The CLI in a process where ``modules`` cannot be imported, as on an install without
+    their extra (``None`` in ``sys.modules`` makes ``import`` raise ModuleNotFoundError)."""
+    code = ("import sys\n"
+            f"for m in {list(modules)!r}: sys.modules[m] = None\n"
+            "from riskfield.cli import app\n"
+            f"app({list(args)!r}, prog_name='riskfield')\n")
+    env = {**os.environ, "COLUMNS": "200"}  # Rich tables one row per line, as on a wide terminal
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def test_services_lists_real_extras_with_hints_rich_does_not_swallow():
+    r = _run_without(("rerun",), "services")
+    assert r.returncode == 0, r.stderr
+    rows = {ln.split("│")[1].strip(): ln for ln in r.stdout.splitlines() if ln.count("│") >= 3}
+    assert "riskfield[mapping]" in rows["mapping"] and " ok " in rows["mapping"]  # the extra keeps its brackets
+    assert " ok " not in rows["viewer"]  # no longer "ok" without rerun, then a crash
+    assert "pip install 'riskfield[viz]'" in rows["viewer"]  # not "pip install 'riskfield'"
+
+
+def test_run_viewer_without_rerun_is_one_line_not_a_traceback():
+    r = _run_without(("rerun",), "run", "viewer", "--duration", "1")
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+    assert "pip install 'riskfield[viz]'" in r.stderr
+
+
+def test_demo_without_mcap_is_one_install_line(tmp_path):
+    r = _run_without(("mcap",), "demo", "--out", str(tmp_path / "demo"), "--budget", "1")
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+    assert "'mcap'" in r.stderr and "pip install 'riskfield[tools]'" in r.stderr
+
+
+def test_record_without_mcap_keeps_the_brackets_of_its_hint():
+    r = _run_without(("mcap",), "record", "--duration", "1")
+    assert r.returncode == 2 and "pip install 'riskfield[tools]'" in r.stderr, r.stderr
+
+
+def test_bench_without_its_extra_is_one_install_line():
+    r = _run_without(("osqp",), "bench", "filter")
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and "pip install 'riskfield[robot]'" in r.stderr, r.stderr
+
+
+def test_bench_name_help_shows_that_benchmarks_options():
+    r = _run("bench", "safety", "--help")
+    assert r.returncode == 0, r.stderr
+    assert "riskfield bench safety" in r.stdout and "--trajectories" in r.stdout
+    generic = _run("bench", "--help")
+    assert generic.returncode == 0 and "--trajectories" not in generic.stdout and "codec" in generic.stdout
+
+
+def test_run_service_help_lists_its_settings():
+    r = _run("run", "viewer", "--help")
+    assert r.returncode == 0, r.stderr
+    out = " ".join(r.stdout.split())
+    assert "--connect" in out  # the command's own options first
+    for name in ("z_slice", "pointmap_stride", "camera_hfov_deg"):
+        assert name in out
+    assert "float" in out and "0.1" in out and "height of the ESDF slice" in out  # type, default, description
+    assert "common to every node" in out and "connect_timeout_s" in out
+    assert "z_slice" not in _run("run", "--help").stdout  # without a service: the generic help
+
+
+def test_malformed_endpoints_fail_at_once_in_one_line():
+    for endpoint, hint in (("foo", "<protocol>/<address>"), ("127.0.0.1:7447", "tcp/127.0.0.1:7447")):
+        # the default connect_timeout_s is 30 s: a retry loop would overrun this timeout
+        r = _run("run", "relay", "--connect", endpoint, timeout=20)
+        assert r.returncode == 2, r.stderr
+        assert hint in r.stderr and ".rs:" not in r.stderr and "Json5" not in r.stderr, r.stderr
+        assert "waiting" not in r.stderr
+
+
+def test_missing_router_is_said_once_with_a_countdown_and_no_rust_paths():
+    r = _run("run", "relay", "--connect", f"tcp/127.0.0.1:{free_port()}", "--set", "connect_timeout_s=3", timeout=60)
+    assert r.returncode == 3
+    waiting = [ln for ln in r.stderr.splitlines() if "waiting for a Zenoh router" in ln]
+    assert len(waiting) == 1 and "giving up in 3 s" in waiting[0], r.stderr
+    assert "no Zenoh router at" in r.stderr and ".rs:" not in r.stderr and "cargo" not in r.stderr
+
+
+def test_examples_ship_in_the_sdist(tmp_path):
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    assert "graft examples" in (root / "MANIFEST.in").read_text().splitlines()
+    pytest = __import__("pytest")
+    pytest.importorskip("build")
+    r = subprocess.run([sys.executable, "-m", "build", "--sdist", "-o", str(tmp_path), str(root)],
+                       capture_output=True, text=True, timeout=600)
+    if r.returncode != 0 and "Could not find a version" in r.stdout + r.stderr:
+        pytest.skip("no package index for the isolated build environment")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    import tarfile
+
+    (sdist,) = tmp_path.glob("riskfield-*.tar.gz")
+    with tarfile.open(sdist) as tar:
+        names = tar.getnames()
+    assert any(n.endswith("/examples/esdf_planner.py") for n in names)
+    assert not any("__pycache__" in n for n in names)
+
+
+def test_a_busy_listen_port_fails_at_once_without_rust_paths():
+    from riskfield.testing import ZenohRouter
+
+    with ZenohRouter() as router:  # holds the port
+        r = _run("run", "router", "--listen", router.endpoint, timeout=20)  # no 30 s of retries
+    assert r.returncode == 3, r.stderr
+    assert f"cannot listen on {router.endpoint}" in r.stderr and "Address already in use" in r.stderr
+    assert ".rs:" not in r.stderr and "waiting" not in r.stderr
+
+
+def test_endpoint_check_and_zenoh_message_units():
+    import pytest
+
+    from riskfield.services.runtime.session import check_endpoint, zenoh_message
+
+    for good in ("tcp/127.0.0.1:7447", "tcp/[::1]:7447", "tcp/robot-router:7447", "tcp/0.0.0.0:0",
+                 "tls/host.local:7447?x=1#y", "unixsock-stream//tmp/zenoh.sock"):
+        assert check_endpoint(good) == good
+    for bad, words in (("foo", "<protocol>/<address>"), ("127.0.0.1:7447", "did you mean tcp/127.0.0.1:7447"),
+                       ("tcp/127.0.0.1", "host:port"), ("tcp/127.0.0.1:70000", "65535"), ("tcp/:7447", "host:port")):
+        with pytest.raises(ValueError, match=words):
+            check_endpoint(bad)
+    raw = ('Json5Err(Message { msg: "Endpoints must be of the form <protocol>/<address>: foo at '
+           '/root/.cargo/git/checkouts/zenoh-x/commons/zenoh-protocol/src/core/endpoint.rs:615.", location: '
+           'Some(Location { line: 1, column: 2 }) }) at /root/.cargo/git/checkouts/zenoh-x/zenoh/src/api/config.rs:86.')
+    assert zenoh_message(raw) == "Endpoints must be of the form <protocol>/<address>: foo"
+    assert zenoh_message("Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at /a/b/orchestrator.rs:447.") == (
+        "Unable to connect to any of [Single(tcp/127.0.0.1:1)]")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import ndimage
 
 from riskfield.services.geometry.shapes import Box, Plane, Sphere
 from riskfield.services.mapping.config import MapperConfig
@@ -211,3 +212,32 @@ def test_slice_is_the_min_over_the_band_of_the_3d_field(seed: int) -> None:
     outside[:, :, :k_lo] = 3
     d_out, g_out = esdf.compute_slice(outside, k_lo, k_hi, m)
     assert np.all(d_out == np.float32(0.8)) and not g_out.any()
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_one_multi_label_edt_gives_both_sides_of_a_solid(seed: int) -> None:
+    """Solid obstacles are deep almost everywhere: the multi-label EDT path must equal the two
+    binary EDTs (outside distance and inside depth) it replaces."""
+    rng = np.random.default_rng(seed)
+    union = np.zeros((30, 24, 20), dtype=bool)
+    for _ in range(4):
+        lo = rng.integers(0, [26, 20, 16])
+        hi = lo + rng.integers(2, 9, size=3)
+        union[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = True
+    esdf = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0))
+    depth, outside = esdf._inside(union)
+    v = (V,) * 3
+    inside_true = edt_binary(union, v)
+    outside_true = edt_binary(~union, v)
+    deep = union & (inside_true > V + 1e-6)
+    if deep.any():
+        assert outside is not None  # the grown box of the deep voxels covers most of this grid
+        assert np.allclose(outside, outside_true, atol=1e-6)
+    assert np.allclose(depth[union], inside_true[union], atol=1e-6)
+    assert np.all(depth[~union] == 0)
+
+
+def edt_binary(mask: np.ndarray, anisotropy: tuple[float, ...]) -> np.ndarray:
+    """scipy's EDT (distance of each True voxel to the nearest False one), an independent oracle."""
+    return ndimage.distance_transform_edt(mask, sampling=anisotropy).astype(np.float32)

@@ -72,11 +72,12 @@ def ready(session: zenoh.Session, keys: Keys, timeout_s: float = 30.0) -> bool:
                       timeout_s, 0.1)
 
 
-def feed(session: zenoh.Session, keys: Keys, msgs: list[PerceptionFrame]) -> None:
+def feed(session: zenoh.Session, keys: Keys, msgs: list[PerceptionFrame], grids: Collector) -> None:
     put(session, keys.state, state())
     for f in msgs:
+        n = len(grids.items)
         put(session, keys.perception_frame, f)
-        time.sleep(0.15)  # the frame queue keeps only the newest; give each its turn
+        grids.wait(n + 1)  # the frame queue keeps only the newest: the next goes once this one is in the map
 
 
 IN_FRONT = np.array([[0.5, -0.55, 0.3], [0.6, -0.55, 0.3]])
@@ -93,7 +94,7 @@ def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: s
         assert early.in_map is not None and not early.in_map.any()
         assert np.all(early.distance == 2.0)
         assert not grids.items
-        feed(s, keys, frames())
+        feed(s, keys, frames(), grids)
         g = grids.wait(1)[-1]
         g3 = grids3d.wait(1)[-1]
         assert g.shape == (101, 101, 1) and g3.shape == (101, 101, 101)
@@ -108,7 +109,7 @@ def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: s
         assert np.all(reply.gradient[:, 0] < -0.5)
         # no new data: no new grids (the filter must see the map age)
         n = len(grids.items)
-        time.sleep(0.4)
+        time.sleep(0.4)  # an absence over 8 ESDF periods (scenario): nothing to wait for
         assert len(grids.items) == n
         grids.close()
         grids3d.close()
@@ -165,15 +166,17 @@ def test_node_rejects_bad_input_on_every_key_and_keeps_serving(router_endpoint: 
         for key, name in ((keys.perception_frame, "frame"), (keys.state, "state"), (keys.risk_config, "risk")):
             for payload in bad[name]:
                 put(s, key, payload)
-                time.sleep(0.08)
+                ask(s, keys, IN_FRONT)  # served by the same loop after the put: the payload has been handled
         for payload in bad["query"]:
             replies = query(s, keys.esdf_query, payload)
             assert replies and all(r.ok is None for r in replies), "a bad query must get an error reply"
-        time.sleep(0.3)
+        # A map made of bad frames would go out at the next ESDF tick (20 Hz): two status periods later, none did.
+        n_status = len(status.items)
+        assert wait_until(lambda: len(status.items) >= n_status + 2, 5.0), proc.output
         assert proc.alive(), proc.output
         assert not grids.items, "no map may come out of bad frames"
         # it still serves: a valid frame makes a valid map, a valid query gets an answer
-        feed(s, keys, frames(2))
+        feed(s, keys, frames(2), grids)
         g = grids.wait(1)[-1]
         assert np.isfinite(g.distance).all() and (g.distance < 0).any()
         reply = ask(s, keys, IN_FRONT)
@@ -212,9 +215,8 @@ def test_risk_config_hot_reload_from_key_and_file(router_endpoint: str, tmp_path
     with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
         assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
         grids = Collector(s, keys.esdf, EsdfGrid)
-        feed(s, keys, frames(3))
+        feed(s, keys, frames(3), grids)
         grids.wait(1)
-        time.sleep(0.2)
         d0 = ask(s, keys, IN_FRONT).distance
         # over the key: the high-risk margin grows by 0.25 m
         wider = RiskConfig()
@@ -228,7 +230,7 @@ def test_risk_config_hot_reload_from_key_and_file(router_endpoint: str, tmp_path
         narrow = RiskConfig()
         narrow.groups[0].margin = 0.05
         n = len(grids.items)
-        time.sleep(0.05)
+        time.sleep(0.05)  # a later modification time than the last write (file-system clock resolution)
         risk_file.write_text(yaml.safe_dump(narrow.model_dump(exclude={"header"})))
         grids.wait(n + 1)
         d2 = ask(s, keys, IN_FRONT).distance

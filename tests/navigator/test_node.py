@@ -9,7 +9,16 @@ import time
 import numpy as np
 
 from riskfield.protocol import NavGoal, NodeStatus, RobotState, VelocityCommand
-from riskfield.testing import Collector, ServiceProcess, client_session, hostile_payloads, put, wait_alive, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    StatusWatch,
+    client_session,
+    hostile_payloads,
+    put,
+    wait_alive,
+    wait_until,
+)
 
 
 def state(x: float, y: float, yaw: float) -> RobotState:
@@ -30,7 +39,7 @@ def test_closed_loop_over_zenoh_reaches_goal_and_stops(router_endpoint):
         t_end, last = time.monotonic() + 15.0, time.monotonic()
         arrived = False
         while time.monotonic() < t_end:  # a unicycle integrated from the latest command
-            time.sleep(0.02)
+            time.sleep(0.02)  # the simulated robot's 50 Hz step (scenario); the loop ends on arrival
             now = time.monotonic()
             dt, last = now - last, now
             if cmds.items:
@@ -54,11 +63,14 @@ def test_closed_loop_over_zenoh_reaches_goal_and_stops(router_endpoint):
 
 def test_stale_state_gives_zero_commands(router_endpoint):
     robot = "t_nav_stale"
-    args = ["--robot", robot, "--set", "rate_hz=50", "--set", "nav.state_timeout_s=0.2"]
+    args = ["--robot", robot, "--set", "rate_hz=50", "--set", "nav.state_timeout_s=0.2",
+            "--set", "status_period_s=0.1"]
     with ServiceProcess("navigator", router_endpoint, args) as nav, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/navigator"), nav.output
         cmds = Collector(session, f"rf/{robot}/cmd/ref", VelocityCommand)
-        time.sleep(0.3)
+        status = StatusWatch(session, f"rf/{robot}/status/navigator")
+        # Its loop has run for a while (uptime) without a goal: it published no command.
+        assert status.wait(lambda st: st.uptime_s > 0.3).published.get("cmd/ref", 0) == 0
         assert cmds.items == []  # no goal yet: silent
         put(session, f"rf/{robot}/nav/goal",
               NavGoal(waypoints=np.array([[2.0, 0.0, 0.0]]), tolerance=0.05, loop=False))
@@ -67,9 +79,10 @@ def test_stale_state_gives_zero_commands(router_endpoint):
         put(session, f"rf/{robot}/state", state(0, 0, 0))
         assert wait_until(lambda: any(c.linear[0] > 0 for c in cmds.items), 5)
         cmds.clear()
-        time.sleep(0.5)  # the state is now stale
-        assert cmds.items and cmds.items[-1].linear == (0, 0, 0)
+        # No more states: once the last one is older than state_timeout_s, commands are zero.
+        assert wait_until(lambda: bool(cmds.items) and cmds.items[-1].linear == (0, 0, 0), 5)
         cmds.close()
+        status.close()
         assert nav.stop() == 0
 
 
@@ -86,7 +99,9 @@ def test_hostile_goals_and_states_are_rejected_and_node_keeps_serving(router_end
             put(session, f"rf/{robot}/nav/goal", payload)
         for payload in hostile_payloads(st, 300, seed=8):
             put(session, f"rf/{robot}/state", payload)
-        time.sleep(0.5)
+        assert wait_until(lambda: status.items and status.items[-1].invalid.get("nav/goal", 0) == 300
+                          and status.items[-1].received.get("state", 0) == 300, 10), status.items[-1:]
+        assert status.items[-1].published.get("cmd/ref", 0) == 0
         assert cmds.items == []  # nothing hostile became a goal
         put(session, f"rf/{robot}/state", st)
         put(session, f"rf/{robot}/nav/goal", goal)

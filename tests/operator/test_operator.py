@@ -8,7 +8,7 @@ import numpy as np
 
 from riskfield.protocol import RobotState, VelocityCommand
 from riskfield.services.operator import OperatorConfig, ScriptedOperator, Target
-from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive
+from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
 
 
 def _drive(op: ScriptedOperator, t_end: float = 30.0, dt: float = 0.05, stop_at: float = 0.0):
@@ -68,13 +68,10 @@ def test_operator_node_publishes_references(router_endpoint):
         refs.clear()
         state = RobotState(position=(0, 0, 0), orientation=(0, 0, 0, 1), linear_velocity=(0, 0, 0),
                            angular_velocity=(0, 0, 0))
-        for _ in range(40):
-            put(s, "rf/t_op/state", state)
-            import time
-
-            time.sleep(0.05)
-        got = refs.wait(10)
-        assert all(r.source == "operator" for r in got)
-        assert any(r.linear[0] > 0.1 for r in got)  # facing the ball already: it drives forward
+        # A state stream at ~20 Hz, as the simulator sends it, until the operator drives.
+        assert wait_until(lambda: (put(s, "rf/t_op/state", state), any(r.linear[0] > 0.1 for r in refs.items))[1],
+                          10.0, period_s=0.05), op.output  # facing the ball already: it drives forward
+        got = list(refs.items)
+        assert got and all(r.source == "operator" for r in got)
         assert op.stop() == 0
         refs.close()

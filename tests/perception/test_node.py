@@ -4,7 +4,6 @@ process, and by a test client sending images/truth it pairs by stamp, hostile pa
 from __future__ import annotations
 
 import signal
-import time
 from pathlib import Path
 
 import numpy as np
@@ -64,21 +63,29 @@ def test_perception_pairs_by_stamp_and_survives_hostile_input(router_endpoint):
         frames = Collector(s, f"rf/{robot}/perception/frame", PerceptionFrame)
         status = Collector(s, f"rf/{robot}/status/perception", NodeStatus)
         img, truth = _pair(1000)
-        # Hostile payloads on both subscribed keys, sent slowly enough that most are decoded.
+        # Hostile payloads on both subscribed keys, in a burst: what the latest-value queue of
+        # camera/image skips is counted as dropped, the rest is decoded and rejected.
         bad_img, bad_truth = hostile_payloads(img, 150, seed=5), hostile_payloads(truth, 150, seed=6)
         for a, b in zip(bad_img, bad_truth, strict=True):
             put(s, f"rf/{robot}/camera/image", a)
             put(s, f"rf/{robot}/sim/truth", b)
-            time.sleep(0.002)
+
+        def stat(kind: str, key: str) -> int:
+            return getattr(status.items[-1], kind).get(key, 0) if status.items else 0
+
+        assert wait_until(lambda: stat("received", "camera/image") >= 150 and stat("received", "sim/truth") >= 150
+                          and stat("invalid", "camera/image") + stat("dropped", "camera/image") >= 150, 15), \
+            status.items[-1:]
         # Valid but inconsistent: a truth whose size differs from its image is rejected, not a crash.
         img2, _ = _pair(2000)
         _, truth2 = _pair(2000, 12, 16)
         put(s, f"rf/{robot}/sim/truth", truth2)
         put(s, f"rf/{robot}/camera/image", img2)
-        time.sleep(0.3)  # camera/image is a latest-value queue: let img2 be taken before the next one
+        # camera/image is a latest-value queue: img2 is taken (and rejected) before the next one.
+        assert wait_until(lambda: status.items[-1].extra.get("frames_rejected") == 1, 15), status.items[-1]
         # An image whose truth never comes is dropped after the timeout.
         put(s, f"rf/{robot}/camera/image", _pair(3000)[0])
-        time.sleep(0.6)
+        assert wait_until(lambda: status.items[-1].extra.get("unpaired_images", 0) >= 1, 15), status.items[-1]
         # Still serving: truth first, then the image, paired by stamp.
         put(s, f"rf/{robot}/sim/truth", truth)
         put(s, f"rf/{robot}/camera/image", img)
@@ -87,15 +94,17 @@ def test_perception_pairs_by_stamp_and_survives_hostile_input(router_endpoint):
         assert np.isfinite(out[0].points).all()
         # Image first, then its truth.
         img4, truth4 = _pair(4000)
+        images_in = stat("received", "camera/image")
         put(s, f"rf/{robot}/camera/image", img4)
-        time.sleep(0.05)
+        assert wait_until(lambda: stat("received", "camera/image") > images_in, 15)  # it is at the node first
         put(s, f"rf/{robot}/sim/truth", truth4)
         assert frames.wait(2, 15)[-1].header.stamp_ns == 4000
 
         def settled() -> bool:
             st = status.items[-1] if status.items else None
             return bool(st and st.extra.get("frames_rejected") == 1 and st.extra.get("unpaired_images", 0) >= 1
-                        and st.invalid.get("camera/image", 0) > 50 and st.invalid.get("sim/truth", 0) > 50)
+                        and all(st.invalid.get(k, 0) >= 1 and st.invalid.get(k, 0) + st.dropped.get(k, 0) >= 150
+                                for k in ("camera/image", "sim/truth")))
 
         assert wait_until(settled, 15), status.items[-1] if status.items else per.output
         assert status.items[-1].errors == 0 and per.alive()

@@ -119,6 +119,7 @@ def rollouts(model_name: str, field, n: int, seed: int, filtered: bool = True,
     return dict(worst=worst, collided=collided, intervened=intervened, fallbacks=fallbacks)
 
 
+@pytest.mark.slow  # ~1 min for the four models; the 60-rollout grid test below keeps the claim in `make check`
 @pytest.mark.parametrize("model_name", ["unicycle", "single2d", "single3d", "double3d"])
 def test_a_thousand_rollouts_never_violate_h(model_name):
     field = scene(planar=model_name in ("unicycle", "single2d"))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import signal
-import time
 from pathlib import Path
 
 import msgpack
@@ -43,12 +42,13 @@ def test_simulator_publishes_state_image_truth_and_obeys_commands(router_endpoin
         assert truth.points.shape == (96, 128, 3) and np.all(truth.confidence == 1.0)
         assert np.all(truth.points[..., 2] > 0) and set(np.unique(truth.labels)) <= set(range(ade20k.NUM_CLASSES))
         start = states.wait(1, 10)[-1].position
-        end = time.monotonic() + 1.5
-        while time.monotonic() < end:
-            put(s, f"rf/{robot}/cmd/safe", VelocityCommand(linear=(0.4, 0, 0), angular=(0, 0, 0), source="test"))
-            time.sleep(0.05)
-        moving = states.items[-1]
-        assert moving.linear_velocity[0] > 0.3 and moving.position[0] > start[0] + 0.3
+        forward = VelocityCommand(linear=(0.4, 0, 0), angular=(0, 0, 0), source="test")
+        # A command stream at ~20 Hz (the period is the scenario: one command would expire in the
+        # watchdog) until the robot is under way.
+        assert wait_until(lambda: (put(s, f"rf/{robot}/cmd/safe", forward),
+                                   states.items[-1].linear_velocity[0] > 0.3
+                                   and states.items[-1].position[0] > start[0] + 0.3)[1], 10.0, period_s=0.05), \
+            states.items[-1]
         # Watchdog: no command for 0.2 s → the robot brakes to a stop.
         assert wait_until(lambda: abs(states.items[-1].linear_velocity[0]) < 1e-9, 5)
         assert sim.stop(signal.SIGTERM) == 0, sim.output
@@ -84,11 +84,8 @@ def test_simulator_survives_hostile_input_and_spawns_objects(router_endpoint):
             status.items[-1]
         # Still serving: a valid command moves it, a valid spawn appears in the ground truth.
         x0 = states.wait(1, 10)[-1].position[0]
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
-            put(s, f"rf/{robot}/cmd/safe", valid)
-            time.sleep(0.05)
-        assert states.items[-1].position != (x0, 0.0, 0.0)
+        assert wait_until(lambda: (put(s, f"rf/{robot}/cmd/safe", valid), states.items[-1].position[0] != x0)[1],
+                          10.0, period_s=0.05), states.items[-1]
         assert all(np.isfinite(st.position).all() for st in states.items)
         truths.clear()
         put(s, f"rf/{robot}/sim/spawn", msgpack.packb({"class": "person", "name": "intruder",

@@ -65,7 +65,7 @@ def test_example_script_over_zenoh(router_endpoint):
         def publish() -> None:
             while not stop.is_set():
                 put(s, "rf/t_plan/map/esdf", grid)
-                time.sleep(0.1)
+                time.sleep(0.1)  # mapping's periodic ESDF (scenario): the script subscribes whenever it starts
 
         t = threading.Thread(target=publish, daemon=True)
         t.start()

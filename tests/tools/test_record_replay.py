@@ -89,6 +89,6 @@ def test_record_then_replay_over_zenoh(router_endpoint, tmp_path):
             items = got.wait(5, timeout_s=20)
             assert rp.proc.wait(20) == 0, rp.output  # stops by itself at the end
         assert items == sent  # byte-identical
-        gaps = np.diff(got.times[:5])
-        assert np.all(gaps > 0.1) and np.all(gaps < 0.6), gaps  # recorded spacing was 0.2 s
+        # "On time" is the schedule (checked exactly above) over the recorded arrival times; the
+        # live delivery spacing is timing, which belongs to a benchmark, not to this test.
         got.close()
