@@ -54,6 +54,12 @@ from riskfield.services.fields import DistanceField
 from riskfield.services.navigator.clf import DoubleIntegratorCLF
 from riskfield.services.safety_filter.qp import ActiveSetSolver, OsqpSolver
 
+#: The authors' six ScanNet++ scenes (run them with ``--scannetpp DATA/<id>`` each, or ``--scannetpp DATA``).
+AUTHORS_SCENES = ("281bc17764", "689fec23d7", "7cd2ac43b4", "8a20d62ac0", "b26e64c4b0", "bc03d88fc3")
+#: Their accepted trajectories per scene (same order) and per group: 486 in all.
+AUTHORS_ACCEPTED = (113, 101, 71, 107, 53, 41)
+AUTHORS_GROUPS = {"high": 164, "mid": 161, "low": 161}
+
 #: ADE20K classes the authors treat as structure (never grouped, never a target): their
 #: ``DEFAULT_EXCLUDED_ADE20K`` list, by name.
 STRUCTURAL_NAMES = (
