@@ -75,6 +75,12 @@ under `bench_out/results/`. Measured on the shared 2-core development machine wi
   500 steps.
 * The nominal input is riskfield's goal-seeking PD law (v ≤ 0.5 m/s, |u| ≤ 1.5 m/s²); the authors' `goal` mode
   is not published in detail.
+* The ESDF rows of the authors' HOCBF use the field's gradient only (∇²h = 0): the grid ESDF's Hessian spikes on
+  ridges and, with SaferSplat's unbounded QP, flung robots out of the room; the Gaussians keep their exact Hessian.
+* Table III matches progress over the two ESDF variants (the paper's caption); the authors' script matched over
+  all three methods. Table II extra rows are matched with the baseline and the ESDF.
+* Clearance is unsigned (the authors' script): a robot deep inside a solid object is scored by its distance to
+  the nearest surface; the full-run collision rate counts any step closer than the radius.
 * The low group's ESDF and semantic rows in `target` mode are identical by construction (margin 0): the
   target-mode roll-out over a low-group target is the plain ESDF's roll-out.
 """
