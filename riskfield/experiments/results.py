@@ -57,11 +57,17 @@ under `bench_out/results/`. Measured on the shared 2-core development machine wi
   `scene` inflates every group (deployed). It exists so the paper's numbers can be compared like with like;
   the riskfield protocol exists because the authors' protocol scores a filter that never sees the other
   groups' margins, which a deployed robot does.
+* Reading the low-group rows: in `target` mode they are the ESDF's by construction; in `scene` mode they show
+  what inflating the *other* groups costs a trajectory aimed at a low-risk object. Under the authors' short
+  object rings that cost is small; under the riskfield protocol's longer, offset pairs (and 0.15 m radius)
+  those paths pass inflated people and furniture, which is where its low-group progress drop comes from.
 
 ## Differences from the paper (one line each)
 
 * Scenes: six procedural rooms (`random_room`, seeds 0–5), not the six ScanNet++ scans (`--scannetpp DIR` runs
   those for users who have the data; its labels map to ADE20K by `riskfield/experiments/scannetpp_labels.py`).
+* `--protocol riskfield`'s baseline is a nearest-point point-cloud CBF (KD-tree, floor removed by height), as cheap
+  as the ESDF query; `--protocol authors` has the SaferSplat-style baseline below.
 * Accepted trajectories differ from their 486 (113/101/71/107/53/41) because the scenes differ; counts are below.
 * Perception: rendered pointmaps (`gt`) or the FM-like degradation (`sim`), not MASt3R-SLAM on iPhone video.
 * Map budget: every method gets the same 48 frames within a 6 s integration budget; the Gaussians get the
