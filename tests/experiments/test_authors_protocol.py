@@ -296,3 +296,16 @@ def test_results_document_assembles_runs_and_keeps_unrun_sections(tmp_path):
     assert "**Table II (authors' protocol).** numbers" in doc and "# title" not in doc
     assert "teleop table" in doc and doc.count(KEPT) == 1
     assert assemble(tmp_path, doc, commit="x").count(KEPT) == 1  # re-assembling does not pile up notes
+
+
+def test_authors_run_on_a_hand_made_scannetpp_scene(tmp_path):
+    from riskfield.experiments.benches.safety_authors import authors_run
+
+    scene = _write_scannetpp_scene(tmp_path / "data")
+    s = authors_run(tmp_path / "out", scenes=0, folders=[scene], perception="gt", modes=("target",), per_group=2,
+                    frames=6, map_budget=2.0)
+    assert s["scenes"][0]["scene"] == "scannetpp_0a1b2c3d4e"
+    # One non-structural class (the office chair → swivel chair): it is the only tier, high.
+    assert [t["name"] for t in s["scenes"][0]["tiers"]] == ["swivel chair"]
+    assert s["groups"] == {"high": 2, "mid": 0, "low": 0} and s["trajectories"] == 2
+    assert s["scenes"][0]["gaussians"]["count"] > 0
