@@ -5,8 +5,12 @@
 #
 # DIR (default deploy/secrets/certs) receives ca.pem + ca.key (kept if they already exist,
 # so re-running adds participants without invalidating the others) and NAME.pem + NAME.key
-# per participant. The certificate's common name is NAME: the routers' access control
-# matches routers by it (cert_common_names). SANs are DNS:host or IP:addr; without any,
+# per participant. The certificate's common name is NAME, and NAME must be the participant's
+# user name (deploy/make-users.sh): the routers' access control grants a role only when the
+# session's user AND its certificate's common name are both the role's name
+# (deploy/zenoh/router-secure.json5, subjects), so one node's certificate with another node's
+# password gets no role. Routers are router-server and router-robot (user "router").
+# SANs are DNS:host or IP:addr; without any,
 # the certificate holds DNS:NAME, DNS:localhost and IP:127.0.0.1, which is what a container
 # or a loopback test dials. Every leaf certificate is usable both as a TLS server (a router
 # listening) and as a TLS client (a node or a router dialling, mutual TLS).
@@ -17,7 +21,7 @@ set -euo pipefail
 
 OUT=""
 DAYS=825
-usage() { sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-0}"; }
+usage() { sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-0}"; }
 while getopts "o:d:h" opt; do
   case $opt in
     o) OUT=$OPTARG ;;
@@ -33,7 +37,7 @@ command -v openssl >/dev/null || { echo "make-certs: openssl is required" >&2; e
 NAMES=("$@")
 if [ ${#NAMES[@]} -eq 0 ]; then
   NAMES=(router-server router-robot safety-filter mapping perception navigator simulator
-         limo joystick mavlink operator)
+         limo joystick mavlink operator teleop ros2-bridge zenoh-bridge-ros2dds)
 fi
 
 mkdir -p "$OUT"

@@ -7,16 +7,18 @@
 # lines, transport/auth/usrpwd/dictionary_file), and USER.env per user with RISKFIELD_USER and
 # RISKFIELD_PASSWORD for that node's environment (compose env_file, systemd EnvironmentFile).
 # Existing users keep their password; new ones get 24 random URL-safe characters.
-# The user name is the role the routers' access control knows (deploy/zenoh/router-secure.json5):
-# safety-filter publishes cmd/safe; operator, teleop, joystick and navigator publish cmd/ref,
-# nav/goal and the risk config; the other services publish data; router links the sites.
+# The user name is the role the routers' access control knows (deploy/zenoh/router-secure.json5),
+# and it must also be the common name of the node's certificate (deploy/make-certs.sh NAME):
+# a role needs both. Each role may put only its own exact keys (safety-filter: cmd/safe;
+# joystick, teleop, navigator, ros2-bridge: cmd/ref; operator: cmd/ref, nav/goal, the risk
+# config; the other services their data); any other user only subscribes and queries.
 set -euo pipefail
 
 OUT=""
 while getopts "o:h" opt; do
   case $opt in
     o) OUT=$OPTARG ;;
-    h) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    h) sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) exit 2 ;;
   esac
 done
@@ -24,7 +26,8 @@ shift $((OPTIND - 1))
 [ -n "$OUT" ] || OUT="$(cd "$(dirname "$0")" && pwd)/secrets"
 USERS=("$@")
 if [ ${#USERS[@]} -eq 0 ]; then
-  USERS=(router safety-filter mapping perception navigator simulator limo joystick mavlink operator teleop)
+  USERS=(router safety-filter mapping perception navigator simulator limo joystick mavlink operator teleop
+         ros2-bridge zenoh-bridge-ros2dds)
 fi
 
 mkdir -p "$OUT"

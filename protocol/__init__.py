@@ -13,6 +13,7 @@ from .errors import DecodeError, EncodeError
 from .keys import TOPICS, Keys
 from .messages import (
     MESSAGE_TYPES,
+    DepthImage,
     DistanceQuery,
     DistanceReply,
     EsdfGrid,
@@ -31,7 +32,7 @@ from .risk import RiskConfig, RiskGroup
 
 __all__ = [
     "DEFAULT_LIMITS", "ENCODING", "MESSAGE_TYPES", "REGISTRY", "TOPICS",
-    "DecodeError", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
+    "DecodeError", "DepthImage", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
     "Keys", "Limits", "LimoDiagnostics", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig",
     "RiskGroup",
     "RobotState", "SafetyStatus", "VelocityCommand", "ade20k", "decode", "encode", "to_map",

@@ -6,6 +6,7 @@ import re
 from dataclasses import dataclass
 
 from .messages import (
+    DepthImage,
     DistanceQuery,
     EsdfGrid,
     Image,
@@ -24,6 +25,7 @@ _CHUNK = re.compile(r"^[A-Za-z0-9_\-.~+=@:]+$")
 #: Relative key → the message published on it (queries: the request type).
 TOPICS: dict[str, type[Message]] = {
     "camera/image": Image,
+    "camera/depth": DepthImage,  # additive: depth registered to camera/image (same stamp), RGB-D robots
     "perception/frame": PerceptionFrame,
     "map/esdf": EsdfGrid,
     "map/esdf3d": EsdfGrid,  # the 3-D grid when map/esdf carries the ground robot's 2-D slice
@@ -65,6 +67,7 @@ class Keys:
         return f"{self.prefix}/{self.robot}"
 
     camera_image = property(lambda self: self.key("camera/image"))
+    camera_depth = property(lambda self: self.key("camera/depth"))
     perception_frame = property(lambda self: self.key("perception/frame"))
     esdf = property(lambda self: self.key("map/esdf"))
     esdf_query = property(lambda self: self.key("map/esdf/query"))

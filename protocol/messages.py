@@ -95,6 +95,11 @@ class PerceptionFrame(Message):
     confidence: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
     labels: Annotated[np.ndarray, ArraySpec("<u2", (None, None))]
     keyframe_id: int
+    kind: Literal["keyframe_new", "keyframe_update", "tracking"] | None = None
+    """Additive (map-update protocol): ``keyframe_new`` — a keyframe the map has not seen, integrate it;
+    ``keyframe_update`` — keyframe ``keyframe_id`` again, re-posed or with a refined pointmap, carrying
+    its full pointmap: replace its previous contribution; ``tracking`` — a tracked frame, not integrated
+    (its stamp says the map is current). ``None`` (older senders): an independent observation, integrated."""
 
     @model_validator(mode="after")
     def _consistent(self) -> PerceptionFrame:
@@ -104,6 +109,20 @@ class PerceptionFrame(Message):
         if self.labels.shape != hw:
             raise ValueError(f"labels shape {list(self.labels.shape)} differs from points {list(hw)}")
         return self
+
+
+class DepthImage(Message):
+    """Additive (``camera/depth``): a depth image registered to the RGB image of the same stamp,
+    with its pinhole intrinsics (OpenCV axes: x right, y down, z forward; pixel centres at
+    integer coordinates). ``depth`` is z in metres, 0 where the sensor has no return."""
+
+    SCHEMA: ClassVar[str] = "DepthImage/1"
+
+    depth: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
+    fx: PosFloat
+    fy: PosFloat
+    cx: FiniteFloat
+    cy: FiniteFloat
 
 
 # -- maps -----------------------------------------------------------------------------------
@@ -219,7 +238,8 @@ class VelocityCommand(Message):
 
 class SafetyStatus(Message):
     """What the safety filter did on one step and why. ``fallback`` names why it braked
-    (``None`` when it did not); ``esdf_age_ms`` is -1 before any ESDF has arrived."""
+    (``None`` when it did not); ``esdf_age_ms`` is the map's content age (now − its header
+    stamp, the newest sensor data in it), -1 before any ESDF has arrived."""
 
     SCHEMA: ClassVar[str] = "SafetyStatus/1"
 
@@ -231,6 +251,10 @@ class SafetyStatus(Message):
     esdf_age_ms: FiniteFloat
     # Additive: risk-file changes refused since start (the configuration in force was kept).
     risk_errors: Annotated[int, Field(ge=0)] = 0
+    # Additive: publishers seen on map/esdf lately (2 or more: a stuck or rogue second mapper),
+    # and maps refused since start (stale or future content, seq backwards, older than in force).
+    esdf_publishers: Annotated[int, Field(ge=0)] = 0
+    esdf_refused: Annotated[int, Field(ge=0)] = 0
 
 
 class NavGoal(Message):
@@ -303,6 +327,7 @@ class LimoDiagnostics(Message):
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     Image,
     PerceptionFrame,
+    DepthImage,
     EsdfGrid,
     DistanceQuery,
     DistanceReply,

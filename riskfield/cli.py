@@ -296,6 +296,8 @@ def demo(
     budget: Annotated[float, typer.Option(help="Seconds allowed for both experiments after start-up.")] = 100.0,
     verbose: Annotated[bool, typer.Option(help="Echo every service's log lines.")] = False,
     report_only: Annotated[bool, typer.Option(help="Only rebuild the report from a finished run in --out.")] = False,
+    perception: Annotated[str, typer.Option(help="Perception geometry: sim (degraded truth, keyframes) or rgbd "
+                                            "(the simulator's depth + odometry, one class).")] = "sim",
 ) -> None:
     """The whole stack on this machine: teleop towards a ball and a dog, then a navigation loop
     with an unseen obstacle; ends with a summary table and a report folder."""
@@ -304,7 +306,10 @@ def demo(
     from riskfield.experiments.demo.report import make_report
     from riskfield.experiments.demo.run import Demo, DemoConfig
 
-    cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose)
+    if perception not in ("sim", "rgbd"):
+        console.print(f"[red]--perception {perception!r}: use sim or rgbd[/red]")
+        raise typer.Exit(2)
+    cfg = DemoConfig(out=out, live=live, seed=seed, budget_s=budget, verbose=verbose, perception=perception)
     if report_only:
         phases = out / "phases.json"
         if not phases.is_file():

@@ -35,17 +35,25 @@ answers them with the value of unknown space (:func:`answer_query`).
 
 The risk group of a query is the ``risk_group`` of the nearest voxel (the mapper stores there
 the group of that voxel's nearest obstacle).
+
+``interpolation`` other than ``trilinear`` (the above) reads the same stencil with a cubic
+kernel of ``fields.spline`` instead: distance, gradient and Hessian are then the exact
+derivatives of one piecewise cubic (the safety filter's default is ``bspline_smooth``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 
 from riskfield.protocol import EsdfGrid
 
+from . import spline as field_spline
 from .base import DistanceField, FieldSample
+
+Interpolation = Literal["trilinear", "catmull_rom", "bspline", "bspline_smooth"]
 
 _OFFS = np.arange(-1, 3)
 _EPS = 1e-9
@@ -68,6 +76,7 @@ class EsdfField:
         max_distance: float | None = None,
         unknown_is_occupied: bool = False,
         check: bool = True,
+        interpolation: Interpolation = "trilinear",
     ):
         dist = np.asarray(distance)
         if dist.ndim != 3:
@@ -108,12 +117,25 @@ class EsdfField:
         self._w0, self._w1 = axis_weights(self.voxel_size)
         grids = np.meshgrid(*[_OFFS * st for st in self._strides], indexing="ij")
         self._offsets = sum(grids)[None]  # flat offsets of the 4^dims stencil
+        # Cubic interpolation (services/fields/spline.py): same stencil, over the kernel's coefficients.
+        if interpolation not in ("trilinear", *field_spline.KERNELS):
+            raise ValueError(f"unknown interpolation {interpolation!r}")
+        self.interpolation: Interpolation = interpolation
+        if interpolation != "trilinear":
+            self._flat = field_spline.prefilter(dist, interpolation, self.planar).reshape(-1)
 
     @classmethod
-    def from_grid(cls, grid: EsdfGrid) -> EsdfField:
+    def from_grid(cls, grid: EsdfGrid, interpolation: Interpolation = "trilinear") -> EsdfField:
         """Wrap a decoded ``EsdfGrid`` (zero-copy; the grid's validator already checked it)."""
         return cls(grid.distance, grid.origin, grid.voxel_size, grid.risk_group, grid.groups,
-                   grid.max_distance, grid.unknown_is_occupied, check=False)
+                   grid.max_distance, grid.unknown_is_occupied, check=False, interpolation=interpolation)
+
+    def with_interpolation(self, interpolation: Interpolation) -> EsdfField:
+        """The same grid (arrays shared) queried with another interpolation."""
+        if interpolation == self.interpolation:
+            return self
+        return EsdfField(self.distance, self.origin, self.voxel_size, self.risk_groups, self._groups,
+                         self.max_distance, self.unknown_is_occupied, check=False, interpolation=interpolation)
 
     @property
     def groups(self) -> Sequence[str]:
@@ -144,7 +166,10 @@ class EsdfField:
         # Every output is a linear functional of the stencil: contract it axis by axis with the
         # 1-D weights of (value, first, second) difference, interpolated at the fraction t.
         k = 3 if hessian else 2
-        w = self._w0[:k] + t[:, :, None, None] * self._w1[:k]  # (N, dims, k, 4)
+        if self.interpolation == "trilinear":
+            w = self._w0[:k] + t[:, :, None, None] * self._w1[:k]  # (N, dims, k, 4)
+        else:
+            w = field_spline.axis_weights(t, self.voxel_size, self.interpolation, k)
         hess = None
         if dims == 2:
             r = w[:, 0] @ block @ np.swapaxes(w[:, 1], 1, 2)  # (N, kx, ky)

@@ -27,6 +27,7 @@ from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig
 from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import MapperConfig
 from .esdf_integrator import EsdfIntegrator
+from .keyframes import KeyframeMap
 from .layers import SemanticLayer, TsdfLayer
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
@@ -80,6 +81,7 @@ class Mapper:
         self.stamp_ns = 0
         self.frame_id = "map"
         self.set_risk_config(risk or RiskConfig())
+        self.keyframes = KeyframeMap(self.config)  # the keyframe map-update protocol (keyframes.py)
 
     # -- inputs ---------------------------------------------------------------------------------
     def set_risk_config(self, risk: RiskConfig) -> None:
@@ -137,13 +139,16 @@ class Mapper:
         votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
         self.frames += 1
         self.dirty = True
-        if stamp_ns is not None:
-            self.stamp_ns = int(stamp_ns)
+        # The ESDF's stamp is the newest integrated data's, kept across re-publications; an
+        # unstamped pointmap counts as data of now (its integration), never of a later rebuild.
+        self.stamp_ns = int(stamp_ns) if stamp_ns is not None else time.time_ns()
         if frame_id:
             self.frame_id = frame_id
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
 
     def integrate_frame(self, frame: PerceptionFrame) -> FrameResult:
+        if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
+            return self.keyframes.integrate_frame(self, frame)
         return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,
                               stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id)
 
@@ -193,7 +198,7 @@ class Mapper:
         groups = self.occupancy()
         t1 = time.perf_counter()
         out.timings_ms["occupancy"] = (t1 - t0) * 1e3
-        header = Header(stamp_ns=self.stamp_ns or time.time_ns(), frame_id=self.frame_id)
+        header = Header(stamp_ns=self.stamp_ns, frame_id=self.frame_id)  # 0: no data integrated yet
         common = dict(voxel_size=self.volume.voxel_size, groups=self.risk.group_names, max_distance=c.max_distance,
                       unknown_is_occupied=c.unknown_is_occupied)
         if c.output in ("2d", "both"):

@@ -12,8 +12,9 @@ Serves
     ``{prefix}/{robot}/map/esdf/query``    DistanceQuery → DistanceReply (with ``in_map``), from the
                                            grid published on ``map/esdf``
 
-The ESDF header carries the stamp of the newest integrated frame, so its age seen by the
-safety filter includes perception latency. A rejected frame (non-rigid pose, absurd size)
+The ESDF header carries the stamp of the newest integrated frame, also when the grid is only
+re-published (a risk config, a recentring): its content age seen by the safety filter includes
+perception latency and keeps growing while perception is silent. A rejected frame (non-rigid pose, absurd size)
 is counted (``rejected_frames``) and logged at most once per period; the node keeps serving.
 A risk file (``risk_file``, see ``runtime.risk_file``) is loaded at start and re-read when it
 changes; a bad change keeps the configuration in force and is counted (``risk_errors``).
@@ -54,7 +55,13 @@ class MappingNode:
         self._last_publish = -float("inf")
         k = node.keys
         frame_limits = Limits(max_array_bytes=12 * settings.max_pixels)
-        node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="latest", limits=frame_limits)
+        # fifo, not latest: under the keyframe protocol (keyframes.py) a dropped new/updated keyframe
+        # would leave its old contribution in the map; 8 bounds the backlog. Frames outside that
+        # protocol (tracking frames, senders without ``kind``) keep latest-value semantics in
+        # ``on_frame``: one with newer frames queued behind it is skipped, never a backlog.
+        self._frame_key = k.perception_frame
+        node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="fifo", maxlen=8,
+                       limits=frame_limits)
         node.subscribe(k.state, RobotState, self.on_state, queue="latest")
         node.subscribe(k.risk_config, RiskConfig, self.on_risk_config, queue="latest")
         node.queryable(k.esdf_query, DistanceQuery, self.on_query,
@@ -64,6 +71,9 @@ class MappingNode:
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_frame(self, frame: PerceptionFrame) -> None:
+        if frame.kind in (None, "tracking") and self.node.backlog(self._frame_key) > 0:
+            self.node.stats["superseded_frames"] = self.node.stats.get("superseded_frames", 0) + 1
+            return
         try:
             result = self.mapper.integrate_frame(frame)
         except FrameRejected as exc:
@@ -76,6 +86,9 @@ class MappingNode:
         st["integrate_ms"] = result.ms
         st["rays"] = result.rays
         st["shifts"] = self.mapper.shifts
+        if frame.kind is not None:  # the keyframe protocol's counters (keyframes.py)
+            kf = self.mapper.keyframes
+            st.update({f"kf_{k}": v for k, v in kf.counts.items()}, kf_bytes=kf.nbytes)
         self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
 
     def on_state(self, state: RobotState) -> None:

@@ -1,31 +1,58 @@
 """The ``mast3r`` geometry backend: an adapter to MASt3R-SLAM (rmurai0610/MASt3R-SLAM, read at
 commit b0ae540; see ``shared/reference/mast3r_efficientvit.md``). GPU only; imported lazily.
 
-What the adapter adds to MASt3R-SLAM's own loop (first frame: mono inference, later frames:
-``FrameTracker.track``, new keyframes appended to ``SharedKeyframes``):
+The loop is upstream's ``main.py`` ``__main__`` in its single-thread form (global optimisation and
+relocalisation run right after the frame that needs them, as ``config["single_thread"]`` makes the
+main loop wait for them), driven one camera image at a time:
 
+* **config** — upstream keeps a module-level ``config = {}`` that ``FrameTracker`` and
+  ``create_frame`` read (``mast3r_slam/config.py``); it is always loaded: the installed
+  checkout's own ``config/base.yaml`` (or ``mast3r_config``), then our overrides merged in place
+  with upstream's ``merge_config`` (``AUTHORS_OVERRIDES``: the authors' ×10 subsampling).
+  ``dataset.subsample`` = N keeps every N-th image, as upstream's dataloader ``subsample`` does.
+* **modes** (``mast3r_slam/frame.py`` ``Mode``) — INIT: mono inference, first keyframe;
+  TRACKING: ``FrameTracker.track``; when it answers ``try_reloc`` the backend switches to RELOC:
+  mono inference on each frame and ``relocalise`` (upstream ``main.py`` ``relocalization``) until
+  a retrieved keyframe accepts it, then back to TRACKING.
+* **initial pose guess** — the last *tracked* frame's pose (upstream: ``states.get_frame().T_WC``),
+  identity for the first frame; not the last keyframe's.
+* **confidence** — a keyframe's ``C`` is the *sum* over its ``N`` fused observations
+  (``Frame.update_pointmap``, ``weighted_pointmap``); messages carry the average
+  ``get_average_conf()`` = C/N, and pixels below ``c_conf`` (default 1.5, upstream's
+  ``WindowMsg.C_conf_threshold`` used with the average in ``evaluate.save_reconstruction``)
+  get confidence 0, so the mapper skips them.
+* **map updates** — each message has a ``kind`` (the keyframe protocol, see the README): a new
+  keyframe once (``keyframe_new``); a ``keyframe_update`` with its full pointmap when global
+  optimisation re-posed it or tracking refined its pointmap; a ``tracking`` frame otherwise.
+  Re-posed keyframes are found by comparing each keyframe's ``T_WC`` with the pose last published:
+  ``SharedKeyframes.update_T_WCs`` (called by ``FactorGraph.solve_GN_*``) does **not** set
+  ``is_dirty``; only ``__setitem__`` does (the tracker's write-back of a refined keyframe), so
+  ``get_dirty_idx()`` reports refined pointmaps, never poses. Refined keyframes are re-sent every
+  ``update_every`` tracked frames and when the next keyframe starts (its final state).
 * **pixel matches for labels** — ``track()`` keeps ``idx_f2k`` and the match qualities to
   itself; ``MatchRecorder`` wraps ``mast3r_match_asymmetric`` in the tracker's module while
   ``track()`` runs and keeps its outputs, from which ``Qk = sqrt(Qff[idx_f2k] · Qkf)`` and the
-  trusted set ``valid_match_k & Qk > Q_conf`` follow (``fusion.transfer_labels``). The frame's
-  labels are then voted into the keyframe's label map (``fusion.vote_fuse``). The geometry
-  fusion of eq. (2) is MASt3R-SLAM's own (``Frame.update_pointmap``, ``weighted_pointmap``).
-* **metric frames** — a keyframe's pose is a Sim(3) ``T_WC = (t, q xyzw, s)`` acting as
-  ``p_W = s·R·X + t``; the wire contract wants a rigid camera → world transform, so the scale
-  goes into the points: ``points = s · X_canon`` (camera frame) and ``T_WC = [R | t]``.
-* **re-optimised keyframes** — after global optimisation, keyframes the backend moved
-  (``get_dirty_idx()``) are published again with their new pose and the same ``keyframe_id``.
-* **image geometry** — MASt3R resizes the long side to 512 and centre-crops to multiples of 16;
-  ``mast3r_crop`` computes the same box so labels computed on the original image are carried
-  onto the keyframe grid (``labels_to_grid``).
-
-Global optimisation runs synchronously after each new keyframe (MASt3R-SLAM's single-thread
-mode) instead of in a spawned process: simpler to own, slower per keyframe.
+  trusted set ``valid_match_k & Qk > Q_conf`` follow (``fusion.transfer_labels``); the frame's
+  labels are voted into the keyframe's label map (``fusion.vote_fuse``).
+* **metric frames** — a pose is a lietorch Sim(3) whose ``data`` is ``(t, q xyzw, s)``
+  (``mast3r_slam/lietorch_utils.py`` ``as_SE3`` splits it [3, 4, 1]) acting as ``p_W = s·R·X + t``;
+  the wire contract wants a rigid camera → world transform, so the scale goes into the points:
+  ``points = s · X_canon`` and ``T_WC = [R | t]``.
+* **map frame** — SLAM's world is its first keyframe's camera (identity at INIT, optical axes).
+  ``anchor(stamp_ns)``, when given, returns ``T_map_slam`` at that first image (the node passes
+  the robot's odometry pose there times the camera extrinsic), so poses land in the robot's z-up
+  map; every published pose is ``T_map_slam · T_WC``.
+* **image geometry** — MASt3R resizes the long side to 512 and centre-crops to multiples of 16
+  (``mast3r_utils.resize_img``); ``mast3r_crop`` computes the same box so labels computed on the
+  original image are carried onto the keyframe grid (``labels_to_grid``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,6 +65,13 @@ from riskfield.protocol.messages import Header
 from ..geometry.transforms import quat_to_matrix
 from .backend import Labeller, MissingBackend, image_rgb
 from .fusion import Q_CONF, match_confidence, transfer_labels, vote_fuse
+
+C_CONF = 1.5
+"""Threshold on the average confidence C/N: MASt3R-SLAM's ``WindowMsg.C_conf_threshold``
+(``mast3r_slam/visualization.py``), applied to ``get_average_conf()`` in ``evaluate.save_reconstruction``."""
+AUTHORS_OVERRIDES: dict[str, Any] = {"dataset": {"subsample": 10}}
+"""What the authors' ``base_subsample10`` run changes in upstream's ``config/base.yaml``."""
+REQUIRED_CONFIG = ("use_calib", "single_thread", "dataset", "tracking", "local_opt", "retrieval", "reloc")
 
 REQUIRED = ("torch", "lietorch", "mast3r_slam", "mast3r_slam.frame", "mast3r_slam.tracker", "mast3r_slam.mast3r_utils",
             "mast3r_slam.global_opt", "mast3r_slam.config")
@@ -119,19 +153,24 @@ def sim3_pose(data: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def keyframe_message(X_canon: np.ndarray, C: np.ndarray, sim3: np.ndarray, labels: np.ndarray, height: int, width: int,
-                     keyframe_id: int, stamp_ns: int, frame_id: str = "map") -> PerceptionFrame:
-    """A MASt3R keyframe as a ``PerceptionFrame`` (scale folded into the points; see module doc).
-    Non-finite points (the network's failures) get confidence 0 and a zero point."""
+                     keyframe_id: int, stamp_ns: int, frame_id: str = "map", kind: str | None = None,
+                     c_conf: float = 0.0, T_map_slam: np.ndarray | None = None) -> PerceptionFrame:
+    """A MASt3R frame as a ``PerceptionFrame`` (scale folded into the points; see module doc).
+    ``C`` must be the *average* confidence (``Frame.get_average_conf()``); pixels below ``c_conf``
+    and non-finite points (the network's failures) get confidence 0 and a zero point.
+    ``T_map_slam`` places SLAM's world (its first camera) in the map frame."""
     T, s = sim3_pose(sim3)
+    if T_map_slam is not None:
+        T = np.asarray(T_map_slam, np.float64) @ T
     X = np.asarray(X_canon, np.float64).reshape(height, width, 3) * s
     Cf = np.asarray(C, np.float64).reshape(height, width)
     bad = ~(np.isfinite(X).all(axis=-1) & np.isfinite(Cf))
     X[bad] = 0.0
-    Cf = np.where(bad, 0.0, np.maximum(Cf, 0.0))
+    Cf = np.where(bad | (Cf < c_conf), 0.0, np.maximum(Cf, 0.0))
     return PerceptionFrame(header=Header(stamp_ns=stamp_ns, frame_id=frame_id), T_WC=T, points=X.astype(np.float32),
                            confidence=Cf.astype(np.float32),
                            labels=np.asarray(labels, np.uint16).reshape(height, width),
-                           keyframe_id=int(keyframe_id))
+                           keyframe_id=int(keyframe_id), kind=kind)
 
 
 class MatchRecorder:
@@ -177,48 +216,132 @@ class KeyframeLabels:
         return trusted
 
 
-# -- the adapter (GPU) ---------------------------------------------------------------------------
+# -- configuration and the startup check ----------------------------------------------------------
 
 
-class Mast3rBackend:
-    needs_truth = False
+def checkout_config(mast3r_slam: Any) -> Path:
+    """``config/base.yaml`` of the installed checkout (upstream installs with ``pip install -e .``,
+    so the package sits in the clone next to ``config/``; ``main.py``'s ``--config`` default)."""
+    return Path(mast3r_slam.__file__).resolve().parent.parent / "config" / "base.yaml"
 
-    def __init__(self, labeller: Labeller, checkpoint_dir: str | Path = "checkpoints", config: str | Path | None = None,
-                 device: str = "cuda:0", Q_conf: float = Q_CONF, frame_id: str = "map"):
-        m = require_mast3r()
-        ckpt = Path(checkpoint_dir)
-        for name in (CHECKPOINT, RETRIEVER, CODEBOOK):
-            if not (ckpt / name).is_file():
-                raise MissingBackend(f"MASt3R-SLAM checkpoint {ckpt / name} is missing. {INSTALL_HINT}")
-        self.m, self.torch, self.lietorch = m, m["torch"], m["lietorch"]
-        if config is not None:
-            m["mast3r_slam.config"].load_config(str(config))
-        self.cfg = m["mast3r_slam.config"].config
-        self.device, self.Q_conf, self.frame_id = device, Q_conf, frame_id
-        self.labeller = labeller
-        self.model = m["mast3r_slam.mast3r_utils"].load_mast3r(str(ckpt / CHECKPOINT), device=device)
-        self.retriever = m["mast3r_slam.mast3r_utils"].load_retriever(self.model, str(ckpt / RETRIEVER), device=device)
+
+def load_config(config_mod: Any, path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Fill upstream's module-level ``config`` from ``path``, then merge ``overrides`` into it.
+
+    ``mast3r_slam/config.py``: ``load_config`` reads ``inherit:`` parents relative to the working
+    directory (the authors run from the clone's root, ``inherit: "config/base.yaml"``), so it runs
+    from there; ``set_global_config`` only ``update``s the top level, so the overrides go through
+    ``merge_config``, which merges nested maps in place — the dict other modules imported by name
+    stays the same object.
+    """
+    path = Path(path).resolve()
+    if not path.is_file():
+        raise MissingBackend(f"MASt3R-SLAM config {path} is missing")
+    root = path.parent.parent if path.parent.name == "config" else path.parent
+    with contextlib.chdir(root):
+        config_mod.load_config(str(path))
+    config_mod.merge_config(config_mod.config, copy.deepcopy(overrides or {}))
+    cfg = config_mod.config
+    missing = [k for k in REQUIRED_CONFIG if k not in cfg]
+    if missing:
+        raise MissingBackend(f"MASt3R-SLAM config {path} lacks {', '.join(missing)}")
+    if cfg["use_calib"]:
+        raise MissingBackend(f"MASt3R-SLAM config {path} sets use_calib: the adapter runs uncalibrated")
+    return cfg
+
+
+def startup_check(checkpoint_dir: str | Path, config: str | Path | None, device: str,
+                  importer: Callable[[str], Any] = importlib.import_module) -> tuple[dict[str, Any], Path | None]:
+    """Everything the backend needs, checked before anything loads: the modules, the three
+    checkpoint files, the config file and a CUDA device. Raises one ``MissingBackend`` whose
+    message (one line) names every missing piece."""
+    mods, problems, missing_mods = {}, [], []
+    for name in REQUIRED:
+        try:
+            mods[name] = importer(name)
+        except ImportError as exc:
+            missing_mods.append(f"{name} ({exc.name or exc})")
+    if missing_mods:
+        problems.append(f"cannot import {', '.join(missing_mods)}")
+    ckpt = Path(checkpoint_dir)
+    absent = [str(ckpt / n) for n in (CHECKPOINT, RETRIEVER, CODEBOOK) if not (ckpt / n).is_file()]
+    if absent:
+        problems.append(f"checkpoint {', '.join(absent)} missing")
+    cfg_path: Path | None = Path(config) if config is not None else None
+    if cfg_path is None and "mast3r_slam" in mods:
+        cfg_path = checkout_config(mods["mast3r_slam"])
+    if cfg_path is None:
+        problems.append("config: the default config/base.yaml comes with the mast3r_slam checkout")
+    elif not cfg_path.is_file():
+        problems.append(f"config {cfg_path} missing")
+    torch = mods.get("torch")
+    if torch is not None and not (device.startswith("cuda") and torch.cuda.is_available()):
+        problems.append(f"no CUDA device ({device!r}; torch.cuda.is_available() = {torch.cuda.is_available()})")
+    if problems:
+        hint = f" {INSTALL_HINT}" if missing_mods or absent else ""
+        raise MissingBackend(f"the mast3r backend cannot start: {'; '.join(problems)}.{hint}")
+    return mods, cfg_path
+
+
+# -- the adapter (GPU; the loop runs on fakes in the tests) -----------------------------------------
+
+INIT, TRACKING, RELOC = "init", "tracking", "reloc"  # upstream mast3r_slam/frame.py Mode (TERMINATED: n/a)
+
+
+def _np(x: Any) -> np.ndarray:
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+
+def _clone(x: Any) -> Any:
+    return x.clone() if hasattr(x, "clone") else np.array(x, copy=True)
+
+
+class Mast3rSlam:
+    """Upstream's single-thread loop, one image at a time, producing map-update messages.
+
+    ``m`` maps module names to modules (``REQUIRED``): the real ones on a GPU host, fakes of
+    the same behaviour in the tests. ``model``/``retriever`` are what ``load_mast3r`` and
+    ``load_retriever`` return.
+    """
+
+    def __init__(self, m: dict[str, Any], model: Any, retriever: Any, labeller: Labeller, device: str = "cuda:0",
+                 Q_conf: float = Q_CONF, c_conf: float = C_CONF, update_every: int = 5, frame_id: str = "map",
+                 T_map_slam: np.ndarray | None = None, anchor: Callable[[int], np.ndarray] | None = None):
+        self.m, self.model, self.retriever, self.labeller = m, model, retriever, labeller
+        self.anchor = anchor
+        self.cfg: dict[str, Any] = m["mast3r_slam.config"].config
+        self.device, self.Q_conf, self.c_conf, self.frame_id = device, Q_conf, c_conf, frame_id
+        self.update_every = max(1, int(update_every))
+        self.T_map_slam = T_map_slam
+        self.subsample = max(1, int(self.cfg["dataset"]["subsample"]))
         self.keyframes: Any = None
         self.tracker: Any = None
         self.graph: Any = None
         self.labels = KeyframeLabels()
-        self.i = 0
+        self.mode = INIT
+        self.images = 0  # camera images seen (before subsampling)
+        self.i = 0  # frames processed (upstream's frame_id)
+        self.last_frame: Any = None  # upstream states.get_frame(): the last tracked frame
         self.crop: Crop | None = None
-        self.recorder = MatchRecorder(m["mast3r_slam.tracker"].mast3r_match_asymmetric,
-                                      lambda t: t.detach().cpu().numpy() if hasattr(t, "detach") else np.asarray(t))
+        self.published: dict[int, np.ndarray] = {}  # keyframe index → Sim3 data last sent
+        self.refined: set[int] = set()
+        self.since_update = 0
+        self.relocalisations = 0
+        self.recorder = MatchRecorder(m["mast3r_slam.tracker"].mast3r_match_asymmetric, _np)
 
     def _start(self, h: int, w: int) -> None:
-        import torch.multiprocessing as mp  # part of torch: present when require_mast3r() passed
-
         frame_mod = self.m["mast3r_slam.frame"]
-        self._manager = mp.Manager()
+        # SharedKeyframes takes a multiprocessing manager for its lock and counters (upstream main.py
+        # passes torch.multiprocessing's); the fakes need none.
+        mp = getattr(self.m["torch"], "multiprocessing", None)
+        self._manager = mp.Manager() if mp is not None else None
         self.keyframes = frame_mod.SharedKeyframes(self._manager, h, w)
         self.tracker = self.m["mast3r_slam.tracker"].FrameTracker(self.model, self.keyframes, self.device)
         self.graph = self.m["mast3r_slam.global_opt"].FactorGraph(self.model, self.keyframes, None, self.device)
 
     def _track(self, frame: Any) -> tuple[bool, bool]:
-        # Swap the recorder in for the duration of track(): the tracker calls the matcher by the
-        # name it imported into its own module.
+        # Swap the recorder in for the duration of track(): mast3r_slam/tracker.py imports the
+        # matcher by name (``from mast3r_slam.mast3r_utils import mast3r_match_asymmetric``).
         mod = self.m["mast3r_slam.tracker"]
         mod.mast3r_match_asymmetric = self.recorder
         try:
@@ -227,61 +350,155 @@ class Mast3rBackend:
             mod.mast3r_match_asymmetric = self.recorder.fn
         return bool(add_new_kf), bool(try_reloc)
 
-    def _optimise(self, idx: int) -> None:
-        kf_idx = {idx - 1} if idx > 0 else set()
-        retrieval = self.cfg["retrieval"]
-        kf_idx |= set(self.retriever.update(self.keyframes[idx], add_after_query=True, k=retrieval["k"],
-                                            min_thresh=retrieval["min_thresh"]))
-        kf_idx.discard(idx)
-        if kf_idx:
-            self.graph.add_factors(sorted(kf_idx), [idx] * len(kf_idx), self.cfg["local_opt"]["min_match_frac"])
+    def _solve(self) -> None:
+        if self.cfg["use_calib"]:
+            self.graph.solve_GN_calib()
+        else:
             self.graph.solve_GN_rays()
 
-    def _message(self, idx: int, stamp_ns: int) -> PerceptionFrame:
-        kf = self.keyframes[idx]
-        h, w = self.crop.shape if self.crop else kf.uimg.shape[:2]
-        to_np = self.recorder.to_numpy
-        return keyframe_message(to_np(kf.X_canon), to_np(kf.C), to_np(kf.T_WC.data), self.labels.labels[idx], h, w,
-                                idx, stamp_ns, self.frame_id)
+    def _optimise(self, idx: int) -> None:
+        """Upstream ``main.py`` ``run_backend``, one task: the previous keyframe plus retrieved ones."""
+        kf_idx = {idx - 1} if idx > 0 else set()
+        retrieval = self.cfg["retrieval"]
+        kf_idx |= {int(i) for i in self.retriever.update(self.keyframes[idx], add_after_query=True, k=retrieval["k"],
+                                                         min_thresh=retrieval["min_thresh"])}
+        kf_idx.discard(idx)
+        if kf_idx:
+            ii = sorted(kf_idx)
+            self.graph.add_factors(ii, [idx] * len(ii), self.cfg["local_opt"]["min_match_frac"])
+        self._solve()
+
+    def _relocalise(self, frame: Any) -> bool:
+        """Upstream ``main.py`` ``relocalization``: query the retrieval database (without adding),
+        append the frame as a keyframe tied to the candidates; keep it if the factors hold
+        (strict per ``reloc.strict``), starting from the first candidate's pose, else drop it."""
+        retrieval, reloc = self.cfg["retrieval"], self.cfg["reloc"]
+        kf_idx = [int(i) for i in self.retriever.update(frame, add_after_query=False, k=retrieval["k"],
+                                                        min_thresh=retrieval["min_thresh"])]
+        if not kf_idx:
+            return False
+        self.keyframes.append(frame)
+        n_kf = len(self.keyframes)
+        if not self.graph.add_factors([n_kf - 1] * len(kf_idx), kf_idx, reloc["min_match_frac"],
+                                      is_reloc=reloc["strict"]):
+            self.keyframes.pop_last()
+            return False
+        self.retriever.update(frame, add_after_query=True, k=retrieval["k"], min_thresh=retrieval["min_thresh"])
+        self.keyframes.T_WC[n_kf - 1] = _clone(self.keyframes.T_WC[kf_idx[0]])
+        self._solve()
+        return True
+
+    def _message(self, frame: Any, idx: int, labels: np.ndarray, kind: str, stamp_ns: int) -> PerceptionFrame:
+        h, w = self.crop.shape if self.crop else (int(self.keyframes.h), int(self.keyframes.w))
+        data = _np(frame.T_WC.data).reshape(-1)
+        if kind != "tracking":
+            self.published[idx] = data.copy()
+        return keyframe_message(_np(frame.X_canon), _np(frame.get_average_conf()), data, labels, h, w, idx, stamp_ns,
+                                self.frame_id, kind, self.c_conf, self.T_map_slam)
+
+    def _new_keyframe(self, labels: np.ndarray, stamp_ns: int) -> PerceptionFrame:
+        idx = len(self.keyframes) - 1
+        self.labels.start(idx, labels)
+        return self._message(self.keyframes[idx], idx, self.labels.labels[idx], "keyframe_new", stamp_ns)
+
+    def _updates(self, stamp_ns: int, flush: bool, skip: set[int]) -> list[PerceptionFrame]:
+        """Re-posed keyframes now; refined ones every ``update_every`` frames or on ``flush``."""
+        self.refined |= {int(i) for i in _np(self.keyframes.get_dirty_idx()).reshape(-1).tolist()}
+        due = set()
+        for i, sent in self.published.items():
+            if i not in skip and not np.allclose(_np(self.keyframes.T_WC[i]).reshape(-1), sent, rtol=0, atol=1e-6):
+                due.add(i)
+        if flush or self.since_update >= self.update_every:
+            due |= self.refined
+            self.refined = set()
+            self.since_update = 0
+        due = {i for i in due - skip if i in self.labels.labels and i < len(self.keyframes)}
+        self.refined -= due
+        return [self._message(self.keyframes[i], i, self.labels.labels[i], "keyframe_update", stamp_ns)
+                for i in sorted(due)]
 
     def process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
         if image is None:
             return []
-        torch = self.torch
+        self.images += 1
+        if (self.images - 1) % self.subsample:
+            return []
         rgb = image_rgb(image)
         crop = mast3r_crop(*rgb.shape[:2])
         if self.crop is None:
             self.crop = crop
             self._start(*crop.shape)
+        elif crop != self.crop:
+            raise ValueError(f"the image size changed to {rgb.shape[1]}x{rgb.shape[0]}")
         labels = labels_to_grid(self.labeller(rgb), crop)
-        frame_mod = self.m["mast3r_slam.frame"]
-        T_WC = (self.lietorch.Sim3.Identity(1, device=self.device) if len(self.keyframes) == 0
-                else self.keyframes.last_keyframe().T_WC)
+        frame_mod, utils = self.m["mast3r_slam.frame"], self.m["mast3r_slam.mast3r_utils"]
+        # Upstream main.py: the guess is the last tracked frame's pose (states.get_frame().T_WC).
+        T_WC = (self.m["lietorch"].Sim3.Identity(1, device=self.device) if self.last_frame is None
+                else self.last_frame.T_WC)
         frame = frame_mod.create_frame(self.i, rgb.astype(np.float32) / 255.0, T_WC, img_size=512, device=self.device)
         self.i += 1
-        out_idx: set[int] = set()
-        with torch.inference_mode():
-            if len(self.keyframes) == 0:
-                X, C = self.m["mast3r_slam.mast3r_utils"].mast3r_inference_mono(self.model, frame)
+        out: list[PerceptionFrame] = []
+        new: set[int] = set()
+        with self.m["torch"].inference_mode():
+            if self.mode == INIT:
+                if self.anchor is not None:
+                    self.T_map_slam = np.asarray(self.anchor(stamp_ns), np.float64)
+                X, C = utils.mast3r_inference_mono(self.model, frame)
                 frame.update_pointmap(X, C)
                 self.keyframes.append(frame)
-                self.labels.start(0, labels)
+                self.last_frame = frame
+                out.append(self._new_keyframe(labels, stamp_ns))
+                new.add(0)
                 self._optimise(0)
-                out_idx.add(0)
-            else:
+                self.mode = TRACKING
+            elif self.mode == TRACKING:
                 add_new_kf, try_reloc = self._track(frame)
-                current = len(self.keyframes) - 1
+                self.last_frame = frame
                 if try_reloc:
-                    return []  # tracking lost: publish nothing rather than a wrong pose
-                idx_f2k, valid_k, Qk = self.recorder.matches()
-                self.labels.fuse(current, labels, idx_f2k, valid_k, Qk, self.Q_conf)
-                out_idx.add(current)
-                if add_new_kf:
-                    self.keyframes.append(frame)
-                    new = len(self.keyframes) - 1
-                    self.labels.start(new, labels)
-                    self._optimise(new)
-                    out_idx.add(new)
-            dirty = self.keyframes.get_dirty_idx()
-            out_idx |= {int(i) for i in (dirty.tolist() if hasattr(dirty, "tolist") else dirty)}
-        return [self._message(i, stamp_ns) for i in sorted(out_idx) if i in self.labels.labels]
+                    self.mode = RELOC  # the frame's pose is an unverified guess: not published
+                else:
+                    current = len(self.keyframes) - 1
+                    idx_f2k, valid_k, Qk = self.recorder.matches()
+                    self.labels.fuse(current, labels, idx_f2k, valid_k, Qk, self.Q_conf)
+                    out.append(self._message(frame, current, labels, "tracking", stamp_ns))
+                    self.since_update += 1
+                    if add_new_kf:
+                        out += self._updates(stamp_ns, flush=True, skip=set())  # the finished keyframe
+                        self.keyframes.append(frame)
+                        new.add(len(self.keyframes) - 1)
+                        out.append(self._new_keyframe(labels, stamp_ns))
+                        self._optimise(len(self.keyframes) - 1)
+            else:  # RELOC, upstream main.py: mono inference, then the back end's relocalization()
+                X, C = utils.mast3r_inference_mono(self.model, frame)
+                frame.update_pointmap(X, C)
+                self.last_frame = frame
+                if self._relocalise(frame):
+                    self.relocalisations += 1
+                    self.mode = TRACKING
+                    new.add(len(self.keyframes) - 1)
+                    out.append(self._new_keyframe(labels, stamp_ns))
+            out += self._updates(stamp_ns, flush=False, skip=new)
+        return out
+
+
+class Mast3rBackend:
+    """The ``mast3r`` backend: startup check, config, models, then ``Mast3rSlam``."""
+
+    needs_truth = False
+
+    def __init__(self, labeller: Labeller, checkpoint_dir: str | Path = "checkpoints", config: str | Path | None = None,
+                 device: str = "cuda:0", Q_conf: float = Q_CONF, frame_id: str = "map", c_conf: float = C_CONF,
+                 overrides: dict[str, Any] | None = None, update_every: int = 5,
+                 T_map_slam: np.ndarray | None = None, anchor: Callable[[int], np.ndarray] | None = None):
+        m, cfg_path = startup_check(checkpoint_dir, config, device)
+        assert cfg_path is not None
+        load_config(m["mast3r_slam.config"], cfg_path, AUTHORS_OVERRIDES if overrides is None else overrides)
+        ckpt = Path(checkpoint_dir)
+        utils = m["mast3r_slam.mast3r_utils"]
+        model = utils.load_mast3r(str(ckpt / CHECKPOINT), device=device)
+        retriever = utils.load_retriever(model, str(ckpt / RETRIEVER), device=device)
+        self.slam = Mast3rSlam(m, model, retriever, labeller, device, Q_conf, c_conf, update_every, frame_id,
+                               T_map_slam, anchor)
+
+    def process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
+        return self.slam.process(image, truth, stamp_ns)

@@ -1,9 +1,12 @@
-"""The perception node: ``camera/image`` (+ ``sim/truth`` for the sim backend) → ``perception/frame``.
+"""The perception node: ``camera/image`` (+ ``sim/truth`` or ``camera/depth``) → ``perception/frame``.
 
-Settings choose the geometry (``sim`` | ``mast3r``) and the labels (``sim`` | ``efficientvit``).
-With ``geometry = sim`` each image is paired with the simulator's ground-truth frame carrying
-the same ``header.stamp_ns`` (key ``{prefix}/{robot}/sim/truth``, see the simulator node);
-images wait at most ``pair_timeout_s`` for their truth. Output frames keep the image's stamp.
+Settings choose the geometry (``sim`` | ``mast3r`` | ``rgbd``) and the labels (``sim`` |
+``efficientvit``). With ``geometry = sim`` each image is paired with the simulator's ground-truth
+frame carrying the same ``header.stamp_ns`` (key ``{prefix}/{robot}/sim/truth``, see the simulator
+node); with ``geometry = rgbd`` with the ``DepthImage`` of the same stamp on ``camera/depth``, and
+``state`` poses the camera. Images wait at most ``pair_timeout_s`` for their companion. Output
+frames keep the image's stamp. A backend that cannot start (unknown name, missing weights, config,
+CUDA) stops the node with one line naming what is missing.
 """
 
 from __future__ import annotations
@@ -15,9 +18,9 @@ from collections import OrderedDict
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
-from riskfield.protocol import Image, PerceptionFrame
+from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, ade20k
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec, ServiceUnavailable
@@ -27,14 +30,16 @@ from .degrade import DegradationConfig
 from .sim_backend import SimBackend, SimBackendConfig
 
 TRUTH_KEY = "sim/truth"
+GEOMETRIES = ("sim", "mast3r", "rgbd")
+LABELS = ("sim", "efficientvit")
 
 
 class PerceptionSettings(NodeSettings):
     SERVICE: ClassVar[str] = "perception"
 
-    geometry: Literal["sim", "mast3r"] = "sim"
-    labels: Literal["sim", "efficientvit"] = "sim"
-    publish: Literal["keyframe", "frame"] = "keyframe"
+    geometry: str = Field("sim", description="sim | mast3r | rgbd")
+    labels: str = Field("sim", description="sim | efficientvit")
+    publish: Literal["keyframe", "frame", "updates"] = "keyframe"
     truth_key: str = TRUTH_KEY
     pair_timeout_s: float = Field(0.5, gt=0)
     seed: int = 0
@@ -49,6 +54,11 @@ class PerceptionSettings(NodeSettings):
     p_salt: float = Field(0.001, ge=0, le=1)
     drift_t: float = Field(0.0, ge=0)
     drift_yaw: float = Field(0.0, ge=0)
+    correct_every: int = Field(0, ge=0, description="sim: a loop closure every n keyframes re-poses them (0: never)")
+    update_every: int = Field(5, ge=1, description="re-send a refined keyframe every n tracked frames")
+    confidence_threshold: float | None = Field(None, ge=0, description="pixels whose average confidence is "
+                                               "below are sent with confidence 0; None: the backend's default "
+                                               "(mast3r 1.5, as MASt3R-SLAM; sim and rgbd 0)")
     # keyframes
     kf_min_overlap: float = Field(0.6, ge=0, le=1)
     kf_max_translation: float = Field(1.0, gt=0)
@@ -56,11 +66,41 @@ class PerceptionSettings(NodeSettings):
     q_conf: float = Field(1.5, ge=0)
     # GPU backends
     efficientvit_checkpoint: str | None = None
-    efficientvit_model: str = "efficientvit-seg-l1-ade20k"
+    efficientvit_model: str = "efficientvit-seg-l2-ade20k"  # the authors' model
     device: str = "cpu"
     mast3r_checkpoints: str = "checkpoints"
-    mast3r_config: str | None = None
+    mast3r_config: str | None = Field(None, description="None: config/base.yaml of the installed checkout")
+    mast3r_subsample: int = Field(10, ge=1, description="keep every n-th image (the authors' base_subsample10)")
     mast3r_device: str = "cuda:0"
+    # rgbd: depth camera + odometry
+    depth_key: str = "camera/depth"
+    camera_position: tuple[float, float, float] = (0.15, 0.0, 0.1)
+    camera_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rgbd_label: str = Field("wall", description="the ADE20K class of every pixel when labels are not from a network")
+    rgbd_max_depth: float = Field(6.0, gt=0)
+
+    @field_validator("geometry")
+    @classmethod
+    def _geometry(cls, v: str) -> str:
+        if v not in GEOMETRIES:
+            raise ValueError(f"unknown geometry backend {v!r}; known: {', '.join(GEOMETRIES)}")
+        return v
+
+    @field_validator("labels")
+    @classmethod
+    def _labels(cls, v: str) -> str:
+        if v not in LABELS:
+            raise ValueError(f"unknown labels backend {v!r}; known: {', '.join(LABELS)}")
+        return v
+
+    @field_validator("rgbd_label")
+    @classmethod
+    def _rgbd_label(cls, v: str) -> str:
+        try:
+            ade20k.index(v)
+        except KeyError as exc:
+            raise ValueError(exc.args[0]) from None
+        return v
 
 
 def decode_image(image: Image) -> Image:
@@ -76,21 +116,47 @@ def decode_image(image: Image) -> Image:
 
 
 def build_backend(s: PerceptionSettings) -> PerceptionBackend:
+    if s.geometry not in GEOMETRIES:  # settings validate this; a model_construct()ed object may not
+        raise MissingBackend(f"unknown geometry backend {s.geometry!r}; known: {', '.join(GEOMETRIES)}")
     labeller: Labeller | None = None
     if s.labels == "efficientvit":
         from .efficientvit_backend import EfficientVitLabeller
 
         labeller = EfficientVitLabeller(s.efficientvit_checkpoint, s.efficientvit_model, s.device)
     if s.geometry == "mast3r":
-        from .mast3r_backend import Mast3rBackend
+        from .mast3r_backend import C_CONF, Mast3rBackend
 
         if labeller is None:
             raise MissingBackend("geometry=mast3r needs labels=efficientvit (a real camera has no ground truth)")
-        return Mast3rBackend(labeller, s.mast3r_checkpoints, s.mast3r_config, s.mast3r_device, s.q_conf)
+        from .rgbd_backend import Odometry, T_base_camera
+
+        c_conf = C_CONF if s.confidence_threshold is None else s.confidence_threshold
+        odometry, T_BC = Odometry(), T_base_camera(s.camera_position, s.camera_rpy_deg)
+
+        def anchor(stamp_ns: int) -> np.ndarray:
+            # SLAM's world is its first camera: put it where odometry says the camera was (the
+            # base at the origin without odometry).
+            try:
+                return odometry.pose_at(stamp_ns) @ T_BC
+            except ValueError:
+                return T_BC
+
+        backend = Mast3rBackend(labeller, s.mast3r_checkpoints, s.mast3r_config, s.mast3r_device, s.q_conf,
+                                c_conf=c_conf, overrides={"dataset": {"subsample": s.mast3r_subsample}},
+                                update_every=s.update_every, anchor=anchor)
+        backend.odometry = odometry  # type: ignore[attr-defined]  # fed from the state key by setup()
+        return backend
+    if s.geometry == "rgbd":
+        from .rgbd_backend import RgbdBackend, RgbdConfig
+
+        return RgbdBackend(RgbdConfig(s.camera_position, s.camera_rpy_deg, ade20k.index(s.rgbd_label),
+                                      max_depth=s.rgbd_max_depth), labeller)
     deg = DegradationConfig(s.noise_a, s.noise_b, s.c_gain, s.z_scale, s.boundary_px, s.p_boundary, s.p_confuse,
                             s.p_salt, s.drift_t, s.drift_yaw)
     return SimBackend(SimBackendConfig(deg, s.publish, s.kf_min_overlap, s.kf_max_translation, s.kf_max_rotation_deg,
-                                       s.q_conf, seed=s.seed), labeller)
+                                       s.q_conf, seed=s.seed, correct_every=s.correct_every,
+                                       update_every=s.update_every,
+                                       c_conf=s.confidence_threshold or 0.0), labeller)
 
 
 class Perception:
@@ -98,13 +164,15 @@ class Perception:
 
     def __init__(self, node: Node, s: PerceptionSettings, backend: PerceptionBackend):
         self.node, self.s, self.backend = node, s, backend
-        self.truths: OrderedDict[int, PerceptionFrame] = OrderedDict()
+        self.truths: OrderedDict[int, PerceptionFrame | DepthImage] = OrderedDict()
+        self.paired = backend.needs_truth or getattr(backend, "needs_depth", False)
+        self.companion_key = s.truth_key if backend.needs_truth else s.depth_key
         self.pending: tuple[Image, float] | None = None
         self.rejected = 0
         self.unpaired = 0
 
     def on_image(self, image: Image) -> None:
-        if not self.backend.needs_truth:
+        if not self.paired:
             self._run(image, None)
             return
         truth = self.truths.pop(image.header.stamp_ns, None)
@@ -115,7 +183,8 @@ class Perception:
             self.unpaired += 1
         self.pending = (image, time.monotonic())
 
-    def on_truth(self, truth: PerceptionFrame) -> None:
+    def on_truth(self, truth: PerceptionFrame | DepthImage) -> None:
+        """The image's companion: the simulator's truth (sim) or the depth image (rgbd)."""
         if self.pending is not None and self.pending[0].header.stamp_ns == truth.header.stamp_ns:
             image, _ = self.pending
             self.pending = None
@@ -130,17 +199,17 @@ class Perception:
             self.pending = None
             self.unpaired += 1
             self.node.stats["unpaired_images"] = self.unpaired
-            self.node.ratelog(logging.WARNING, "unpaired", "an image got no ground-truth frame in time (is the "
-                              f"simulator publishing {self.s.truth_key}?)")
+            self.node.ratelog(logging.WARNING, "unpaired", f"an image got no {self.companion_key} in time (is "
+                              "the simulator or the camera driver publishing it? simulator: publish_depth=true)")
 
-    def _run(self, image: Image, truth: PerceptionFrame | None) -> None:
+    def _run(self, image: Image, truth: PerceptionFrame | DepthImage | None) -> None:
         try:
             image = decode_image(image)
-            if truth is not None and truth.points.shape[:2] != (image.height, image.width):
+            if isinstance(truth, PerceptionFrame) and truth.points.shape[:2] != (image.height, image.width):
                 raise ValueError(f"truth is {truth.points.shape[1]}x{truth.points.shape[0]}, "
                                  f"the image {image.width}x{image.height}")
             t0 = time.perf_counter()
-            frames = self.backend.process(image, truth, image.header.stamp_ns)
+            frames = self.backend.process(image, truth, image.header.stamp_ns)  # type: ignore[arg-type]
             self.node.stats["process_ms"] = (time.perf_counter() - t0) * 1e3
         except (ValueError, OSError) as exc:
             self.rejected += 1
@@ -164,6 +233,12 @@ def setup(node: Node, s: PerceptionSettings) -> Perception:
     node.subscribe(node.keys.camera_image, Image, p.on_image, queue="latest")
     if backend.needs_truth:
         node.subscribe(node.keys.key(s.truth_key), PerceptionFrame, p.on_truth, queue="fifo", maxlen=4)
+        node.every(0.1, p.expire)
+    if hasattr(backend, "odometry") and not getattr(backend, "needs_depth", False):  # mast3r: the map anchor
+        node.subscribe(node.keys.state, RobotState, backend.odometry.on_state, queue="fifo", maxlen=64)
+    if getattr(backend, "needs_depth", False):
+        node.subscribe(node.keys.key(s.depth_key), DepthImage, p.on_truth, queue="fifo", maxlen=4)
+        node.subscribe(node.keys.state, RobotState, backend.on_state, queue="fifo", maxlen=64)  # type: ignore[attr-defined]
         node.every(0.1, p.expire)
     node.log.info("perception: geometry %s, labels %s, publishing %s", s.geometry, s.labels, s.publish)
     return p

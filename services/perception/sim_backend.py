@@ -15,7 +15,14 @@ Per frame:
    (eq. 7–8), both over trusted matches (``valid_match_k & Qk > Q_conf``);
 4. publish the fused keyframe (``publish = "keyframe"``: pose of the keyframe, its id) or the
    current frame with the keyframe's fused labels carried back onto matched pixels
-   (``publish = "frame"``).
+   (``publish = "frame"``), or follow the keyframe map-update protocol (``publish = "updates"``,
+   see the README): ``keyframe_new`` once per keyframe, ``keyframe_update`` (full pointmap) every
+   ``update_every`` fused frames and when the next keyframe starts, ``tracking`` otherwise.
+
+**Drift and correction** (``publish = "updates"``, ``correct_every`` = n > 0): with pose drift on
+(``drift_t``, ``drift_yaw``), every n-th new keyframe triggers a simulated loop closure: the drift is
+reset and every keyframe still kept (the last ``max_keyframes``) is re-posed to its true pose and
+sent again as ``keyframe_update`` — the traffic a SLAM back end's global optimisation produces.
 """
 
 from __future__ import annotations
@@ -47,10 +54,16 @@ class SimBackendConfig:
     depth_tol_rel: float = 0.03  # of the depth
     seed: int = 0
     frame_id: str = "map"
+    correct_every: int = 0  # publish = "updates": a loop closure every n keyframes (0: never)
+    update_every: int = 5  # publish = "updates": re-send the refined keyframe every n fused frames
+    max_keyframes: int = 32  # publish = "updates": keyframes kept for corrections
+    c_conf: float = 0.0  # pixels below this confidence are sent with confidence 0
 
     def __post_init__(self) -> None:
-        if self.publish not in ("keyframe", "frame"):
-            raise ValueError(f"publish {self.publish!r}: use keyframe or frame")
+        if self.publish not in ("keyframe", "frame", "updates"):
+            raise ValueError(f"publish {self.publish!r}: use keyframe, frame or updates")
+        if self.correct_every < 0 or self.update_every < 1 or self.max_keyframes < 1:
+            raise ValueError("correct_every ≥ 0, update_every ≥ 1 and max_keyframes ≥ 1")
         if not 0 <= self.kf_min_overlap <= 1:
             raise ValueError("kf_min_overlap is a fraction")
 
@@ -85,6 +98,9 @@ class SimBackend:
         self.frames = 0
         self.last_matches: Matches | None = None
         self.last_observation: Observation | None = None
+        self.kept: dict[int, _Keyframe] = {}  # publish = "updates": keyframes a correction re-poses
+        self.since_update = 0
+        self.corrections = 0
 
     # -- the steps ------------------------------------------------------------------------------
     def match(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray, T_WC_true: np.ndarray,
@@ -160,17 +176,68 @@ class SimBackend:
             m = self.match(kf, points, valid, T_WC_true, obs.confidence)
             if self._needs_keyframe(kf, m, T_WC_true):
                 m = None
+        if self.config.publish == "updates":
+            return self._updates(kf, m, obs, points, T_WC_true, stamp_ns)
         if m is None:
             kf = self.keyframe = self._new_keyframe(obs, points, T_WC_true)
             self.last_matches = None
         else:
             assert kf is not None
-            T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate
-            X_in_k = transform_points(T_KC, obs.points.reshape(-1, 3)[m.idx_f2k], np.float32)
-            kf.fusion.fuse(X_in_k, obs.confidence.reshape(-1)[m.idx_f2k], obs.labels, m.idx_f2k, m.valid_match_k,
-                           m.Qk, self.config.Q_conf)
-            self.last_matches = m
+            self._fuse(kf, m, obs, T_WC_true)
         return [self._message(kf, obs, m, stamp_ns)]
+
+    def _fuse(self, kf: _Keyframe, m: Matches, obs: Observation, T_WC_true: np.ndarray) -> None:
+        T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate
+        X_in_k = transform_points(T_KC, obs.points.reshape(-1, 3)[m.idx_f2k], np.float32)
+        kf.fusion.fuse(X_in_k, obs.confidence.reshape(-1)[m.idx_f2k], obs.labels, m.idx_f2k, m.valid_match_k,
+                       m.Qk, self.config.Q_conf)
+        self.last_matches = m
+
+    def _updates(self, kf: _Keyframe | None, m: Matches | None, obs: Observation, points: np.ndarray,
+                 T_WC_true: np.ndarray, stamp_ns: int) -> list[PerceptionFrame]:
+        """The keyframe map-update protocol (module doc, step 4, and drift and correction)."""
+        c = self.config
+        if m is not None:
+            assert kf is not None
+            self._fuse(kf, m, obs, T_WC_true)
+            self.since_update += 1
+            if self.since_update >= c.update_every:
+                self.since_update = 0
+                return [self._keyframe_message(kf, "keyframe_update", stamp_ns)]
+            return [self._tracking_message(kf, obs, stamp_ns)]
+        out = []
+        if kf is not None and self.since_update > 0:  # the finished keyframe's final state
+            out.append(self._keyframe_message(kf, "keyframe_update", stamp_ns))
+        kf = self.keyframe = self._new_keyframe(obs, points, T_WC_true)
+        self.last_matches = None
+        self.since_update = 0
+        self.kept[kf.fusion.id] = kf
+        while len(self.kept) > c.max_keyframes:
+            self.kept.pop(min(self.kept))
+        out.append(self._keyframe_message(kf, "keyframe_new", stamp_ns))
+        if c.correct_every and self.n_keyframes % c.correct_every == 0:
+            # A loop closure: every kept keyframe back to its true pose, the drift reset.
+            self.corrections += 1
+            self.degrader.drift = np.eye(4)
+            for k in sorted(self.kept):
+                old = self.kept[k]
+                if not np.allclose(old.T_WK, old.T_WK_true, atol=1e-9):
+                    old.T_WK = old.T_WK_true.copy()
+                    out.append(self._keyframe_message(old, "keyframe_update", stamp_ns))
+        return out
+
+    def _keyframe_message(self, kf: _Keyframe, kind: str, stamp_ns: int) -> PerceptionFrame:
+        f = kf.fusion
+        C = f.C.reshape(f.height, f.width)
+        return PerceptionFrame(header=Header(stamp_ns=stamp_ns, frame_id=self.config.frame_id), T_WC=kf.T_WK,
+                               points=f.X.reshape(f.height, f.width, 3),
+                               confidence=np.where(C < self.config.c_conf, np.float32(0.0), C),
+                               labels=f.labels.reshape(f.height, f.width), keyframe_id=f.id, kind=kind)
+
+    def _tracking_message(self, kf: _Keyframe, obs: Observation, stamp_ns: int) -> PerceptionFrame:
+        return PerceptionFrame(header=Header(stamp_ns=stamp_ns, frame_id=self.config.frame_id), T_WC=obs.T_WC,
+                               points=obs.points, confidence=obs.confidence, labels=obs.labels,
+                               keyframe_id=kf.fusion.id, kind="tracking")
 
     def _message(self, kf: _Keyframe, obs: Observation, m: Matches | None, stamp_ns: int) -> PerceptionFrame:
         f = kf.fusion

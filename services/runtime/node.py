@@ -34,12 +34,32 @@ M = TypeVar("M", bound=Message)
 _ENC = zenoh.Encoding(ENCODING)
 
 
+def _entity(gid: Any) -> str:
+    """``<zid>/<eid>`` of a zenoh ``EntityGlobalId``."""
+    return f"{gid.zid}/{gid.eid}"
+
+
 class _Sub:
     """A subscription's slot plus how to decode and whom to call."""
 
     def __init__(self, key: str, slot: Slot, msg_type: type[Message] | None, handler: Callable, limits: Limits):
         self.key, self.slot, self.msg_type, self.handler, self.limits = key, slot, msg_type, handler, limits
         self.invalid = 0
+        self.foreign = 0  # samples dropped because their key is not one this subscription serves
+
+
+def serves(sub_key: str, sample_key: str) -> bool:
+    """Whether a sample on ``sample_key`` may reach a subscription declared on ``sub_key``.
+
+    Zenoh delivers a put on any key expression that *intersects* the subscription, so a put on
+    ``rf/limo1/cmd/*`` or ``**`` reaches a ``rf/limo1/cmd/safe`` subscriber with the
+    publisher's wildcard key (zenoh ``Sample.key_expr`` is the put's expression). A concrete
+    subscription therefore serves exactly its own key; a wildcard one (recorders) serves only
+    concrete keys, never a wildcard put (``*``, ``**`` and ``$*`` all contain ``*``).
+    """
+    if "*" in sub_key:
+        return "*" not in sample_key
+    return sample_key == sub_key
 
 
 class Node:
@@ -53,6 +73,9 @@ class Node:
         self.ratelog = RateLimitedLog(self.log)
         self.stats: dict[str, float] = {}  # extra numbers a service wants in its NodeStatus
         self.arrival_ns = 0  # wall-clock arrival time of the message being handled
+        # Zenoh source of the message being handled ("<zid>/<eid>" of its publisher), or None
+        # when the publisher set no source info (foreign clients); see ``publish``.
+        self.source_id: str | None = None
         self._own_session = session is None
         self.session = session if session is not None else open_session(settings)
         self._inbox = Inbox()
@@ -75,6 +98,11 @@ class Node:
         self.every(settings.status_period_s, self._publish_status)
 
     # -- declarations -----------------------------------------------------------------------
+    def backlog(self, key: str) -> int:
+        """How many samples of the subscription on ``key`` wait behind the one being handled: a
+        handler of a ``fifo`` stream can skip a superseded item when only the newest matters."""
+        return sum(len(sub.slot.items) for sub in self._subs if sub.key == key)
+
     def subscribe(
         self,
         key: str,
@@ -93,7 +121,17 @@ class Node:
         self._subs.append(sub)
 
         def on_sample(sample: zenoh.Sample, sub: _Sub = sub) -> None:
-            self._inbox.put(sub.slot, ("sample", str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+            key = str(sample.key_expr)
+            # Dropped here, before the queue: a forged wildcard put must not displace the
+            # legitimate newest value of a latest-value queue.
+            if not serves(sub.key, key):
+                sub.foreign += 1
+                self.ratelog(logging.WARNING, f"foreign:{sub.key}",
+                             f"dropped a sample on {key}: this subscription serves only {sub.key}")
+                return
+            info = sample.source_info
+            source = None if info is None else _entity(info.source_id)
+            self._inbox.put(sub.slot, ("sample", key, sample.payload.to_bytes(), time.time_ns(), source))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -111,14 +149,14 @@ class Node:
         self._subs.append(sub)
 
         def on_query(query: zenoh.Query, sub: _Sub = sub) -> None:
-            self._inbox.put(sub.slot, ("query", query, None, time.time_ns()))
+            self._inbox.put(sub.slot, ("query", query, None, time.time_ns(), None))
 
         self._declared.append(self.session.declare_queryable(key, on_query))
 
     def post(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` on the loop thread as soon as possible; safe to call from any thread
         (device readers, serial threads), so cores still see one thread only."""
-        self._inbox.put(self._calls, ("call", fn, None, time.time_ns()))
+        self._inbox.put(self._calls, ("call", fn, None, time.time_ns(), None))
 
     def on_close(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` at shutdown while the session is still open (a bridge's last stop command)."""
@@ -130,14 +168,18 @@ class Node:
 
     # -- output -------------------------------------------------------------------------------
     def publish(self, key: str, msg: Message) -> None:
-        """Stamp the header's sequence number, encode (refusing NaN/Inf) and put."""
+        """Stamp the header's sequence number, encode (refusing NaN/Inf) and put.
+
+        The sample carries Zenoh source info (this publisher's entity id and the same sequence
+        number), which tells a receiver which publisher a message came from: a ``seq`` going
+        backwards from one publisher is a replay, a new publisher (a restarted node) is not."""
         seq = self._seq.get(key, 0)
         msg.header.seq = seq
         payload = encode(msg)
         pub = self._publishers.get(key)
         if pub is None:
             pub = self._publishers[key] = self.session.declare_publisher(key, encoding=_ENC)
-        pub.put(payload)
+        pub.put(payload, source_info=zenoh.SourceInfo(pub.id, seq))
         self._seq[key] = seq + 1
         self._published[key] = self._published.get(key, 0) + 1
 
@@ -147,7 +189,8 @@ class Node:
         if pub is None:
             enc = _ENC if encoding == ENCODING else zenoh.Encoding(encoding)
             pub = self._publishers[key] = self.session.declare_publisher(key, encoding=enc)
-        pub.put(payload)
+        # A replay or relay is a publisher of its own, whatever publisher the bytes came from.
+        pub.put(payload, source_info=zenoh.SourceInfo(pub.id, self._published.get(key, 0)))
         self._published[key] = self._published.get(key, 0) + 1
 
     def query(self, key: str, request: Message, reply_type: type[M], timeout_s: float = 1.0) -> list[M]:
@@ -204,7 +247,7 @@ class Node:
             self._call(f"timer {getattr(fn, '__name__', fn)}", fn)
 
     def _dispatch(self, slot: Slot, item: tuple) -> None:
-        kind, a, b, self.arrival_ns = item
+        kind, a, b, self.arrival_ns, self.source_id = item
         if kind == "call":
             self._call(f"posted {getattr(a, '__name__', a)}", a)
             return
@@ -261,6 +304,9 @@ class Node:
     def status(self) -> NodeStatus:
         d = np.asarray(self._durations, dtype=float) * 1e3 if self._durations else np.zeros(1)
         rel = lambda k: self.keys.relative(k) or k  # noqa: E731
+        extra = {k: float(v) for k, v in self.stats.items() if np.isfinite(v)}
+        # Wildcard (or otherwise foreign-keyed) puts dropped by the runtime, all subscriptions.
+        extra["wildcard_dropped"] = extra.get("wildcard_dropped", 0.0) + sum(s.foreign for s in self._subs)
         return NodeStatus(
             service=self.service,
             pid=os.getpid(),
@@ -273,7 +319,7 @@ class Node:
             handler_ms_p50=float(np.percentile(d, 50)),
             handler_ms_p99=float(np.percentile(d, 99)),
             handler_ms_max=float(d.max()),
-            extra={k: float(v) for k, v in self.stats.items() if np.isfinite(v)},
+            extra=extra,
         )
 
     def _publish_status(self) -> None:

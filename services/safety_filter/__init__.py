@@ -12,16 +12,17 @@ Pure core (no I/O, no zenoh), usable directly by a simulation::
     res = filt.filter(FilterState(p, R, v), u_nominal, field)  # res.u, res.h, res.fallback, ...
     state = filt.model.integrate(state, res.u, filt.config.dt)  # exact dynamics, zero-order hold
 
-The field it reads (ESDF grid, analytic or point-cloud) is ``riskfield.services.fields``.
+The field it reads (ESDF grid, analytic or point-cloud) is ``riskfield.services.fields``; the
+filter reads an ESDF grid with the smoothing cubic B-spline of ``fields.spline`` by default.
 Modules, one concept each: ``state`` (robot state), ``barriers`` (dynamics, h, CBF rows per
-model), ``qp`` (exact active-set path and OSQP), ``filter`` (one filter step, gains per risk
-group), ``config`` (the core's settings),
+model, footprint disc cover), ``qp`` (exact active-set path and OSQP), ``filter`` (one filter
+step, gains per risk group, slack-relaxed fallback), ``config`` (the core's settings),
 ``supervisor`` (timeouts and fail-safe reasons → messages). Node side: ``settings``,
-``risk_file``, ``node``; ``bench`` is ``riskfield bench filter``.
+``node`` (the runtime holds the risk file); the bench is ``riskfield bench filter``.
 """
 
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
-from .config import FilterConfig
+from .config import FilterConfig, Footprint
 from .filter import FilterResult, GainTable, SafetyFilter
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
@@ -35,6 +36,7 @@ __all__ = [
     "FilterResult",
     "FilterState",
     "FilterSupervisor",
+    "Footprint",
     "GainTable",
     "OsqpSolver",
     "QPResult",

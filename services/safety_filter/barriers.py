@@ -25,6 +25,20 @@ h - δ keeps the true h = d - r non-negative when δ exceeds that dip; with the 
 (|v| ≤ 1 m/s, |ω| ≤ 2 rad/s, L = 0.25 m, T = 20 ms) the per-step bound is 0.45 mm and the
 default δ = 2 cm covers gains α ≥ 0.6 with a wide margin (see the closed-loop tests). For the
 HOCBF the held input enters ḧ directly, the per-step error is O(T³) and δ is ample.
+
+The whole body. Every model carries, besides its control point(s), the discs (balls) of a
+cover of its footprint (:func:`disc_cover`): body point o_i with its own radius r_i, so
+h_i = d(p + R o_i) - r_i ≥ 0 for all i keeps the whole footprint out of the obstacles. Each
+disc is one CBF row with the gains of the risk group of the nearest obstacle to that disc.
+
+Stopping under bounded inputs. *Velocity-controlled* models (unicycle, single integrators)
+stop by commanding zero, which the platform reaches with its deceleration a (``a_max``). The
+first-order CBF bounds each point's approach speed by s ≤ α h, and the distance needed to shed
+it, s²/(2a), is at most h whenever α² h ≤ 2a; since also s ≤ v_max this holds for every h iff
+α ≤ 2a / v_max (for h ≥ v_max/α: v_max²/(2a) ≤ v_max/α ≤ h). The filter caps α there
+(:meth:`BarrierModel.alpha_cap`), so the lag of a real stop never eats into h. u = 0 satisfies
+every row with h - δ ≥ 0, so such a QP is always feasible. The *double integrator* has the
+braking-distance barrier (:class:`DoubleIntegrator`, default) instead of the paper's HOCBF.
 """
 
 from __future__ import annotations
@@ -42,6 +56,30 @@ from .state import FilterState, skew, so3_exp, so3_integral
 ALPHA, ALPHA1, ALPHA2 = 0, 1, 2
 
 
+def disc_cover(length: float, width: float, discs: int, capsule: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Discs on the medial axis (body x) whose union covers a length × width rectangle
+    (or capsule) centred on the body origin: (offsets (k, 3), radii (k,)).
+
+    The rectangle is cut into k equal slices of length ℓ = L/k; the disc at the centre of a slice
+    with radius √((ℓ/2)² + (W/2)²) contains that slice (its farthest points are the slice's
+    corners). A capsule (a W-wide rectangle of length L - W with half-disc ends) is covered the
+    same way with the centres on its segment and the end discs' radius W/2 reaching its ends.
+    For the LIMO (0.322 × 0.220 m, k = 3) the discs overhang the sides by 1.2 cm.
+    """
+    if discs < 1 or length <= 0 or width <= 0:
+        raise ValueError("a footprint needs positive length and width and at least one disc")
+    if capsule:
+        seg = max(length - width, 0.0)
+        if discs == 1 or seg == 0.0:
+            return np.zeros((1, 3)), np.array([0.5 * length if seg > 0 else 0.5 * width])
+        xs = np.linspace(-seg / 2, seg / 2, discs)
+        r = math.hypot(0.5 * seg / (discs - 1), 0.5 * width)
+        return np.stack([xs, 0 * xs, 0 * xs], axis=1), np.full(discs, r)
+    sl = length / discs
+    xs = -length / 2 + sl * (np.arange(discs) + 0.5)
+    return np.stack([xs, 0 * xs, 0 * xs], axis=1), np.full(discs, math.hypot(0.5 * sl, 0.5 * width))
+
+
 def _offsets(points: list[tuple[float, float, float]] | np.ndarray) -> np.ndarray:
     o = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if o.shape[0] == 0:
@@ -55,10 +93,12 @@ class BarrierModel(ABC):
     name: ClassVar[str] = ""
     needs_hessian: ClassVar[bool] = False
 
-    def __init__(self, offsets: np.ndarray, radius: float, weights: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    def __init__(self, offsets: np.ndarray, radius: float | np.ndarray, weights: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray):
         self.offsets = _offsets(offsets)
         self._offset_list = [tuple(float(v) for v in o) for o in self.offsets]
-        self.radius = float(radius)
+        #: r_i per point, (m,): the clearance of point i is d(p_i) - r_i.
+        self.radius = np.broadcast_to(np.asarray(radius, np.float64), (self.offsets.shape[0],)).copy()
         self.weights = np.asarray(weights, np.float64)
         self.lo = np.asarray(lo, np.float64)
         self.hi = np.asarray(hi, np.float64)
@@ -116,6 +156,22 @@ class BarrierModel(ABC):
         """The input that stops the robot (zero velocity for velocity-controlled models)."""
         return np.zeros(self.n)
 
+    def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
+        """The maximal-braking input along the field's gradient at the critical point: what the
+        slack-relaxed QP must do at least as well as, row by row. Velocity-controlled models stop
+        at once (u = 0: no point moves deeper, see the module docstring on stopping)."""
+        return np.zeros(self.n)
+
+    def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray) -> np.ndarray:
+        """The barrier the rows keep non-negative, from hb = d - r - δ (the same for
+        first-order models; the double integrator subtracts its braking distance)."""
+        return hb
+
+    def alpha_cap(self, a_brake: float) -> float:
+        """Largest first-order gain whose speed limit α h can be shed within h at deceleration
+        ``a_brake`` (module docstring): 2 a / (largest point speed)."""
+        return 2.0 * a_brake / self.max_point_speed()
+
     @abstractmethod
     def max_point_speed(self) -> float:
         """Largest speed of any barrier point within the input bounds (m/s): over one control
@@ -133,9 +189,16 @@ class UnicycleLookahead(BarrierModel):
 
     def __init__(self, lookahead: float = 0.25, radius: float = 0.15, lambda_v: float = 1.0,
                  lambda_w: float = 0.5, v_max: float = 1.0, w_max: float = 2.0,
-                 extra_points: list[tuple[float, float, float]] | None = None):
+                 extra_points: list[tuple[float, float, float]] | None = None,
+                 body: tuple[np.ndarray, np.ndarray] | None = None):
+        """``body``: (offsets, radii) of the footprint's discs, after the look-ahead point (the
+        paper's row, radius ``radius``) and the ``extra_points`` (radius ``radius``)."""
         pts = [(lookahead, 0.0, 0.0), *(extra_points or [])]
-        super().__init__(np.array(pts), radius, np.array([lambda_v, lambda_w]),
+        radii = [radius] * len(pts)
+        if body is not None:
+            pts += [tuple(o) for o in np.asarray(body[0]).reshape(-1, 3)]
+            radii += list(np.asarray(body[1]).reshape(-1))
+        super().__init__(np.array(pts), np.array(radii), np.array([lambda_v, lambda_w]),
                          np.array([-v_max, -w_max]), np.array([v_max, w_max]))
         self.lookahead = lookahead
 
@@ -210,7 +273,7 @@ class UnicycleLookahead(BarrierModel):
 class SingleIntegrator(BarrierModel):
     """ṗ = R u with u the body-frame linear velocity (2 or 3 components); ω passes through."""
 
-    def __init__(self, dim: int = 2, radius: float = 0.15, v_max: float = 1.0, vz_max: float = 0.5,
+    def __init__(self, dim: int = 2, radius: float | np.ndarray = 0.15, v_max: float = 1.0, vz_max: float = 0.5,
                  points: list[tuple[float, float, float]] | None = None, w_max: float = 2.0):
         if dim not in (2, 3):
             raise ValueError("dim must be 2 or 3")
@@ -264,14 +327,39 @@ class SingleIntegrator(BarrierModel):
 
 
 class DoubleIntegrator(BarrierModel):
-    """ṗ = v, v̇ = u (world-frame acceleration) with the paper's high-order CBF.
+    """ṗ = v, v̇ = u (world-frame acceleration), |u_i| ≤ a_max, with one of two barriers.
 
-    With ψ₀ = h and the class-K pair (k₁, k₂), ψ₁ = ḣ + k₁ h and ψ̇₁ + k₂ ψ₁ ≥ 0 is
-    ḧ + α₁ ḣ + α₂ h ≥ 0 with α₁ = k₁ + k₂, α₂ = k₁ k₂. Forward invariance needs real k's,
-    i.e. α₁² ≥ 4 α₂ (otherwise h oscillates through zero); the filter's gain table enforces it.
-    For ψ₁ ≥ 0 the row is exactly the paper's; see :meth:`rows` for states with ψ₁ < 0.
+    Declared once: state x = (p, v), f(x) = (v, 0), g(x) = (0, I); h(x) = d(p) - r - δ, so
+    ḣ = ∇dᵀv and ḧ = ∇dᵀu + vᵀ∇²d v. Both rows below are derived from these two derivatives.
+
+    ``barrier="braking"`` (default): the braking-distance barrier. With s = -ḣ the approach
+    speed along the gradient and a_b = ``brake_fraction`` · a_max the deceleration the barrier
+    budgets for,
+
+        h_b = h - s₊² / (2 a_b),      s₊ = max(s, 0)              (C¹ in x)
+        ḣ_b = ḣ + (s₊ / a_b) ḧ = ḣ + (s₊ / a_b)(∇dᵀu + vᵀ∇²d v)
+
+    and the row is the first-order CBF ḣ_b ≥ -κ h_b with κ = k₁, the slower root of the group's
+    s² + α₁ s + α₂ = (s + k₁)(s + k₂): on the HOCBF's boundary h decays as e^{-k₁t} once the
+    fast mode has died out, so the approach speed s ≤ κ h it allows near the obstacle is the one
+    the paper's filter settles to, and the groups keep their ordering:
+
+        (s₊/a_b) ∇dᵀu ≥ -κ h_b - ḣ - (s₊/a_b) vᵀ∇²d v.
+
+    h_b ≥ 0 says that braking at a_b along the gradient stops the approach before d - r - δ
+    reaches zero. Feasibility under the bounds: u = a_max ∇d/|∇d| (norm a_max, inside the box)
+    gives ∇dᵀu ≥ a_max |∇d|, so at h_b = 0 the row holds whenever vᵀ∇²d v ≥ -(a_max|∇d| - a_b):
+    the unused fraction of the deceleration absorbs the field's concave curvature (ridges between
+    obstacles). Away from the obstacle (s₊ = 0) the row is empty (h_b = h ≥ 0); its coefficient
+    uses max(s₊, 10⁻³ m/s) so the row stays well defined as the approach starts.
+
+    ``barrier="hocbf"``: the paper's high-order CBF. With ψ₀ = h and the class-K pair (k₁, k₂),
+    ψ₁ = ḣ + k₁ h and ψ̇₁ + k₂ ψ₁ ≥ 0 is ḧ + α₁ ḣ + α₂ h ≥ 0 with α₁ = k₁ + k₂, α₂ = k₁ k₂.
+    Forward invariance needs real k's, i.e. α₁² ≥ 4 α₂ (otherwise h oscillates through zero); the
+    filter's gain table enforces it. It ignores the bounds: from states with ψ₁ ≥ 0 it may need
+    more than a_max. For ψ₁ ≥ 0 the row is exactly the paper's; see :meth:`_hocbf_rows` for ψ₁ < 0.
+
     Points are offsets from the centre in the world frame (the model has no attitude).
-
     In the node, the reference command's linear velocity (body frame) is a desired velocity
     tracked by u_ref = k_v (v_des - v); the filtered u becomes the velocity command v + u T
     one control period T ahead.
@@ -280,11 +368,17 @@ class DoubleIntegrator(BarrierModel):
     name = "double3d"
     needs_hessian = True
 
-    def __init__(self, radius: float = 0.15, a_max: float = 3.0, k_v: float = 2.0, dt: float = 0.02,
-                 points: list[tuple[float, float, float]] | None = None, v_max: float = 1.0):
+    def __init__(self, radius: float | np.ndarray = 0.15, a_max: float = 3.0, k_v: float = 2.0, dt: float = 0.02,
+                 points: list[tuple[float, float, float]] | None = None, v_max: float = 1.0,
+                 barrier: str = "braking", brake_fraction: float = 0.7):
         super().__init__(np.array(points or [(0.0, 0.0, 0.0)]), radius, np.ones(3),
                          -np.full(3, a_max), np.full(3, a_max))
+        if barrier not in ("braking", "hocbf") or not 0 < brake_fraction <= 1:
+            raise ValueError("barrier is 'braking' or 'hocbf', brake_fraction in (0, 1]")
         self.k_v, self.dt, self.v_max = k_v, dt, v_max
+        self.kind = barrier
+        self.a_max = a_max
+        self.a_brake = brake_fraction * a_max
 
     def max_point_speed(self) -> float:
         # Velocity is a state here, not an input: v_max is the nominal speed the reference keeps.
@@ -306,8 +400,35 @@ class DoubleIntegrator(BarrierModel):
     def g(self, s: FilterState) -> np.ndarray:
         return np.vstack([np.zeros((3, 3)), np.eye(3)])
 
+    def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray) -> np.ndarray:
+        if self.kind == "hocbf":
+            return hb
+        approach = np.maximum(-(sample.gradient @ s.velocity), 0.0)
+        return hb - approach * approach / (2 * self.a_brake)
+
+    def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
+        # Maximal acceleration along the gradient (norm a_max: inside the per-axis box).
+        g = np.asarray(gradient, np.float64)
+        n = float(np.linalg.norm(g))
+        return self.a_max * g / n if n > 1e-9 else self.brake(s)
+
     def rows(self, s: FilterState, sample: FieldSample, h: np.ndarray, gains: np.ndarray,
              angular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.kind == "hocbf":
+            return self._hocbf_rows(s, sample, h, gains)
+        v = s.velocity
+        assert sample.hessian is not None
+        curvature = np.einsum("i,mij,j->m", v, sample.hessian, v)
+        hdot = sample.gradient @ v
+        approach = np.maximum(-hdot, 0.0)
+        hbrake = h - approach * approach / (2 * self.a_brake)
+        a1, a2 = gains[:, ALPHA1], gains[:, ALPHA2]
+        kappa = 0.5 * (a1 - np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0)))
+        c = np.maximum(approach, 1e-3) / self.a_brake
+        return sample.gradient * c[:, None], -kappa * hbrake - hdot - c * curvature
+
+    def _hocbf_rows(self, s: FilterState, sample: FieldSample, h: np.ndarray,
+                    gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         v = s.velocity
         assert sample.hessian is not None
         curvature = np.einsum("i,mij,j->m", v, sample.hessian, v)

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
+from ..fields.grid import Interpolation
+from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -23,6 +25,29 @@ Point = tuple[float, float, float]
 
 ModelName = Literal["unicycle", "single2d", "single3d", "double3d"]
 P = TypeVar("P", bound=BaseModel)
+
+
+#: The AgileX LIMO's footprint (m), the unicycle model's default body.
+LIMO_LENGTH, LIMO_WIDTH = 0.322, 0.220
+
+
+class Footprint(BaseModel):
+    """The robot's body, covered by discs that each add a CBF row (``barriers.disc_cover``).
+
+    ``rectangle`` / ``capsule``: ``length`` × ``width`` centred on the body origin, x forward,
+    covered by ``discs`` discs on the medial axis (robots with a heading; not ``double3d``, which
+    has no attitude). ``sphere``: one ball of ``radius`` at the origin (``None``: the config's
+    ``robot_radius``). ``none``: only the control points (the look-ahead point for the
+    unicycle): the paper's filter, unprotected sides and rear.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    shape: Literal["rectangle", "capsule", "sphere", "none"]
+    length: Pos = LIMO_LENGTH
+    width: Pos = LIMO_WIDTH
+    radius: Pos | None = None
+    discs: Annotated[int, Field(ge=1, le=8)] = 3
 
 
 class BarrierParams(BaseModel):
@@ -33,6 +58,11 @@ class BarrierParams(BaseModel):
     ``extra_points`` are further body-frame points (x forward, y left, z up; world-frame offsets
     for ``double3d``), each adding one CBF row. ``lambda_v``, ``lambda_w`` weight the unicycle's
     QP; ``k_v`` is the double integrator's velocity-tracking gain.
+
+    ``footprint`` (``None``: the model's default — the LIMO rectangle for the unicycle, a sphere
+    of ``robot_radius`` otherwise) adds the body's disc cover to the control points.
+    ``barrier`` picks the double integrator's barrier: ``braking`` (braking distance at
+    ``brake_fraction`` · a_max, feasible under the bounds) or ``hocbf`` (the paper's).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -44,11 +74,16 @@ class BarrierParams(BaseModel):
     lambda_v: Pos = 1.0
     lambda_w: Pos = 0.5
     k_v: Pos = 2.0
+    footprint: Footprint | None = None
+    barrier: Literal["braking", "hocbf"] = "braking"
+    brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
 
 
 class BoundsParams(BaseModel):
     """The input box. Bounds are symmetric: |v| ≤ v_max (per axis for single integrators),
-    |ω| ≤ w_max, |v_z| ≤ vz_max, |a_i| ≤ a_max."""
+    |ω| ≤ w_max, |v_z| ≤ vz_max, |a_i| ≤ a_max. For velocity-controlled models ``a_max`` is the
+    platform's deceleration: it caps the first-order gains at 2 a_max / v_point_max so the robot
+    can shed any speed the CBF allows within h (``barriers``)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -68,6 +103,14 @@ class QpParams(BaseModel):
     ``predictive_rows`` adds, per point, the CBF row with the field's gradient at the point's
     position one period ahead under the reference (see ``filter``): it keeps the filter from
     sliding across the kink of the distance field between two obstacles.
+
+    ``interpolation`` is how the filter reads an ``EsdfField`` (``services/fields/spline.py``;
+    the paper's ``trilinear`` with finite differences, ``catmull_rom``, ``bspline`` or
+    ``bspline_smooth``, the default: C², never more than h²/6 ∂²d (≈ 2-3 mm) above the true
+    distance and below it at ridges, where the interpolating kernels overshoot by up to 8 mm;
+    its Hessian is continuous and, off the ridges, as small as the geometry's).
+    ``slack``: when the QP is infeasible, solve it with every row relaxed to what the backup
+    (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -77,6 +120,8 @@ class QpParams(BaseModel):
     margins_in_filter: bool = False
     predictive_rows: bool = True
     solver: Literal["auto", "active_set", "osqp"] = "auto"
+    interpolation: Interpolation = "bspline_smooth"
+    slack: bool = True
 
 
 class FilterConfig(QpParams, BoundsParams, BarrierParams):
@@ -95,9 +140,35 @@ class FilterConfig(QpParams, BoundsParams, BarrierParams):
         """One part's own struct, with this configuration's values."""
         return params.model_validate({k: getattr(self, k) for k in params.model_fields})
 
-    barrier = property(lambda self: self.part(BarrierParams), doc="The ``BarrierParams`` part.")
-    bounds = property(lambda self: self.part(BoundsParams), doc="The ``BoundsParams`` part.")
-    qp = property(lambda self: self.part(QpParams), doc="The ``QpParams`` part.")
+    barrier_params = property(lambda self: self.part(BarrierParams), doc="The ``BarrierParams`` part.")
+    bounds_params = property(lambda self: self.part(BoundsParams), doc="The ``BoundsParams`` part.")
+    qp_params = property(lambda self: self.part(QpParams), doc="The ``QpParams`` part.")
+
+    def body(self) -> Footprint:
+        """The footprint in force (the model's default when not configured)."""
+        if self.footprint is not None:
+            return self.footprint
+        if self.model == "unicycle":
+            return Footprint(shape="rectangle")
+        return Footprint(shape="sphere")
+
+    def _discs(self) -> tuple[list[tuple[float, float, float]], list[float]]:
+        fp = self.body()
+        if fp.shape == "none":
+            return [], []
+        if fp.shape == "sphere":
+            return [(0.0, 0.0, 0.0)], [fp.radius if fp.radius is not None else self.robot_radius]
+        if self.model == "double3d":
+            raise ValueError("double3d has no heading: its footprint is a sphere")
+        o, r = disc_cover(fp.length, fp.width, fp.discs, capsule=fp.shape == "capsule")
+        return [tuple(float(v) for v in p) for p in o], r.tolist()  # type: ignore[misc]
+
+    @model_validator(mode="after")
+    def _footprint_fits_the_model(self) -> FilterConfig:
+        fp = self.footprint
+        if self.model == "double3d" and fp is not None and fp.shape in ("rectangle", "capsule"):
+            raise ValueError("double3d has no heading: its footprint is a sphere (or none)")
+        return self
 
     @property
     def dt(self) -> float:
@@ -111,11 +182,17 @@ class FilterConfig(QpParams, BoundsParams, BarrierParams):
 
     def build_model(self) -> BarrierModel:
         extra = [tuple(p) for p in self.extra_points]
+        pts, radii = self._discs()
         if self.model == "unicycle":
+            body = (np.array(pts).reshape(-1, 3), np.array(radii)) if pts else None
             return UnicycleLookahead(self.lookahead_m, self.robot_radius, self.lambda_v, self.lambda_w,
-                                     self.v_max, self.w_max, extra)  # type: ignore[arg-type]
+                                     self.v_max, self.w_max, extra, body)  # type: ignore[arg-type]
+        if not pts:  # no body: the centre point with robot_radius, as before footprints
+            pts, radii = [(0.0, 0.0, 0.0)], [self.robot_radius]
+        pts = [*pts, *extra]  # type: ignore[list-item]
+        radii = np.array([*radii, *[self.robot_radius] * len(extra)])  # type: ignore[assignment]
         if self.model in ("single2d", "single3d"):
-            return SingleIntegrator(2 if self.model == "single2d" else 3, self.robot_radius, self.v_max,
-                                    self.vz_max, [(0.0, 0.0, 0.0), *extra], self.w_max)  # type: ignore[list-item]
-        return DoubleIntegrator(self.robot_radius, self.a_max, self.k_v, self.dt,
-                                [(0.0, 0.0, 0.0), *extra], self.v_max)  # type: ignore[list-item]
+            return SingleIntegrator(2 if self.model == "single2d" else 3, radii, self.v_max,
+                                    self.vz_max, pts, self.w_max)  # type: ignore[arg-type]
+        return DoubleIntegrator(radii, self.a_max, self.k_v, self.dt, pts, self.v_max,  # type: ignore[arg-type]
+                                self.barrier, self.brake_fraction)

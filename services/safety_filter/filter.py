@@ -3,9 +3,24 @@
     min_u  ½ (u - u_ref)ᵀ W (u - u_ref)   s.t.  A(x) u ≥ b(x),  u ∈ U
 
 Each barrier point adds a row built from the field's distance, gradient (and Hessian) at that
-point and the gains of the risk group of its nearest obstacle (:class:`GainTable`). Anything
-that makes the answer doubtful — a point outside the map, a non-finite number, an infeasible
-QP, a solver failure — yields the braking input and a ``fallback`` reason instead.
+point and the gains of the risk group of its nearest obstacle (:class:`GainTable`). Rows that
+hold for every input in the box (b ≤ min_{u∈U} aᵀu) are dropped before the QP: they cannot
+be active, and the exact active-set path stays small with a whole-body cover.
+
+Infeasible QP (fallback ``slack``). With the barrier's stopping condition a state inside the
+safe set keeps the QP feasible (``barriers``); a moved obstacle or a new map can still leave
+none. Then the filter solves the same QP with every row relaxed to what the backup input u_bk
+(maximal braking along the field's gradient at the critical point, ``BarrierModel.backup``)
+achieves:
+
+    min_u ½ (u - u_ref)ᵀ W (u - u_ref)   s.t.  A u ≥ min(b, A u_bk),  u ∈ U.
+
+u_bk is feasible by construction, so this always has a solution, and every row — every
+point's barrier rate — is at least as good as under the backup (the slack of row i is
+max(0, b_i - a_iᵀu_bk), the backup's own violation); within that it stays closest to the
+reference. The step is reported with ``fallback = "slack"`` and the command is the relaxed
+solution (not zero). Anything else doubtful — a point outside the map, a non-finite number, a
+solver failure — yields the braking input and a ``fallback`` reason.
 """
 
 from __future__ import annotations
@@ -19,7 +34,7 @@ import numpy as np
 
 from riskfield.protocol import RiskConfig
 
-from ..fields import DistanceField, FieldSample
+from ..fields import DistanceField, EsdfField, FieldSample
 from .barriers import ALPHA1, ALPHA2, BarrierModel
 from .config import FilterConfig
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
@@ -28,7 +43,7 @@ from .state import FilterState
 MARGIN = 3
 _ZERO3 = np.zeros(3)
 #: Above this many rows the exact active-set path hands over to OSQP.
-ACTIVE_SET_MAX_ROWS = 4
+ACTIVE_SET_MAX_ROWS = 24
 
 
 def hocbf_gains(alpha1: float, alpha2: float) -> tuple[float, float]:
@@ -76,7 +91,8 @@ class GainTable:
 
 @dataclass(frozen=True)
 class FilterResult:
-    """One filter step. ``u`` is the model input (the braking input when ``fallback`` is set)."""
+    """One filter step. ``u`` is the model input: the braking input when ``fallback`` is set,
+    except for ``"slack"``, where it is the relaxed QP's solution (module docstring)."""
 
     u: np.ndarray
     u_ref: np.ndarray
@@ -105,6 +121,17 @@ class SafetyFilter:
         self._use_active_set = self.config.solver != "osqp" and self.rows_max <= ACTIVE_SET_MAX_ROWS
         if self.config.solver == "active_set" and not self._use_active_set:
             raise ValueError(f"the active-set solver handles at most {ACTIVE_SET_MAX_ROWS} rows")
+        self._first_order = model_is_first_order = not self.model.needs_hessian
+        self._alpha_cap = self.model.alpha_cap(self.config.a_max) if model_is_first_order else math.inf
+        self._wrapped: tuple[EsdfField, EsdfField] | None = None
+
+    def field_for(self, field: DistanceField) -> DistanceField:
+        """An ``EsdfField`` read with the configured interpolation (the wrap is kept per map)."""
+        if not isinstance(field, EsdfField) or field.interpolation == self.config.interpolation:
+            return field
+        if self._wrapped is None or self._wrapped[0] is not field:
+            self._wrapped = (field, field.with_interpolation(self.config.interpolation))
+        return self._wrapped[1]
 
     @property
     def risk(self) -> RiskConfig:
@@ -120,7 +147,7 @@ class SafetyFilter:
 
     def barrier(self, state: FilterState, field: DistanceField) -> tuple[float, int, bool]:
         """(h = d - r at the critical point, its risk group id, all points inside the map)."""
-        sample = field.query(self.model.points(state))
+        sample = self.field_for(field).query(self.model.points(state))
         h = sample.distance - self.model.radius
         k = int(np.argmin(h))
         return float(h[k]), int(sample.risk_group[k]), bool(sample.inside.all())
@@ -143,15 +170,19 @@ class SafetyFilter:
         if self.config.predictive_rows:
             # Where the barrier points would be one period later under the (bounded) reference.
             pts = np.concatenate([pts, model.predicted_points(state, u_box, self.config.dt, ang)])
+        field = self.field_for(field)
         both = field.query(pts, hessian=model.needs_hessian)
         sample = _rows_of(both, slice(0, m))
         clearance = sample.distance - model.radius
         table = self.gains.for_groups(field.groups)
         gains = table[np.minimum(both.risk_group, table.shape[0] - 1)]
+        if self._first_order:
+            gains = gains.copy()
+            gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
         hb = clearance - self.delta
         if self.config.margins_in_filter:
             hb = hb - gains[:m, MARGIN]
-        k = int(np.argmin(hb))
+        k = int(np.argmin(model.barrier(state, sample, hb)))
         h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
         if not sample.inside.all():
             return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
@@ -172,17 +203,34 @@ class SafetyFilter:
                 a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
             return self._brake(state, u_ref, "non_finite", t0, 0.0, rg)
+        n_rows = a.shape[0]
+        # Rows that hold for every u in the box cannot be active: drop them.
+        live = b > np.minimum(a * model.lo, a * model.hi).sum(axis=1) + 1e-12
+        if not live.all():
+            a, b = a[live], b[live]
         tq = time.perf_counter()
         res = self._solve(a, b, u_ref)
+        fallback = None
+        if res.status == "infeasible" and self.config.slack:
+            u_bk = model.backup(state, sample.gradient[k])
+            ab = a @ u_bk
+            # A violated row without a direction (zero gradient: deep inside a solid region) cannot
+            # tell a better input from a worse one: brake (fallback "infeasible").
+            blind = (b > ab) & (np.abs(a).max(axis=1) <= 1e-9)
+            if not blind.any():
+                res = self._solve(a, np.minimum(b, ab), u_ref)
+                fallback = "slack"
+                if res.status != "solved":  # numerically stuck at the boundary: the backup itself
+                    res = QPResult(u_bk, "solved", res.iterations, res.solver)
         qp_us = (time.perf_counter() - tq) * 1e6
         if res.status != "solved":
             reason = "infeasible" if res.status == "infeasible" else "solver_failed"
             return self._brake(state, u_ref, reason, t0, h_crit, rg, res.solver)
         if not np.isfinite(res.u).all():
             return self._brake(state, u_ref, "non_finite", t0, h_crit, rg, res.solver)
-        intervening = bool(np.abs(res.u - u_box).max() > 1e-6)
-        return FilterResult(res.u, u_ref, h_crit, rg, intervening, None, (time.perf_counter() - t0) * 1e6,
-                            res.solver, float(hb[k]), qp_us, a.shape[0])
+        intervening = fallback is not None or bool(np.abs(res.u - u_box).max() > 1e-6)
+        return FilterResult(res.u, u_ref, h_crit, rg, intervening, fallback, (time.perf_counter() - t0) * 1e6,
+                            res.solver, float(hb[k]), qp_us, n_rows)
 
     def _solve(self, a: np.ndarray, b: np.ndarray, u_ref: np.ndarray) -> QPResult:
         m = self.model

@@ -8,6 +8,12 @@ not only counted and logged but also makes the filter brake (``invalid_*``) unti
 arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
 (polled every ``risk_poll_s``, see ``runtime.risk_file``); a bad configuration is logged,
 counted (``risk_errors``) and the old one kept.
+
+The map is judged by its content (``freshness``): a map whose stamp is already too old or in the
+future, whose publisher's ``seq`` went backwards, or that is older than the map in force is
+refused, counted (``map_refused``, ``map_refused_<reason>``) and logged, and the map in force is
+kept; ``SafetyStatus.esdf_age_ms`` is the content age, ``esdf_publishers`` the number of
+publishers on ``map/esdf`` lately (2 or more is a fault: a stuck or rogue mapper).
 """
 
 from __future__ import annotations
@@ -35,15 +41,15 @@ class FilterNode:
         # A bad file at start is a configuration error; later ones keep the configuration in force.
         risk = watch_risk_file(node, s.risk_file, s.risk_poll_s, self._set_risk) if s.risk_file else None
         self.supervisor = FilterSupervisor(SafetyFilter(s.filter_config(), risk), s.map_timeout_s,
-                                           s.state_timeout_s, s.ref_timeout_s)
+                                           s.state_timeout_s, s.ref_timeout_s, s.clock_tolerance_s)
         self.period = 1.0 / s.rate_hz
         self._last_pub = -1e9
         self._last_fallback: str | None = "start"
         # distance (4 B/voxel) and risk_group (1 B/voxel) travel together: the payload is ~1.25 × distance
         self._map_limits = Limits(max_payload_bytes=2 * s.max_map_bytes + 65536, max_array_bytes=s.max_map_bytes)
         self._small_limits = Limits(max_payload_bytes=64 * 1024, max_array_bytes=4096)
-        for name in ("steps", "brakes", "intervening", "invalid_map", "invalid_state", "invalid_ref",
-                     "risk_reloads", "risk_errors"):
+        for name in ("steps", "brakes", "slack", "intervening", "invalid_map", "invalid_state", "invalid_ref",
+                     "risk_reloads", "risk_errors", "map_refused", "esdf_publishers"):
             node.stats[name] = 0.0
         k = node.keys
         node.subscribe(k.esdf, None, self._on_map, queue="latest")
@@ -69,7 +75,17 @@ class FilterNode:
         grid = self._decode("map", payload, EsdfGrid, self._map_limits)
         if grid is None:
             return
-        reason = self.supervisor.on_map(grid, time.monotonic())
+        now = time.monotonic()
+        refused = self.supervisor.admit_map(grid, now, time.time_ns(), self.node.source_id)
+        if refused is not None:
+            st = self.node.stats
+            st["map_refused"] += 1
+            st[f"map_refused_{refused}"] = st.get(f"map_refused_{refused}", 0) + 1
+            self.node.ratelog(logging.WARNING, f"map_refused:{refused}",
+                              f"refused an ESDF ({refused}: stamp {grid.header.stamp_ns}, seq {grid.header.seq}, "
+                              f"publisher {self.node.source_id}); keeping the map in force")
+            return
+        reason = self.supervisor.on_map(grid, now)
         if reason is not None:
             self.node.stats["invalid_map"] += 1
             self.node.ratelog(logging.WARNING, "invalid_map", f"unusable ESDF ({reason}): braking")
@@ -101,23 +117,31 @@ class FilterNode:
 
     def _step(self) -> None:
         now = time.monotonic()
-        cmd, status = self.supervisor.tick(now)
+        cmd, status = self.supervisor.tick(now, time.time_ns())
         status.risk_errors = int(self.node.stats.get("risk_errors", 0))
+        fresh = self.supervisor.freshness
+        status.esdf_publishers = fresh.publishers(now)
+        status.esdf_refused = fresh.refused_total
+        if status.esdf_publishers > 1:
+            self.node.ratelog(logging.WARNING, "esdf_publishers",
+                              f"{status.esdf_publishers} publishers on {self.node.keys.esdf}: a stuck or rogue mapper")
         self.node.publish(self.node.keys.cmd_safe, cmd)
         self.node.publish(self.node.keys.safety_status, status)
         self._last_pub = now
         st = self.node.stats
         st["steps"] += 1
-        st["brakes"] += status.fallback is not None
+        st["brakes"] += status.fallback is not None and status.fallback != "slack"
+        st["slack"] += status.fallback == "slack"
         st["intervening"] += status.intervening and status.fallback is None
         st["solve_us"] = status.solve_us
         st["h"] = status.h
+        st["esdf_publishers"] = status.esdf_publishers
         if status.fallback != self._last_fallback:
             if status.fallback is None:
                 self.node.log.info("filtering (no fallback)")
             else:
-                self.node.ratelog(logging.WARNING, f"fallback:{status.fallback}",
-                                  f"braking: {status.fallback}")
+                what = "slack-relaxed QP (infeasible)" if status.fallback == "slack" else "braking"
+                self.node.ratelog(logging.WARNING, f"fallback:{status.fallback}", f"{what}: {status.fallback}")
             self._last_fallback = status.fallback
 
 

@@ -21,6 +21,9 @@ class FilterSettings(NodeSettings, FilterConfig):
     map_timeout_s: Seconds = 0.3
     state_timeout_s: Seconds = 0.3
     ref_timeout_s: Seconds = 0.2
+    clock_tolerance_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False, description=(
+        "how far the clock that stamped the map may be from this one: the map's content age "
+        "(now - header stamp) may reach map_timeout_s + clock_tolerance_s"))] = 0.2
     risk_file: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
     risk_poll_s: Seconds = 1.0
     max_map_bytes: Annotated[int, Field(gt=0)] = 64 * 1024 * 1024

@@ -2,9 +2,12 @@
 the reference, and the messages the node publishes.
 
 The supervisor holds the newest map, state and reference with the local monotonic time each
-arrived (receive time, not the sender's stamp, so clock offsets between machines cannot make
-data look fresh or stale). ``tick(now)`` returns the safe command and its status. It brakes,
-naming the first problem found, in this order:
+arrived, and every input times out by its arrival. The map is also judged by its content:
+``admit_map`` refuses a map that is stale, from the future, replayed or older than the one in
+force, and ``tick(now, wall_ns)`` brakes with ``stale_map`` once the content in force is older
+than the map timeout plus the clock-offset tolerance (``freshness.MapFreshness``), however
+recently it arrived. ``tick`` returns the safe command and its status. It brakes, naming the
+first problem found, in this order:
 
 ``no_map`` / ``invalid_map`` / ``stale_map`` → ``no_state`` / ``invalid_state`` / ``stale_state``
 → ``no_ref`` / ``invalid_ref`` / ``stale_ref`` → the filter's own ``outside_map``,
@@ -12,6 +15,10 @@ naming the first problem found, in this order:
 
 "invalid" means the last message on that key could not be used; it holds until a valid one
 arrives. Braking is the zero velocity command for every model.
+
+``slack`` is the one fallback that does not brake: the QP was infeasible with fresh inputs and
+the command is the slack-relaxed QP's, at least as safe as maximal braking along the field's
+gradient (``filter``); the status says ``fallback="slack"`` on every such step.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from riskfield.protocol import EsdfGrid, Header, RiskConfig, RobotState, SafetyS
 
 from ..fields import DistanceField, EsdfField
 from .filter import FilterResult, SafetyFilter
+from .freshness import MapFreshness
 from .state import FilterState
 
 SOURCE = "safety-filter"
@@ -43,8 +51,10 @@ class FilterSupervisor:
     """Tracks the inputs and turns them into (cmd/safe, safety/status) on every tick."""
 
     def __init__(self, filt: SafetyFilter, map_timeout_s: float = 0.3, state_timeout_s: float = 0.3,
-                 ref_timeout_s: float = 0.2):
+                 ref_timeout_s: float = 0.2, clock_tolerance_s: float = 0.2):
         self.filter = filt
+        self.freshness = MapFreshness(map_timeout_s, clock_tolerance_s, window_s=max(2.0, 5 * map_timeout_s))
+        self._wall_ns: int | None = None  # the wall clock of the current tick, when the caller gives it
         self.timeouts = {"map": map_timeout_s, "state": state_timeout_s, "ref": ref_timeout_s}
         self._slots = {"map": _Slot(), "state": _Slot(), "ref": _Slot()}
         self.last: FilterResult | None = None
@@ -54,12 +64,18 @@ class FilterSupervisor:
     def on_map(self, grid: EsdfGrid | DistanceField, now: float) -> str | None:
         """Take a new map; returns why it was rejected (and marks the map invalid), or None."""
         try:
-            field = EsdfField.from_grid(grid) if isinstance(grid, EsdfGrid) else grid
+            field = (EsdfField.from_grid(grid, self.filter.config.interpolation) if isinstance(grid, EsdfGrid)
+                     else grid)
         except ValueError as exc:
             self.invalid("map", now)
             return str(exc)
         self._set("map", field, now)
         return None
+
+    def admit_map(self, grid: EsdfGrid, now: float, wall_ns: int, publisher: str | None) -> str | None:
+        """Content and sequence checks before ``on_map``: None, or why the map is refused (the
+        map in force is kept; a refused map never replaces a fresher one)."""
+        return self.freshness.admit(grid.header.stamp_ns, grid.header.seq, publisher, now, wall_ns)
 
     def on_state(self, msg: RobotState | FilterState, now: float) -> None:
         state = FilterState.from_message(msg) if isinstance(msg, RobotState) else msg
@@ -85,7 +101,11 @@ class FilterSupervisor:
     # -- output ---------------------------------------------------------------------------------
     def map_age_ms(self, now: float) -> float:
         slot = self._slots["map"]
-        return -1.0 if slot.value is None else (now - slot.at) * 1e3
+        if slot.value is None:
+            return -1.0
+        content = None if self._wall_ns is None else self.freshness.age_s(self._wall_ns)
+        # A content age below 0 is a clock offset within the tolerance; -1 stays "no map yet".
+        return (now - slot.at) * 1e3 if content is None else max(content, 0.0) * 1e3
 
     def _problem(self, what: str, now: float) -> str | None:
         slot = self._slots[what]
@@ -95,10 +115,14 @@ class FilterSupervisor:
             return f"no_{what}"
         if now - slot.at > self.timeouts[what]:
             return f"stale_{what}"
+        if what == "map" and self._wall_ns is not None and self.freshness.stale(self._wall_ns):
+            return "stale_map"  # re-published, but made from data older than the timeout
         return None
 
-    def tick(self, now: float) -> tuple[VelocityCommand, SafetyStatus]:
-        """The safe command for ``now`` and the status explaining it."""
+    def tick(self, now: float, wall_ns: int | None = None) -> tuple[VelocityCommand, SafetyStatus]:
+        """The safe command for ``now`` and the status explaining it. With ``wall_ns`` (the local
+        wall clock) the map's content age is checked too and reported as ``esdf_age_ms``."""
+        self._wall_ns = wall_ns
         problem = self._problem("map", now) or self._problem("state", now) or self._problem("ref", now)
         field = self._slots["map"].value
         state = self._slots["state"].value
@@ -116,15 +140,15 @@ class FilterSupervisor:
         u_ref = model.reference(lin, ang, state)
         res = self.filter.filter(state, u_ref, field, ang)  # type: ignore[arg-type]
         self.last = res
-        if res.fallback is not None:
+        if res.fallback is not None and res.fallback != "slack":
             return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)
         out_lin, out_ang = model.command(res.u, ang, state)
         if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
             return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
-        self._count(None)
+        self._count(res.fallback)
         cmd = VelocityCommand(header=Header(frame_id="base_link"), linear=tuple(out_lin.tolist()),
                               angular=tuple(out_ang.tolist()), source=f"{SOURCE}/{ref.source}")
-        status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=None,
+        status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=res.fallback,
                               solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now))
         return cmd, status
 

@@ -6,6 +6,9 @@ Simulation-only keys (additive; nothing outside simulation depends on them):
   pointmap, the true ``T_WC``, confidence 1 (0 where a ray hit nothing) and ground-truth ADE20K
   labels, published right after each image **with the same header stamp**, so the perception
   ``sim`` backend pairs image and truth by ``stamp_ns`` across processes.
+* ``{prefix}/{robot}/camera/depth`` — with ``publish_depth``: ``DepthImage/1`` (additive), the
+  rendered depth (z, metres; 0 where nothing was hit) and the camera's intrinsics, stamped like
+  the image: what an RGB-D camera gives the perception ``rgbd`` backend.
 * ``{prefix}/{robot}/sim/spawn`` — add an object while running (the unseen obstacle): a msgpack
   or JSON map in the scenario file's object format, e.g. ``{"class": "box", "position": [1, 0]}``.
 
@@ -25,7 +28,7 @@ import msgpack
 import numpy as np
 from pydantic import Field, ValidationError
 
-from riskfield.protocol import Image, PerceptionFrame, RobotState, VelocityCommand
+from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, VelocityCommand
 from riskfield.protocol.messages import Header
 
 from ..runtime.node import Node
@@ -49,6 +52,7 @@ class SimulatorSettings(NodeSettings):
     camera_hz: float = Field(10.0, ge=0, le=120, description="0 disables the camera")
     watchdog_s: float = Field(0.2, gt=0)
     publish_truth: bool = True
+    publish_depth: bool = Field(False, description="also publish camera/depth (RGB-D robots, perception rgbd)")
     max_step_s: float = Field(0.25, gt=0)
     map_frame: str = "map"
     camera_frame: str = "camera"
@@ -117,6 +121,10 @@ class Simulator:
         self.node.publish(self.node.keys.camera_image, Image(
             header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), encoding="rgb8",
             width=cam.width, height=cam.height, data=frame.rgb))
+        if self.s.publish_depth:
+            self.node.publish(self.node.keys.camera_depth, DepthImage(
+                header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), depth=frame.depth, fx=cam.fx, fy=cam.fy,
+                cx=cam.cx, cy=cam.cy))
         if self.s.publish_truth:
             self.node.publish(self.node.keys.key(TRUTH_KEY), PerceptionFrame(
                 header=Header(stamp_ns=stamp, frame_id=self.s.map_frame), T_WC=frame.T_WC, points=frame.points,

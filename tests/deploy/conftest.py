@@ -16,7 +16,7 @@ DEPLOY = REPO / "deploy"
 #: Certificates every security test needs (CN = name).
 CERT_NAMES = ("router-server", "router-robot", "safety-filter", "teleop", "limo", "mapping", "planner")
 #: Users in the routers' dictionary; "planner" has no role (subscribe and query only).
-USER_NAMES = ("router", "safety-filter", "teleop", "limo", "mapping", "operator", "planner")
+USER_NAMES = ("router", "safety-filter", "teleop", "limo", "mapping", "operator", "planner", "relay")
 
 
 @dataclass(frozen=True)

@@ -224,10 +224,11 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
         shutil.copy(src, deploy / "certs" / f"{name}.pem")
         if name != "ca":
             shutil.copy(secrets.tls / f"{name}.key", deploy / "certs" / f"{name}.key")
-    users = {u: secrets.passwords[u] for u in ("router", "limo")}
+    # The node's user is its certificate's common name: the routers bind the two (one role).
+    users = {u: secrets.passwords[u] for u in ("router", "relay")}
     (deploy / "users.txt").write_text("".join(f"{u}:{p}\n" for u, p in secrets.passwords.items()))
     (deploy / "router.env").write_text(f"RISKFIELD_USER=router\nRISKFIELD_PASSWORD={users['router']}\n")
-    (deploy / "relay.env").write_text(f"RISKFIELD_USER=limo\nRISKFIELD_PASSWORD={users['limo']}\n")
+    (deploy / "relay.env").write_text(f"RISKFIELD_USER=relay\nRISKFIELD_PASSWORD={users['relay']}\n")
     server_cfg = secrets.router_config("server", tmp_path / "server")
     server = f"tls/localhost:{free_port()}"
     with ServiceProcess("router", server, ["--set", f"zenoh_config={server_cfg}", "--robot", robot]) as srv:

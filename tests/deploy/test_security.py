@@ -5,6 +5,7 @@ Zenoh sessions: mutual TLS, user/password, and access control checked on the sub
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -21,7 +22,6 @@ from riskfield.testing import (
     free_port,
     open_when_ready,
     put,
-    query_barrier,
     wait_matched,
     wait_until,
 )
@@ -108,6 +108,25 @@ def deliver(publisher: zenoh.Session, key: str, msg, collector: Collector, marke
     collector.wait(1, timeout_s=5.0)
 
 
+def barrier(sender: zenoh.Session, observer: zenoh.Session) -> bool:
+    """``riskfield.testing.query_barrier`` through the one queryable the access control lets a
+    client declare: ``observer`` must hold the mapping role (it serves map/esdf/query). True once
+    a query of ``sender`` reached ``observer``: every put ``sender`` made before, had the router let
+    it through, has reached ``observer``'s subscribers by then (one session's messages keep their
+    order on a path)."""
+    hits = threading.Event()
+    queryable = observer.declare_queryable(KEYS.esdf_query, lambda _query: hits.set())
+    try:
+        return wait_until(lambda: (sender.get(KEYS.esdf_query, timeout=0.5), hits.is_set())[1], 10, period_s=0.05)
+    finally:
+        queryable.undeclare()
+
+
+def observer(secrets: Secrets, server: str):
+    """A session that watches what arrives and can be a barrier's receiver (the mapping role)."""
+    return session(secrets, server, "mapping", "mapping")
+
+
 def sources(collector: Collector) -> list[str]:
     return [m.source for m in collector.items]
 
@@ -192,11 +211,11 @@ def test_only_the_filter_publishes_cmd_safe_and_not_operator_keys(secrets: Secre
 def test_data_services_may_not_publish_guarded_keys(secrets: Secrets, server: str) -> None:
     with session(secrets, server, "limo", "limo") as limo, session(secrets, server, "mapping", "mapping") as mapping:
         guarded = [Collector(limo, KEYS.key(k), VelocityCommand) for k in ("cmd/safe", "cmd/ref")]
-        state = Collector(limo, KEYS.key("status/probe"))
-        assert all(wait_matched(mapping, k) for k in (KEYS.cmd_safe, KEYS.cmd_ref, KEYS.key("status/probe")))
+        state = Collector(limo, KEYS.status("mapping"))
+        assert all(wait_matched(mapping, k) for k in (KEYS.cmd_safe, KEYS.cmd_ref, KEYS.status("mapping")))
         put(mapping, KEYS.cmd_safe, cmd("mapping"))
         put(mapping, KEYS.cmd_ref, cmd("mapping"))
-        deliver(mapping, KEYS.risk_config, b"\x80", state, KEYS.key("status/probe"), b"ok")
+        deliver(mapping, KEYS.risk_config, b"\x80", state, KEYS.status("mapping"), b"ok")
         assert all(c.items == [] for c in guarded)
         assert state.items == [b"ok"]
 
@@ -210,7 +229,7 @@ def test_every_client_may_subscribe_to_the_esdf_but_a_roleless_one_may_not_publi
                     unknown_is_occupied=False)
     with (session(secrets, server, "planner", "planner") as planner,
           session(secrets, server, "mapping", "mapping") as mapping,
-          session(secrets, server, "limo", "limo") as limo):
+          observer(secrets, server) as limo):
         esdf = Collector(planner, KEYS.esdf, EsdfGrid)
         at_limo = Collector(limo, KEYS.esdf, EsdfGrid)
         assert wait_matched(planner, KEYS.esdf) and wait_matched(mapping, KEYS.esdf)
@@ -218,22 +237,119 @@ def test_every_client_may_subscribe_to_the_esdf_but_a_roleless_one_may_not_publi
         put(mapping, KEYS.esdf, grid)
         assert esdf.wait(1)[0].voxel_size == pytest.approx(0.1)
         at_limo.wait(1)
-        assert query_barrier(planner, limo)  # the forged grid, had it passed, is in by now
+        assert barrier(planner, limo)  # the forged grid, had it passed, is in by now
         assert [g.max_distance for g in at_limo.items] == [2.0]
 
 
 def test_router_role_needs_a_router_certificate(secrets: Secrets, server: str) -> None:
     """The routers subject is user ``router`` AND a router-* certificate: the password alone
     (a leaked one, used with a node's certificate) gives no right to publish cmd/safe."""
-    with (session(secrets, server, "limo", "limo") as limo,
+    with (observer(secrets, server) as limo,
           session(secrets, server, "router", "teleop") as impostor,
           session(secrets, server, "router", "router-robot") as router):
         safe = Collector(limo, KEYS.cmd_safe, VelocityCommand)
         assert wait_matched(impostor, KEYS.cmd_safe) and wait_matched(router, KEYS.cmd_safe)
         put(impostor, KEYS.cmd_safe, cmd("impostor"))
         deliver(router, KEYS.cmd_safe, cmd("router"), safe, KEYS.cmd_safe, cmd("router"))
-        assert query_barrier(impostor, limo)  # the impostor's put, had it passed, is in by now
+        assert barrier(impostor, limo)  # the impostor's put, had it passed, is in by now
         assert sources(safe) == ["router", "router"]
+
+
+# -- attacks: wildcard key expressions, swapped credentials, role-less liveliness (issue 19) ------
+
+GUARDED = ("cmd/safe", "cmd/ref", "nav/goal", "config/risk")
+
+
+def forge(publisher: zenoh.Session, keys: list[str]) -> None:
+    for key in keys:
+        put(publisher, key, cmd("forged"))
+        publisher.delete(key)
+
+
+@pytest.mark.parametrize(("user", "allowed", "forbidden"), [
+    # teleop may put cmd/ref, never cmd/safe: not through cmd/*, the robot's ** or **.
+    ("teleop", "cmd/ref", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/cmd/s$*", f"rf/{ROBOT}/**", "**", "rf/*/cmd/safe",
+                           "rf/**/cmd/safe", f"rf/{ROBOT}/*/safe"]),
+    # a data service reaches none of the four guarded keys.
+    ("mapping", "map/esdf", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/nav/*", f"rf/{ROBOT}/config/*", f"rf/{ROBOT}/**",
+                             "**", f"rf/{ROBOT}/*/*", "rf/*/cmd/ref", "rf/*/nav/goal", "rf/*/config/risk"]),
+])
+def test_wildcard_puts_and_deletes_are_refused_by_the_router(secrets: Secrets, server: str, user: str,
+                                                             allowed: str, forbidden: list[str]) -> None:
+    """Zenoh delivers a put on a key expression to every subscriber it intersects; the ACL
+    must refuse the wildcard itself. Raw subscribers (no riskfield runtime filter) see nothing."""
+    with session(secrets, server, "limo", "limo") as limo, session(secrets, server, user, user) as attacker:
+        guarded = {k: Collector(limo, KEYS.key(k)) for k in GUARDED if k != allowed}
+        own = Collector(limo, KEYS.key(allowed))
+        assert all(wait_matched(attacker, KEYS.key(k)) for k in GUARDED)
+        forge(attacker, forbidden)
+        deliver(attacker, KEYS.key(allowed), cmd(user), own, KEYS.key(allowed), cmd(user))
+        assert wait_until(lambda: len(own.items) == 2, 5)  # the same session's own key got through, twice
+        assert {k: len(c.items) for k, c in guarded.items()} == dict.fromkeys(guarded, 0)
+        for c in (*guarded.values(), own):
+            c.close()
+
+
+@pytest.mark.parametrize(("user", "cert"), [("teleop", "safety-filter"), ("safety-filter", "teleop"),
+                                            ("safety-filter", "limo")])
+def test_a_certificate_works_only_with_its_own_user(secrets: Secrets, server: str, user: str, cert: str) -> None:
+    """Certificates are bound to users: a valid certificate of one node with another node's
+    (right) password opens a session but gets no role, so it can put neither key."""
+    with (observer(secrets, server) as watch,
+          session(secrets, server, user, cert) as swapped,
+          session(secrets, server, "safety-filter", "safety-filter") as filt):
+        safe = Collector(watch, KEYS.cmd_safe, VelocityCommand)
+        ref = Collector(watch, KEYS.cmd_ref, VelocityCommand)
+        assert wait_matched(swapped, KEYS.cmd_safe) and wait_matched(swapped, KEYS.cmd_ref)
+        for _ in range(3):
+            put(swapped, KEYS.cmd_safe, cmd("swapped"))
+            put(swapped, KEYS.cmd_ref, cmd("swapped"))
+        assert barrier(swapped, watch)  # the swapped puts, had they passed, are in by now
+        assert wait_matched(filt, KEYS.cmd_safe)
+        put(filt, KEYS.cmd_safe, cmd("filter"))  # the positive control: the filter's own identity
+        safe.wait(1)
+        assert sources(safe) == ["filter"] and sources(ref) == []
+        safe.close()
+        ref.close()
+
+
+def alive(observer: zenoh.Session, service: str) -> list[str]:
+    return [str(r.ok.key_expr) for r in observer.liveliness().get(KEYS.alive(service), timeout=2.0)
+            if r.ok is not None]
+
+
+def test_only_the_filter_may_declare_its_liveliness_token(secrets: Secrets, server: str) -> None:
+    """A role-less client (or another role) declaring alive/safety-filter would make a
+    supervisor believe the filter runs; the router refuses the token."""
+    with (session(secrets, server, "limo", "limo") as limo,
+          session(secrets, server, "planner", "planner") as roleless,
+          session(secrets, server, "teleop", "teleop") as tele):
+        tokens = [roleless.liveliness().declare_token(KEYS.alive("safety-filter")),
+                  tele.liveliness().declare_token(KEYS.alive("safety-filter")),
+                  roleless.liveliness().declare_token(f"rf/{ROBOT}/alive/*")]
+        # A token's declaration travels its session's link in order: once a later query of each
+        # session reached an observer, the router has seen (and refused) the tokens.
+        with observer(secrets, server) as watch:
+            assert barrier(roleless, watch) and barrier(tele, watch)
+        assert alive(limo, "safety-filter") == []
+        with session(secrets, server, "safety-filter", "safety-filter") as filt:
+            token = filt.liveliness().declare_token(KEYS.alive("safety-filter"))
+            assert wait_until(lambda: alive(limo, "safety-filter") == [KEYS.alive("safety-filter")], 10)
+            token.undeclare()
+        for t in tokens:
+            t.undeclare()
+
+
+def test_a_roleless_client_may_not_serve_the_esdf_query(secrets: Secrets, server: str) -> None:
+    """Only mapping answers map/esdf/query: a forged queryable's replies never arrive."""
+    with (session(secrets, server, "planner", "planner") as roleless,
+          session(secrets, server, "limo", "limo") as limo):
+        q = roleless.declare_queryable(KEYS.esdf_query, lambda query: query.reply(query.key_expr, b"forged"))
+        with observer(secrets, server) as watch:
+            assert barrier(roleless, watch)  # the declaration, had it passed, is known by now
+            replies = [r for r in limo.get(KEYS.esdf_query, timeout=1.0) if r.ok is not None]
+        assert replies == []
+        q.undeclare()
 
 
 # -- two sites ---------------------------------------------------------------------------------
@@ -347,3 +463,76 @@ def test_shipped_plain_router_and_client_configs_work_together(tmp_path: Path) -
             put(s, KEYS.esdf, b"x")
             assert got.wait(1) == [b"x"]
             got.close()
+
+
+# -- the shipped ACL covers the product's keys (no router needed) -----------------------------------
+
+
+def _acl() -> dict:
+    import json
+
+    cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "router-secure.json5"))
+    return json.loads(cfg.get_json("access_control"))
+
+
+def _allowed(acl: dict, subject: str, message: str, key: str) -> bool:
+    """Whether ``subject``'s policies allow ingress ``message`` on ``key``, as Zenoh decides it:
+    an allow rule's key expression must include the message's (default deny, no deny rules)."""
+    rules = {r["id"]: r for r in acl["rules"]}
+    ids = [rid for p in acl["policies"] if subject in p["subjects"] for rid in p["rules"]]
+    return any(r["permission"] == "allow" and "ingress" in r.get("flows", ["ingress", "egress"])
+               and message in r["messages"]
+               and any(zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key)) for k in r["key_exprs"])
+               for r in (rules[i] for i in ids))
+
+
+#: Who puts each key of the product (the wire contract, the additive keys, the ROS 2 bridge's).
+PUTS = {
+    "safety-filter": ["cmd/safe", "safety/status"],
+    "mapping": ["map/esdf", "map/esdf3d"],
+    "perception": ["perception/frame"],
+    "simulator": ["camera/image", "camera/depth", "state", "sim/truth"],
+    "limo": ["state", "limo/diagnostics"],
+    "mavlink": ["state"],
+    "joystick": ["cmd/ref"],
+    "teleop": ["cmd/ref"],
+    "navigator": ["cmd/ref"],
+    "operator": ["cmd/ref", "nav/goal", "config/risk", "sim/spawn"],
+    "ros2-bridge": ["cmd/ref", "state"],
+    "relay": ["relay/out", "relay/esdf"],
+}
+ROS_PUTS = {"ros2-bridge": ["cmd_vel", "riskfield/costmap", "diagnostics", "tf"],
+            "zenoh-bridge-ros2dds": ["cmd_vel_smoothed", "odom", "tf", "tf_static"]}
+SERVICE_OF = {"teleop": "keyboard"}  # the role whose node has another service name
+
+
+def test_every_key_the_product_publishes_has_exactly_its_roles() -> None:
+    from riskfield.protocol.keys import TOPICS
+
+    acl = _acl()
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    keys = Keys(robot="limo1")
+    published = {k for ks in PUTS.values() for k in ks}
+    assert set(TOPICS) - {"map/esdf/query"} <= published  # every key of the contract has a publisher
+    roles = [s["id"] for s in acl["subjects"] if s["id"] not in ("everyone", "routers")]
+    for role in roles:
+        service = SERVICE_OF.get(role, role)
+        own = {keys.key(k) for k in PUTS.get(role, [])} | ({keys.status(service)} if role in PUTS else set())
+        own |= {f"limo1/{t}" for t in ROS_PUTS.get(role, [])}
+        for key in sorted({keys.key(k) for k in published} | {keys.status(service)} | own):
+            assert _allowed(acl, role, "put", key) == (key in own), (role, key)
+        if role in PUTS:
+            assert _allowed(acl, role, "liveliness_token", keys.alive(service))
+            assert not _allowed(acl, role, "liveliness_token", keys.alive("safety-filter")) or role == "safety-filter"
+        for wild in ("**", "rf/limo1/**", "rf/limo1/cmd/*", "rf/*/cmd/*", "limo1/**", "rf/limo1/alive/*"):
+            for msg in ("put", "delete", "liveliness_token"):
+                assert not _allowed(acl, role, msg, wild), (role, msg, wild)
+    assert _allowed(acl, "mapping", "declare_queryable", keys.esdf_query)
+    assert not any(_allowed(acl, r, "declare_queryable", keys.esdf_query) for r in roles if r != "mapping")
+    # a user in no role (matched by "everyone" only) subscribes and queries, and publishes nothing
+    assert _allowed(acl, "everyone", "declare_subscriber", "**") and _allowed(acl, "everyone", "query", "**")
+    assert not any(_allowed(acl, "everyone", m, keys.cmd_safe) for m in ("put", "delete", "liveliness_token"))
+    # certificates bound to users: one identity per subject, user name = certificate common name
+    for s in acl["subjects"]:
+        if s["id"] not in ("everyone", "routers"):
+            assert s["usernames"] == s["cert_common_names"] == [s["id"]], s

@@ -144,3 +144,37 @@ def test_post_runs_on_the_loop_thread_and_close_hooks_publish(router_endpoint):
         thread.join(10)
         assert last.wait(1)[0].source == "last words"
         last.close()
+
+
+def test_wildcard_puts_never_reach_a_handler_and_are_counted(router_endpoint):
+    """Zenoh delivers a put on ``cmd/*``, ``rf/t_wild/**`` or ``**`` to a ``cmd/safe`` subscriber;
+    the runtime drops it before the latest-value queue and counts it (issue 19)."""
+    node = Node("echo", EchoSettings(connect=[router_endpoint], robot="t_wild"))
+    seen: list[str] = []
+    node.subscribe(node.keys.cmd_safe, VelocityCommand, lambda m: seen.append(m.source), queue="latest")
+    thread = threading.Thread(target=node.run, daemon=True)
+    thread.start()
+    try:
+        with client_session(router_endpoint) as session:
+            assert wait_alive(session, "rf/t_wild/alive/echo")
+            forged = ["rf/t_wild/cmd/*", "rf/t_wild/**", "**", "rf/*/cmd/safe", "rf/t_wild/cmd/$*fe"]
+            for key in forged:
+                put(session, key, VelocityCommand.zero(f"forged {key}"))
+            session.delete("rf/t_wild/cmd/*")
+            put(session, "rf/t_wild/cmd/safe", VelocityCommand.zero("legit"))
+            assert wait_until(lambda: node.status().extra.get("wildcard_dropped", 0) == len(forged) + 1, 10)
+            assert wait_until(lambda: seen == ["legit"], 10), seen
+            assert node.status().received["cmd/safe"] == 1
+    finally:
+        node.stop()
+        thread.join(10)
+
+
+def test_a_wildcard_subscription_serves_concrete_keys_only():
+    from riskfield.services.runtime.node import serves
+
+    assert serves("rf/r/cmd/safe", "rf/r/cmd/safe")
+    assert not serves("rf/r/cmd/safe", "rf/r/cmd/*") and not serves("rf/r/cmd/safe", "**")
+    assert not serves("rf/r/cmd/safe", "rf/r/cmd/safe/x")
+    assert serves("rf/r/**", "rf/r/state") and not serves("rf/r/**", "rf/r/**")
+    assert not serves("rf/r/**", "rf/r/cmd/$*fe")

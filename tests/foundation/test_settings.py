@@ -114,7 +114,7 @@ def test_core_parameters_are_composed_of_per_stage_structs():
     assert sum(len(p.model_fields) for p in parts) == len(MapperConfig.model_fields)  # no field left out
     f = FilterConfig.compose(barrier=BarrierParams(robot_radius=0.3), bounds=BoundsParams(v_max=0.5))
     assert (f.robot_radius, f.v_max, f.rate_hz) == (0.3, 0.5, QpParams().rate_hz)
-    assert f.barrier.robot_radius == 0.3 and f.qp == QpParams()
+    assert f.barrier_params.robot_radius == 0.3 and f.qp_params == QpParams()
     assert sum(len(p.model_fields) for p in (BarrierParams, BoundsParams, QpParams)) == len(FilterConfig.model_fields)
     with pytest.raises(ValueError, match="robot_raduis"):  # the cores are strict too
         FilterConfig(robot_raduis=0.5)

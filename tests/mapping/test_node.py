@@ -253,3 +253,65 @@ def test_bad_settings_fail_fast_with_a_clear_message(router_endpoint: str, value
         proc.proc.wait(30)
         assert proc.proc.returncode == 2
         assert "invalid configuration for mapping" in proc.output
+
+
+def test_node_follows_the_keyframe_protocol_without_dropping_updates(router_endpoint: str) -> None:
+    """A burst of new keyframes, a re-posed keyframe and tracking frames, sent back to back: the FIFO
+    keeps every one, the update replaces its keyframe's contribution, tracking frames only stamp."""
+    keys = Keys("t_map_kf")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=20", "--set", "status_period_s=0.2"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        status = Collector(s, keys.status("mapping"), NodeStatus)
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        kfs = frames(4)
+        moved = kfs[3].T_WC.copy()
+        moved[:3, 3] += (0.3, 0.2, 0.0)
+        burst = [f.model_copy(update={"kind": "keyframe_new"}) for f in kfs[:3]]
+        burst.append(kfs[3].model_copy(update={"kind": "keyframe_new", "T_WC": moved}))  # drifted
+        burst.append(kfs[3].model_copy(update={"kind": "keyframe_update"}))  # the loop closure
+        burst.append(kfs[0].model_copy(update={"kind": "tracking", "header": kfs[0].header.model_copy(
+            update={"stamp_ns": 123456789})}))
+        for f in burst:  # no pause: a "latest" queue would drop most of them
+            put(s, keys.perception_frame, f)
+
+        def counted() -> bool:
+            ex = status.items[-1].extra if status.items else {}
+            return ex.get("kf_keyframe_new") == 4 and ex.get("kf_keyframe_update") == 1 and ex.get("kf_tracking") == 1
+
+        assert wait_until(counted, 20), status.items[-1].extra if status.items else proc.output
+        assert status.items[-1].extra["frames"] == 5  # four new + one update integrated
+        assert wait_until(lambda: any(g.header.stamp_ns == 123456789 for g in grids.items), 10)
+        reply = ask(s, keys, IN_FRONT)  # the person is where the corrected keyframes put it
+        assert np.all(np.abs(reply.distance - (0.8 - IN_FRONT[:, 0] - 0.15)) <= 0.075)
+        status.close()
+        grids.close()
+        assert proc.stop() == 0
+
+
+def test_plain_frames_keep_latest_value_semantics_behind_the_fifo(router_endpoint: str) -> None:
+    """Frames outside the keyframe protocol (no ``kind``) sent back to back: each is integrated or
+    skipped as superseded by a newer one waiting behind it, never both and never lost, and the
+    newest one always reaches the map (its stamp is the ESDF's)."""
+    keys = Keys("t_map_latest")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=50", "--set", "status_period_s=0.2"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        status = Collector(s, keys.status("mapping"), NodeStatus)
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        burst = [f.model_copy(update={"header": f.header.model_copy(update={"stamp_ns": 1_000_000 + i})})
+                 for i, f in enumerate(frames(4) * 2)]
+        for f in burst:
+            put(s, keys.perception_frame, f)
+
+        def settled() -> bool:
+            ex = status.items[-1].extra if status.items else {}
+            return ex.get("frames", 0) + ex.get("superseded_frames", 0) == len(burst)
+
+        assert wait_until(settled, 20), status.items[-1].extra if status.items else proc.output
+        assert wait_until(lambda: any(g.header.stamp_ns == 1_000_000 + len(burst) - 1 for g in grids.items), 10)
+        status.close()
+        grids.close()
+        assert proc.stop() == 0

@@ -21,6 +21,7 @@ from riskfield.services.perception.efficientvit_backend import (
     labels_from_logits,
     normalize,
     resize_bilinear,
+    resize_cubic,
 )
 from riskfield.services.perception.mast3r_backend import (
     KeyframeLabels,
@@ -128,6 +129,7 @@ def test_missing_mast3r_names_what_is_missing_and_how_to_install(monkeypatch: py
     # lietorch importable (a stand-in module), the rest absent here: the message names exactly
     # the modules that failed to import, then how to install them.
     monkeypatch.setitem(sys.modules, "lietorch", types.ModuleType("lietorch"))
+    monkeypatch.setitem(sys.modules, "torch", None)  # absent, even where the CPU wheel is installed
     with pytest.raises(MissingBackend) as err:
         require_mast3r()
     text = str(err.value)
@@ -158,6 +160,34 @@ def test_resize_bilinear_identities():
     ramp = np.tile(np.arange(4, dtype=np.float32), (2, 1))
     up = resize_bilinear(ramp, (2, 8))  # half-pixel centres: x_in = (x + 0.5)/2 − 0.5
     np.testing.assert_allclose(up[0], [0, 0.25, 0.75, 1.25, 1.75, 2.25, 2.75, 3.0], atol=1e-6)
+
+
+def test_resize_cubic_identities_and_saturation():
+    """Keys' kernel (a = −0.75): same size is the identity, constants are
+    kept, a uint8 image overshoots at a step edge and is saturated like cv2.INTER_CUBIC."""
+    img = np.random.default_rng(0).uniform(0, 1, (7, 9, 3)).astype(np.float32)
+    np.testing.assert_allclose(resize_cubic(img, (7, 9)), img, atol=1e-6)
+    np.testing.assert_allclose(resize_cubic(np.full((5, 6), 3.0, np.float32), (17, 11)), 3.0, atol=1e-5)
+    # halving a [0, 0, 1, 1] row: the output sample sits half-way, weights W(1.5), W(0.5), W(0.5), W(1.5)
+    # = −0.09375, 0.59375, 0.59375, −0.09375 (a = −0.75, not the linear-exact −0.5)
+    row = np.array([[0, 0, 0, 1, 1, 1]], np.float32)
+    np.testing.assert_allclose(resize_cubic(row, (1, 3))[0, 1], 0.5, atol=1e-6)
+    np.testing.assert_allclose(resize_cubic(np.array([[0, 0, 1, 1]], np.float32), (1, 2))[0],
+                               [-0.09375, 1.09375], atol=1e-6)
+    step = np.zeros((4, 8), np.uint8)
+    step[:, 4:] = 255
+    out = resize_cubic(step, (4, 32))
+    assert out.dtype == np.uint8 and out.max() == 255 and out.min() == 0
+    assert resize_cubic(step.astype(np.float32), (4, 32)).max() > 255  # the float result overshoots
+
+
+def test_resize_cubic_matches_torch_bicubic():
+    torch = pytest.importorskip("torch")
+    img = np.random.default_rng(2).uniform(-3, 3, (13, 17, 4)).astype(np.float32)
+    for size in ((40, 23), (5, 9), (13, 51)):
+        ref = torch.nn.functional.interpolate(torch.from_numpy(img.transpose(2, 0, 1))[None], size=size,
+                                              mode="bicubic", align_corners=False)[0].numpy().transpose(1, 2, 0)
+        np.testing.assert_allclose(resize_cubic(img, size), ref, atol=1e-4)
 
 
 def test_normalize_layout_and_statistics():
@@ -205,13 +235,16 @@ def test_tiny_random_network_through_the_labeller():
     assert out.shape == (96, 128) and out.dtype == np.uint16 and out.max() < 150
     logits = lab.logits(rgb).numpy()
     assert logits.shape == (1, 150, 64, 88)  # 512 × 683 → 512 × 704, /8
-    ref = labels_from_logits(logits, 96, 128)  # the numpy post-processing agrees with torch's
+    ref = labels_from_logits(logits, 96, 128)  # the numpy post-processing (bicubic) agrees with torch's
     assert (ref == out).mean() > 0.99
-    # The numpy pre-processing agrees with torch's own bilinear resize.
-    t = torch.from_numpy(rgb.astype(np.float32) / 255).permute(2, 0, 1)[None]
-    tr = torch.nn.functional.interpolate(t, size=(512, 704), mode="bilinear", align_corners=False)[0]
+    # The numpy pre-processing agrees with torch's bicubic resize of the uint8 image, rounded and
+    # saturated back to uint8 (cv2.INTER_CUBIC on a uint8 image), then /255 and normalised.
+    t = torch.from_numpy(rgb.astype(np.float32)).permute(2, 0, 1)[None]
+    tr = torch.nn.functional.interpolate(t, size=(512, 704), mode="bicubic", align_corners=False)[0]
+    tr = tr.round().clamp(0, 255) / 255
     mean, std = torch.tensor([0.485, 0.456, 0.406])[:, None, None], torch.tensor([0.229, 0.224, 0.225])[:, None, None]
-    np.testing.assert_allclose(normalize(rgb)[0], ((tr - mean) / std).numpy(), atol=1e-4)
+    diff = np.abs(normalize(rgb)[0] - ((tr - mean) / std).numpy())
+    assert diff.max() <= 1 / 255 / 0.224 + 1e-4 and (diff < 1e-4).mean() > 0.999  # off by a rounding tie at most
     bad = torch.nn.Conv2d(3, 10, 8, stride=8)
     with pytest.raises(ValueError, match="150"):
         EfficientVitLabeller(model=bad)(rgb)

@@ -56,6 +56,7 @@ class Nav2:
         while not self._stop.is_set():
             now = time.time_ns()
             if k % 2 == 0:
+                self.esdf.header.stamp_ns = now  # a live mapper's map: the filter judges content age
                 put(self.session, f"rf/{ROBOT}/map/esdf", self.esdf)
             if self.tf_on:
                 self.session.put(f"{NS}/tf", self.codec.encode_tf([Transform("map", "odom", MAP_T_ODOM,

@@ -89,7 +89,7 @@ def test_first_order_rows_predict_the_barrier_rate(model, seed):
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31))
 def test_hocbf_row_uses_the_second_derivative_of_h(seed):
-    model = MODELS[3]
+    model = DoubleIntegrator(0.1, points=[(0.0, 0.0, 0.0), (0.1, 0.0, 0.0)], barrier="hocbf")
     rng = np.random.default_rng(seed)
     s = random_state(rng, model)
     u = rng.uniform(model.lo, model.hi)
@@ -177,3 +177,49 @@ def test_predicted_points_are_the_points_after_the_exact_step(model):
         ang = np.array([0.0, 0.0, rng.uniform(-2, 2)])
         np.testing.assert_allclose(model.predicted_points(s, u, 0.02, ang),
                                    model.points(model.integrate(s, u, 0.02, ang)), atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_braking_row_is_the_first_order_cbf_of_the_braking_barrier(seed):
+    """A u - b = ḣ_b + κ h_b with h_b = h - s₊²/(2 a_b), ḣ_b by differences along the exact flow."""
+    model = MODELS[3]
+    rng = np.random.default_rng(seed)
+    s = random_state(rng, model)
+    u = rng.uniform(model.lo, model.hi)
+    a1, a2 = 2.5, 1.5  # κ = k₁ = 1
+    gains = np.array([[1.0, a1, a2]] * model.m)
+
+    def hb(t: float) -> np.ndarray:
+        st_ = model.integrate(s, u, t)
+        return model.barrier(st_, FIELD.query(model.points(st_), hessian=True), model.h(st_, FIELD))
+
+    sample = FIELD.query(model.points(s), hessian=True)
+    a, b = model.rows(s, sample, model.h(s, FIELD), gains, np.zeros(3))
+    eps = 1e-5
+    rate = (hb(eps) - hb(-eps)) / (2 * eps)
+    moving_in = -(sample.gradient @ s.velocity) > 1e-2  # away from the kink of s₊ at s = 0
+    np.testing.assert_allclose((a @ u - b)[moving_in], (rate + 1.0 * hb(0.0))[moving_in], atol=1e-4)
+    # The backup (a_max along the gradient, inside the box) never lets h_b drop at a convex
+    # obstacle: ḣ_b = ḣ + (s/a_b)(a_max + vᵀ∇²d v) ≥ -s + s a_max/a_b ≥ 0.
+    ub = model.backup(s, sample.gradient[0])
+    assert np.all(np.abs(ub) <= model.hi + 1e-12)
+    hb0 = model.barrier(s, sample, model.h(s, FIELD))
+    assert (a[0] @ ub - b[0]) - 1.0 * hb0[0] >= -1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(length=st.floats(0.1, 1.0), width=st.floats(0.05, 0.8), discs=st.integers(1, 6), capsule=st.booleans(),
+       seed=st.integers(0, 2**31))
+def test_disc_cover_contains_the_footprint(length, width, discs, capsule, seed):
+    from riskfield.services.safety_filter.barriers import disc_cover
+
+    o, r = disc_cover(length, width, discs, capsule)
+    rng = np.random.default_rng(seed)
+    p = rng.uniform([-length / 2, -width / 2], [length / 2, width / 2], (400, 2))
+    p = np.concatenate([p, [[sx * length / 2, sy * width / 2] for sx in (-1, 1) for sy in (-1, 1)]])
+    if capsule:  # keep the points of the rounded ends only
+        seg = max(length - width, 0.0) / 2
+        p = p[(np.abs(p[:, 0]) <= seg) | (np.hypot(np.abs(p[:, 0]) - seg, p[:, 1]) <= width / 2)]
+    dist = np.linalg.norm(p[:, None, :] - o[None, :, :2], axis=2) - r[None]
+    assert np.all(dist.min(axis=1) <= 1e-9)

@@ -10,7 +10,7 @@ import pytest
 from riskfield.protocol import RiskConfig, RiskGroup
 from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
-from riskfield.services.safety_filter.config import FilterConfig
+from riskfield.services.safety_filter.config import FilterConfig, Footprint
 from riskfield.services.safety_filter.filter import GainTable, SafetyFilter, hocbf_gains
 from riskfield.services.safety_filter.qp import OsqpSolver
 from riskfield.services.safety_filter.state import FilterState
@@ -123,13 +123,37 @@ def test_non_finite_reference_brakes():
     assert res.fallback == "non_finite"
 
 
-def test_infeasible_inside_an_obstacle_brakes():
+def test_infeasible_inside_an_obstacle_brakes_without_slack():
     # Deep inside the inflated set: h - δ ≈ -0.5 needs an escape speed the bounds do not allow.
     field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
-    filt = SafetyFilter(FilterConfig(v_max=0.2))
+    filt = SafetyFilter(FilterConfig(v_max=0.2, slack=False))
     res = filt.filter(FilterState.planar(1.0, 0.0, 0.0), np.array([0.1, 0.0]), field)
     assert res.fallback == "infeasible" and not res.u.any()
     assert res.h < 0
+
+
+@pytest.mark.parametrize("v_ref", [0.1, -0.15])
+def test_infeasible_qp_is_relaxed_to_the_backup_not_a_blind_brake(v_ref):
+    """Facing into a wall from inside the margin: no input satisfies the rows. The relaxed QP lets
+    no point go deeper (as the backup u = 0) and otherwise follows the reference: backing out."""
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
+    filt = SafetyFilter(FilterConfig(v_max=0.2))
+    s = FilterState.planar(1.0, 0.0, 0.0)
+    res = filt.filter(s, np.array([v_ref, 0.0]), field)
+    assert res.fallback == "slack" and res.intervening and res.h < 0
+    assert res.u[0] == pytest.approx(min(v_ref, 0.0), abs=1e-9)  # forward refused, reversing kept
+    after = filt.model.integrate(s, res.u, filt.config.dt)
+    assert (filt.model.h(after, field) >= filt.model.h(s, field) - 1e-9).all()
+
+
+def test_double_integrator_slack_is_at_least_as_good_as_braking_along_the_gradient():
+    field = AnalyticField(Plane.through([1.0, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
+    filt = SafetyFilter(FilterConfig(model="double3d", a_max=1.0))
+    s = FilterState(np.array([0.7, 0.0, 0.0]), velocity=np.array([1.0, 0.3, 0.0]))  # cannot stop in 15 cm
+    res = filt.filter(s, np.array([1.0, 0.0, 0.0]), field)
+    assert res.fallback == "slack"
+    assert res.u[0] == pytest.approx(-1.0, abs=1e-6)  # the full deceleration along the gradient
+    assert abs(res.u[1]) < 1.0  # the tangential part stays free: not a blind "-v/dt" brake
 
 
 def test_solver_failure_brakes():
@@ -165,8 +189,9 @@ def test_extra_points_add_rows_and_protect_the_rear():
     # Reversing into a wall behind the robot: only a rear point sees it.
     wall = AnalyticField(Plane.through([-0.4, 0, 0], [1.0, 0, 0], label=3), groups=GROUPS)
     s = FilterState.planar(0.0, 0.0, 0.0)
-    front_only = SafetyFilter(FilterConfig()).filter(s, np.array([-0.4, 0.0]), wall)
-    rear = SafetyFilter(FilterConfig(extra_points=[(-0.2, 0.0, 0.0)]))
+    paper = FilterConfig(footprint=Footprint(shape="none"))
+    front_only = SafetyFilter(paper).filter(s, np.array([-0.4, 0.0]), wall)
+    rear = SafetyFilter(paper.model_copy(update={"extra_points": [(-0.2, 0.0, 0.0)]}))
     assert rear.model.m == 2
     with_rear = rear.filter(s, np.array([-0.4, 0.0]), wall)
     assert not front_only.intervening and front_only.u[0] == -0.4
@@ -182,3 +207,28 @@ def test_filter_is_identity_far_from_obstacles():
     assert res.fallback is None and not res.intervening
     np.testing.assert_array_equal(res.u, [0.7, -0.4])
     assert res.h == pytest.approx(math.hypot(5 - 0.25 * math.cos(0.3), 5 - 0.25 * math.sin(0.3)) - 0.3 - 0.15)
+
+
+def test_the_limo_footprint_protects_the_rear_by_default():
+    """The default unicycle carries the LIMO's disc cover: reversing towards a wall 0.4 m behind is
+    limited by the rear disc (its edge 0.161 m behind the centre) with the low group's gain."""
+    wall = AnalyticField(Plane.through([-0.4, 0, 0], [1.0, 0, 0], label=3), groups=GROUPS)
+    filt = SafetyFilter(FilterConfig())
+    assert filt.model.m == 4  # look-ahead point + 3 discs
+    res = filt.filter(FilterState.planar(0.0, 0.0, 0.0), np.array([-0.8, 0.0]), wall)
+    rear_x, r = filt.model.offsets[1, 0], filt.model.radius[1]
+    assert rear_x == pytest.approx(-0.322 / 3) and r == pytest.approx(math.hypot(0.322 / 6, 0.11))
+    assert res.intervening and res.u[0] == pytest.approx(-1.5 * (0.4 + rear_x - r - filt.delta), abs=1e-6)
+
+
+def test_footprints_build_their_disc_covers_and_bad_ones_are_clear_errors():
+    from pydantic import ValidationError
+
+    cap = SafetyFilter(FilterConfig(model="single2d", footprint=Footprint(shape="capsule", discs=4))).model
+    assert cap.m == 4 and np.all(cap.radius == pytest.approx(math.hypot(0.102 / 3 / 2, 0.11)))
+    ball = SafetyFilter(FilterConfig(model="double3d", footprint=Footprint(shape="sphere", radius=0.2))).model
+    assert ball.m == 1 and ball.radius[0] == 0.2
+    with pytest.raises(ValidationError, match="no heading"):
+        FilterConfig(model="double3d", footprint=Footprint(shape="rectangle"))
+    with pytest.raises(ValidationError):
+        Footprint(shape="blob")  # type: ignore[arg-type]

@@ -64,6 +64,8 @@ class Feeder:
         while not self._stop.is_set():
             for key, msg in list(self.msgs.items()):
                 if self.on[key] and (key != "map/esdf" or k % 2 == 0):
+                    if key == "map/esdf":  # a live mapper: new content, so a new stamp
+                        msg.header.stamp_ns = time.time_ns()
                     put(self.session, f"{self.root}/{key}", msg)
             k += 1
             self.rounds = k

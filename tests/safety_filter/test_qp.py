@@ -141,3 +141,37 @@ def test_padding_rows_that_always_hold_do_not_disable_the_accuracy_check():
     good = OsqpSolver(2, 2).solve(*args)
     assert exact.ok and good.ok
     np.testing.assert_allclose(good.u, exact.u, atol=1e-4)
+
+
+@settings(max_examples=150, deadline=None)
+@given(problems(max_rows=9))
+def test_whole_body_row_counts_agree_with_brute_force_and_osqp(problem):
+    """Up to 9 rows: the look-ahead point, three body discs and their predictive rows, plus one."""
+    w, r, A, b, lo, hi = problem
+    got = ActiveSetSolver().solve(w, r, A, b, lo, hi)
+    want = brute_force(w, r, A, b, lo, hi)
+    osqp = osqp_for(len(r), len(b)).solve(w, r, A, b, lo, hi)
+    if want is None:
+        assert got.status == "infeasible" and osqp.status in ("infeasible", "failed")
+        return
+    assert got.status == "solved" and osqp.status == "solved"
+    np.testing.assert_allclose(got.u, want, atol=1e-7)
+    np.testing.assert_allclose(osqp.u, want, atol=2e-4)
+
+
+@settings(max_examples=150, deadline=None)
+@given(problems(max_rows=9), st.integers(0, 2**31))
+def test_slack_relaxed_qp_is_feasible_and_at_least_as_good_as_the_backup(problem, seed):
+    """The filter's relaxation A u ≥ min(b, A u_bk) for a backup u_bk in the box: always feasible,
+    every row at least as satisfied as under the backup, and both solvers agree on it."""
+    w, r, A, b, lo, hi = problem
+    u_bk = np.random.default_rng(seed).uniform(lo, hi)
+    relaxed = np.minimum(b, A @ u_bk)
+    got = ActiveSetSolver().solve(w, r, A, relaxed, lo, hi)
+    osqp = osqp_for(len(r), len(b)).solve(w, r, A, relaxed, lo, hi)
+    assert got.status == "solved" and osqp.status == "solved"
+    want = brute_force(w, r, A, relaxed, lo, hi)
+    np.testing.assert_allclose(got.u, want, atol=1e-7)
+    np.testing.assert_allclose(osqp.u, want, atol=2e-4)
+    if len(b):
+        assert np.all(A @ got.u >= np.minimum(b, A @ u_bk) - 1e-6 * (1 + np.abs(b).max()))

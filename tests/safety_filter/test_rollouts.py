@@ -40,7 +40,6 @@ def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: AnalyticFie
     a state that is safe for the nearest obstacle only may already be unable to stop before the
     next one: that is outside every CBF's promise)."""
     model = filt.model
-    table = filt.gains.for_groups(field.groups)
     while True:
         p = rng.uniform([-0.3, -0.65, -0.3], [2.0, 1.4, 0.3])
         if planar:
@@ -56,12 +55,12 @@ def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: AnalyticFie
         if hb.min() < 0 or hb.min() > 0.4:
             continue  # start in the safe set, close enough for the obstacles to matter
         if isinstance(model, DoubleIntegrator):
+            # Able to stop: braking at a_b keeps every obstacle's h - δ ≥ 0 (the braking barrier).
             safe = True
             for part in truth.shapes:
-                pts = model.points(s)
-                k_fast = model.roots(*table[part.label, 1:3])[1]
-                hb_part = part.distance(pts) - model.radius - filt.delta
-                safe &= bool((part.gradient(pts) @ s.velocity + k_fast * hb_part).min() >= 0)
+                ps = AnalyticField(part, truth.groups).query(model.points(s))
+                hb_part = ps.distance - model.radius - filt.delta
+                safe &= bool(model.barrier(s, ps, hb_part).min() >= 0)
             if not safe:
                 continue
         return s
@@ -111,7 +110,7 @@ def rollouts(model_name: str, field, n: int, seed: int, filtered: bool = True,
             # h half-way between the samples (same held input) and at the next sample.
             between = model.points(model.integrate(s, u, 0.5 * dt, ang))
             s = model.integrate(s, u, dt, ang)
-            h = field.query(np.concatenate([between, model.points(s)])).distance.min() - model.radius
+            h = (field.query(np.concatenate([between, model.points(s)])).distance - np.tile(model.radius, 2)).min()
             worst = min(worst, h)
             hit |= h < 0
         collided += hit

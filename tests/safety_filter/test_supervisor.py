@@ -131,3 +131,19 @@ def test_supervisor_hot_swaps_risk():
     sup.set_risk(RiskConfig(groups=[RiskGroup(name="high", alpha=5.0)], default_group=None))
     after = sup.tick(0.0)[0].linear[0]
     assert after > before + 0.05
+
+
+def test_an_infeasible_step_publishes_the_slack_command_and_says_so():
+    """Facing into a wall from inside the margin: the command backs out as asked (not zero), and
+    the status names the step ``slack``."""
+    sup = FilterSupervisor(SafetyFilter(FilterConfig(v_max=0.2)), 0.3, 0.3, 0.2)
+    sup.on_map(AnalyticField(Plane.through([0.2, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS), 0.0)
+    sup.on_state(state(x=0.1), 0.0)
+    sup.on_ref(ref(v=-0.15), 0.0)
+    cmd, st = sup.tick(0.01)
+    assert st.fallback == "slack" and st.intervening and st.h < 0
+    assert cmd.linear[0] == pytest.approx(-0.15)
+    assert sup.counts["slack"] == 1
+    sup.on_ref(ref(v=0.15), 0.0)
+    cmd, st = sup.tick(0.02)
+    assert st.fallback == "slack" and cmd.linear[0] == pytest.approx(0.0, abs=1e-9)  # no deeper

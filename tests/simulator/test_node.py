@@ -97,3 +97,27 @@ def test_simulator_survives_hostile_input_and_spawns_objects(router_endpoint):
         assert "rejected a spawn request" in sim.output and "spawned intruder" in sim.output
         for c in (status, states, truths):
             c.close()
+
+
+def test_simulator_publishes_depth_stamped_like_the_image(router_endpoint):
+    from riskfield.protocol import DepthImage
+
+    robot = "t_sim_depth"
+    args = [*_args(robot), "--set", "publish_depth=true"]
+    with ServiceProcess("simulator", router_endpoint, args) as sim, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/simulator"), sim.output
+        depths = Collector(s, f"rf/{robot}/camera/depth", DepthImage)
+        truths = Collector(s, f"rf/{robot}/sim/truth", PerceptionFrame)
+        depths.wait(3, 20)
+        truths.wait(3, 20)
+        d = depths.items[-2]
+        truth = next(t for t in truths.items if t.header.stamp_ns == d.header.stamp_ns)
+        assert d.depth.shape == (96, 128) and d.header.frame_id == "camera"
+        np.testing.assert_allclose(d.depth, truth.points[..., 2])  # depth = the pointmap's z
+        # the intrinsics back-project the depth onto the true pointmap
+        u, v = np.meshgrid(np.arange(128), np.arange(96))
+        np.testing.assert_allclose((u - d.cx) / d.fx * d.depth, truth.points[..., 0], atol=1e-5)
+        np.testing.assert_allclose((v - d.cy) / d.fy * d.depth, truth.points[..., 1], atol=1e-5)
+        assert sim.stop(signal.SIGTERM) == 0, sim.output
+        depths.close()
+        truths.close()

@@ -36,6 +36,7 @@ class DemoConfig:
     budget_s: float = 100.0  # the two experiments together, after start-up
     robot_radius: float = 0.15
     verbose: bool = False
+    perception: str = "sim"  # or "rgbd": the simulator publishes depth, perception poses it by odometry
     phases: dict[str, float] = field(default_factory=dict)
 
 
@@ -58,8 +59,10 @@ class Demo:
                                console=self.console)
         runner.add("router", "router", common)
         runner.add("record", "record", [*common, "--set", f"out={out}"])
-        runner.add("simulator", "simulator", [*common, "--set", f"scenario={out / 'scenario.yaml'}"])
-        runner.add("perception", "perception", common)
+        rgbd = c.perception == "rgbd"  # the simulator's depth + odometry instead of degraded truth
+        runner.add("simulator", "simulator", [*common, "--set", f"scenario={out / 'scenario.yaml'}",
+                   *(["--set", "publish_depth=true", "--set", "publish_truth=false"] if rgbd else [])])
+        runner.add("perception", "perception", [*common, *(["--set", "geometry=rgbd"] if rgbd else [])])
         runner.add("mapping", "mapping", common)
         runner.add("safety-filter", "safety-filter", [*common, "--set", f"robot_radius={c.robot_radius}"])
         runner.add("navigator", "navigator", common)
