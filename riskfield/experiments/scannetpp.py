@@ -6,7 +6,8 @@ objects: ``label`` (free text) and ``segments`` (indices of the mesh's vertices 
 to the object). Each object becomes one ``SceneObject`` made of the triangles whose three
 vertices all belong to it; every other triangle (walls, floor, unannotated clutter) goes into
 one ``structure`` object with per-triangle labels (floor/ceiling/wall by their annotation,
-``wall`` otherwise). ScanNet++ labels are mapped onto ADE20K classes by name and synonyms
+``wall`` otherwise). ScanNet++ labels are mapped onto ADE20K classes by the shipped table of
+ScanNet++'s 100 benchmark classes (``scannetpp_labels``), then by name and synonyms
 (``simulator.mesh_io``); an unknown label becomes ``box`` (a generic low-risk obstacle).
 
 Scans are open surfaces: the objects are marked non-watertight, so the benchmark measures
@@ -20,16 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
+from riskfield.experiments.scannetpp_labels import scannetpp_to_ade20k
 from riskfield.protocol import ade20k
 from riskfield.services.simulator.mesh_io import ade20k_index_of
 from riskfield.services.simulator.scene import SceneObject
 
 
 def ade20k_label(name: str) -> int:
-    """ADE20K index of a ScanNet++ label (the simulator's name/synonym table; ``box`` when
-    nothing matches)."""
+    """ADE20K index of a ScanNet++ label: the shipped benchmark-class table, else the simulator's
+    name/synonym table; ``box`` when nothing matches."""
 
-    return ade20k_index_of(name, unknown="box")
+    known = scannetpp_to_ade20k(name)
+    return known if known is not None else ade20k_index_of(name, unknown="box")
 
 
 def load_scene(folder: str | Path):
@@ -84,3 +87,14 @@ def load_scene(folder: str | Path):
 def _submesh(verts: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     used, inverse = np.unique(tris.reshape(-1), return_inverse=True)
     return verts[used].copy(), inverse.reshape(-1, 3).astype(np.uint32)
+
+
+def scannetpp_folders(path: str | Path) -> list[Path]:
+    """``path`` itself when it is one scene (``<id>`` or ``<id>/scans``), else its scene sub-folders."""
+    path = Path(path)
+    if (path / "scans").is_dir() or (path / "mesh_aligned_0.05.ply").is_file():
+        return [path]
+    found = sorted(p for p in path.iterdir() if p.is_dir() and (p / "scans").is_dir()) if path.is_dir() else []
+    if not found:
+        raise FileNotFoundError(f"{path} is neither a ScanNet++ scene nor a folder of scenes")
+    return found

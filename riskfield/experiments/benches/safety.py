@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from riskfield.experiments.benches.safety_authors import authors_run
 from riskfield.experiments.metrics import Rollout, matched, summarise
 from riskfield.experiments.safety_benchmark import (
     ESDF,
@@ -36,7 +37,7 @@ from riskfield.experiments.safety_benchmark import (
     rollout,
     sim_perception,
 )
-from riskfield.experiments.scannetpp import load_scene
+from riskfield.experiments.scannetpp import load_scene, scannetpp_folders
 from riskfield.experiments.tables import plot_safety, safety_table, table2, table3, write_json
 from riskfield.protocol import RiskConfig
 from riskfield.services.geometry.camera import PinholeCamera
@@ -56,11 +57,29 @@ def safety(
     frames: Annotated[int, typer.Option(help="Frames in each scene's input stream.")] = 48,
     robot_radius: Annotated[float, typer.Option(help="Robot radius (m), subtracted from every distance.")] = 0.15,
     seed: Annotated[int, typer.Option(help="Seed of scenes and pairs.")] = 0,
-    scannetpp: Annotated[list[Path] | None, typer.Option(help="ScanNet++ scene folder (repeatable).")] = None,
+    scannetpp: Annotated[list[Path] | None, typer.Option(
+        help="ScanNet++ scene folder, or a data folder of scenes (repeatable).")] = None,
+    protocol: Annotated[str, typer.Option(
+        help="riskfield (this project's benchmark) or authors (the paper's published protocol).")] = "riskfield",
+    semantic: Annotated[str, typer.Option(
+        help="authors protocol: target (only the target's group inflated, the authors'), scene (every group "
+             "inflated) or both (target is primary).")] = "both",
+    per_group: Annotated[int, typer.Option(help="authors protocol: pairs requested per risk group and scene.")] = 50,
+    baseline: Annotated[bool, typer.Option(help="authors protocol: run the SaferSplat-style baseline.")] = True,
 ) -> None:
     """Equal-time comparison of a point-cloud CBF, the ESDF and the semantic ESDF (3-D double integrator)."""
     if perception not in ("gt", "sim"):
         raise typer.BadParameter("perception must be gt or sim")
+    if protocol not in ("riskfield", "authors"):
+        raise typer.BadParameter("protocol must be riskfield or authors")
+    folders = [f for root in scannetpp or [] for f in scannetpp_folders(root)]
+    if protocol == "authors":
+        if semantic not in ("target", "scene", "both"):
+            raise typer.BadParameter("semantic must be target, scene or both")
+        modes = ("target", "scene") if semantic == "both" else (semantic,)
+        authors_run(out, scenes=scenes, folders=folders, perception=perception, modes=modes, per_group=per_group,
+                    frames=frames, map_budget=map_budget, seed=seed, baseline=baseline)
+        return
     console = Console()
     cfg = BenchConfig(trajectories=trajectories, scenes=scenes, perception=perception, map_budget_s=map_budget,
                       frames=frames, robot_radius=robot_radius, seed=seed)
@@ -69,7 +88,7 @@ def safety(
     t_start = time.perf_counter()
 
     cases = [procedural_case(seed * 1000 + i, risk) for i in range(scenes)]
-    for folder in scannetpp or []:
+    for folder in folders:
 
         cases.append(make_case(f"scannetpp_{folder.name}", load_scene(folder), risk))
     if not cases:
