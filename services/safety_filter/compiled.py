@@ -303,7 +303,7 @@ def _one_row(w, r, a, b, lo, hi, n, u, marks):
     mu_prev, g_prev = 0.0, g
     for kk in range(nm + 1):
         mu = marks[kk] if kk < nm else math.inf
-        mid = mu_prev + 1.0 if mu == math.inf else 0.5 * (mu_prev + mu)
+        mid = 2.0 * mu_prev + 1.0 if mu == math.inf else 0.5 * (mu_prev + mu)
         slope = 0.0
         for j in range(n):
             sl = a[j] / w[j]
@@ -316,8 +316,12 @@ def _one_row(w, r, a, b, lo, hi, n, u, marks):
             g_next = math.inf if slope > 0 else g_prev
         if g_next >= b:
             mu_star = mu_prev + (b - g_prev) / slope
+            g = 0.0
             for j in range(n):
                 u[j] = min(max(r[j] + mu_star * (a[j] / w[j]), lo[j]), hi[j])
+                g += a[j] * u[j]
+            if g < b - FEASIBILITY_TOL * (1.0 + abs(b)):
+                return 1
             return 0
         mu_prev, g_prev = mu, g_next
     return 1
