@@ -15,16 +15,9 @@ agree with the numpy path to rounding (sums run in another order than BLAS's), w
 property test in ``tests/safety_filter/test_compiled.py`` checks on random states, fields and
 references for every model.
 
-The field's arrays enter the kernel as one contiguous float64 array of coefficients and one
-uint8 array of risk groups (converted once per map when the message's arrays are of another
-type or read-only, so that a single machine-code specialisation serves every map: numba
-compiles per argument type). The kernel is compiled (or loaded from numba's on-disk cache) when
-the filter is built — in the node's setup — never in the control loop.
-
-Each axis' stencil weights are polynomials in the cell fraction t: w[o, p](t) = Σ_q P[o, p, q] tᵠ
-for the value (o = 0), first (o = 1) and second (o = 2) derivative at stencil position p; the
-trilinear finite-difference weights (``fields.grid.axis_weights``) and the cubic kernels
-(``fields.spline``) both take this form, so one contraction serves all four interpolations.
+The field is queried by ``fields.compiled.query_point`` (the grid query for one point, in
+machine code). The kernel is compiled (or loaded from numba's on-disk cache) when the filter is
+built — in the node's setup — never in the control loop.
 """
 
 from __future__ import annotations
@@ -34,17 +27,9 @@ from collections import namedtuple
 
 import numpy as np
 
-try:  # numba is in the ``robot`` extra; without it the filter keeps its numpy path.
-    import numba
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - exercised on installs without numba
-    numba = None
-    HAVE_NUMBA = False
-
-from ..fields import spline as field_spline
+from ..fields.compiled import HAVE_NUMBA, jit, kernel_view, query_point
 from ..fields.grid import EsdfField
-from ..fields.grid import axis_weights as trilinear_weights
+from .qp import FEASIBILITY_TOL
 
 # Model kinds of the kernel.
 UNICYCLE, SINGLE2D, SINGLE3D, DOUBLE_BRAKING, DOUBLE_HOCBF = 0, 1, 2, 3, 4
@@ -53,172 +38,14 @@ OK, SLACK, OUTSIDE_MAP, NON_FINITE, INFEASIBLE, HANDBACK = 0, 1, 2, 3, 4, 9
 FALLBACK = {OK: None, SLACK: "slack", OUTSIDE_MAP: "outside_map", NON_FINITE: "non_finite",
             INFEASIBLE: "infeasible"}
 
-FEASIBILITY_TOL = 1e-6  # as qp.FEASIBILITY_TOL
+
 _MAX_ITER, _TOL = 50, 1e-12  # as qp.ActiveSetSolver's defaults
-_EPS = 1e-9  # the in-map tolerance of fields.grid
-
-
-def _jit(fn):
-    return numba.njit(cache=True, nogil=True)(fn) if HAVE_NUMBA else fn
-
-
-def stencil_polynomials(field: EsdfField) -> np.ndarray:
-    """P (3, 4, 4): per-axis weights w[o, p](t) = Σ_q P[o, p, q] t^q of the field's interpolation."""
-    h = field.voxel_size
-    poly = np.zeros((3, 4, 4))
-    if field.interpolation == "trilinear":
-        w0, w1 = trilinear_weights(h)
-        poly[:, :, 0], poly[:, :, 1] = w0, w1
-        return poly
-    m = field_spline._MATRIX[field.interpolation]  # w_p(t) = Σ_k M[p, k] t^k
-    for q in range(4):
-        poly[0, :, q] = m[:, q]
-        if q >= 1:
-            poly[1, :, q - 1] = m[:, q] * q / h
-        if q >= 2:
-            poly[2, :, q - 2] = m[:, q] * q * (q - 1) / (h * h)
-    return poly
-
-
-# --------------------------------------------------------------------------- field query
-
-
-@_jit
-def _query(flat, rgs, dims, shape, strides, origin, inv_h, poly, k, p, i, dist, grad, hess, rg_out, inside,
-           block, w, r1, r2, r3):
-    """Query point p into row i of the outputs (fields.grid.EsdfField.query for one point)."""
-    ins = True
-    ix0 = iy0 = iz0 = 0
-    nx = ny = nz = 0
-    for a in range(dims):
-        u = (p[a] - origin[a]) * inv_h
-        upper = shape[a] - 1.0
-        if not (u >= -_EPS and u <= upper + _EPS):
-            ins = False
-        u = min(max(u, 0.0), upper)
-        c = min(int(u), shape[a] - 2)
-        t = u - c
-        near = min(int(u + 0.5), shape[a] - 1)
-        if a == 0:
-            ix0 = c
-            nx = near
-        elif a == 1:
-            iy0 = c
-            ny = near
-        else:
-            iz0 = c
-            nz = near
-        t2 = t * t
-        t3 = t2 * t
-        for o in range(k):
-            for q in range(4):
-                w[a, o, q] = poly[o, q, 0] + poly[o, q, 1] * t + poly[o, q, 2] * t2 + poly[o, q, 3] * t3
-    inside[i] = ins
-    flat_near = nx * strides[0] + ny * strides[1]
-    if dims == 3:
-        flat_near += nz * strides[2]
-    rg_out[i] = rgs[flat_near]
-    # The 4^dims stencil, clamped to the grid, then clamped layers replaced by linear extrapolation.
-    nzs = 4 if dims == 3 else 1
-    for a in range(4):
-        xa = min(max(ix0 - 1 + a, 0), shape[0] - 1) * strides[0]
-        for b in range(4):
-            yb = min(max(iy0 - 1 + b, 0), shape[1] - 1) * strides[1]
-            if dims == 3:
-                for c in range(4):
-                    zc = min(max(iz0 - 1 + c, 0), shape[2] - 1) * strides[2]
-                    block[a, b, c] = flat[xa + yb + zc]
-            else:
-                block[a, b, 0] = flat[xa + yb]
-    starts = (ix0, iy0, iz0)
-    for ax in range(dims):
-        lo = starts[ax] == 0
-        hi = starts[ax] + 2 > shape[ax] - 1
-        if not (lo or hi):
-            continue
-        for e in range(4):
-            for f in range(nzs if ax != 2 else 4):
-                if ax == 0:
-                    if lo:
-                        block[0, e, f] = 2 * block[1, e, f] - block[2, e, f]
-                    if hi:
-                        block[3, e, f] = 2 * block[2, e, f] - block[1, e, f]
-                elif ax == 1:
-                    if lo:
-                        block[e, 0, f] = 2 * block[e, 1, f] - block[e, 2, f]
-                    if hi:
-                        block[e, 3, f] = 2 * block[e, 2, f] - block[e, 1, f]
-                else:
-                    if lo:
-                        block[e, f, 0] = 2 * block[e, f, 1] - block[e, f, 2]
-                    if hi:
-                        block[e, f, 3] = 2 * block[e, f, 2] - block[e, f, 1]
-    for a in range(3):
-        grad[i, a] = 0.0
-        for b in range(3):
-            hess[i, a, b] = 0.0
-    if dims == 2:
-        # r[ox, oy] = Σ_ab wx[ox, a] block[a, b] wy[oy, b]
-        for a in range(4):
-            for oy in range(k):
-                s = 0.0
-                for b in range(4):
-                    s += block[a, b, 0] * w[1, oy, b]
-                r1[a, oy, 0] = s
-        for ox in range(k):
-            for oy in range(k):
-                s = 0.0
-                for a in range(4):
-                    s += w[0, ox, a] * r1[a, oy, 0]
-                r3[ox, oy, 0] = s
-        dist[i] = r3[0, 0, 0]
-        grad[i, 0] = r3[1, 0, 0]
-        grad[i, 1] = r3[0, 1, 0]
-        if k == 3:
-            hess[i, 0, 0] = r3[2, 0, 0]
-            hess[i, 0, 1] = r3[1, 1, 0]
-            hess[i, 1, 0] = r3[1, 1, 0]
-            hess[i, 1, 1] = r3[0, 2, 0]
-        return
-    # Contract z, then y, then x (the order of fields.grid).
-    for a in range(4):
-        for b in range(4):
-            for oz in range(k):
-                s = 0.0
-                for c in range(4):
-                    s += block[a, b, c] * w[2, oz, c]
-                r1[a, b, oz] = s
-    for a in range(4):
-        for oy in range(k):
-            for oz in range(k):
-                s = 0.0
-                for b in range(4):
-                    s += w[1, oy, b] * r1[a, b, oz]
-                r2[a, oy, oz] = s
-    for ox in range(k):
-        for oy in range(k):
-            for oz in range(k):
-                s = 0.0
-                for a in range(4):
-                    s += w[0, ox, a] * r2[a, oy, oz]
-                r3[ox, oy, oz] = s
-    dist[i] = r3[0, 0, 0]
-    grad[i, 0] = r3[1, 0, 0]
-    grad[i, 1] = r3[0, 1, 0]
-    grad[i, 2] = r3[0, 0, 1]
-    if k == 3:
-        hess[i, 0, 0] = r3[2, 0, 0]
-        hess[i, 1, 1] = r3[0, 2, 0]
-        hess[i, 2, 2] = r3[0, 0, 2]
-        hess[i, 0, 1] = hess[i, 1, 0] = r3[1, 1, 0]
-        hess[i, 0, 2] = hess[i, 2, 0] = r3[1, 0, 1]
-        hess[i, 1, 2] = hess[i, 2, 1] = r3[0, 1, 1]
 
 
 # --------------------------------------------------------------------------- SO(3) helpers
 
 
-@_jit
+@jit
 def _series(x, y, z, t, c1, c2, out):
     """t·I + c1·[w]× + c2·[w]×² (state._series)."""
     xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
@@ -233,7 +60,7 @@ def _series(x, y, z, t, c1, c2, out):
     out[2, 2] = t - c2 * (xx + yy)
 
 
-@_jit
+@jit
 def _so3_exp(x, y, z, out):
     th = math.sqrt(x * x + y * y + z * z)
     if th < 1e-9:
@@ -242,7 +69,7 @@ def _so3_exp(x, y, z, out):
         _series(x, y, z, 1.0, math.sin(th) / th, (1 - math.cos(th)) / th**2, out)
 
 
-@_jit
+@jit
 def _so3_integral(x, y, z, t, out):
     th = math.sqrt(x * x + y * y + z * z)
     if abs(th * t) < 1e-6:
@@ -251,14 +78,14 @@ def _so3_integral(x, y, z, t, out):
         _series(x, y, z, t, (1 - math.cos(th * t)) / th**2, (th * t - math.sin(th * t)) / th**3, out)
 
 
-@_jit
+@jit
 def _yaw_rot(yaw, out):
     c, s = math.cos(yaw), math.sin(yaw)
     out[:, :] = 0.0
     out[0, 0], out[0, 1], out[1, 0], out[1, 1], out[2, 2] = c, -s, s, c, 1.0
 
 
-@_jit
+@jit
 def _rigid_points(pos, rot, offsets, m, pts, row0):
     """pts[row0 + i] = pos + rot @ o_i."""
     for i in range(m):
@@ -270,7 +97,7 @@ def _rigid_points(pos, rot, offsets, m, pts, row0):
 # --------------------------------------------------------------------------- the QP (qp.ActiveSetSolver)
 
 
-@_jit
+@jit
 def _one_row(w, r, a, b, lo, hi, n, u, marks):
     """qp.ActiveSetSolver._one_row: status 0 solved, 1 infeasible."""
     g = 0.0
@@ -327,7 +154,7 @@ def _one_row(w, r, a, b, lo, hi, n, u, marks):
     return 1
 
 
-@_jit
+@jit
 def _solve_small(gram, rhs, q, aug, x):
     """qp._solve_small: Gaussian elimination with partial pivoting; False if singular."""
     scale = 0.0
@@ -362,7 +189,7 @@ def _solve_small(gram, rhs, q, aug, x):
     return True
 
 
-@_jit
+@jit
 def _dual_active_set(rc, rd, nr, n, z, norms, active, lam, gram, rhs, rr, step, aug):
     """qp.ActiveSetSolver._dual_active_set: status 0 solved, 1 infeasible, 2 failed."""
     for i in range(nr):
@@ -443,7 +270,7 @@ def _dual_active_set(rc, rd, nr, n, z, norms, active, lam, gram, rhs, rr, step, 
     return 2
 
 
-@_jit
+@jit
 def _active_set(w, r, A, b, nrow, lo, hi, n, u, ws):
     """qp.ActiveSetSolver.solve on rows A[:nrow]: status 0 solved, 1 infeasible, 2 failed."""
     rc, rd, norms, gram, aug = ws.rc, ws.rd, ws.norms, ws.gram, ws.aug
@@ -502,7 +329,7 @@ def _active_set(w, r, A, b, nrow, lo, hi, n, u, ws):
 # --------------------------------------------------------------------------- the step
 
 
-@_jit
+@jit
 def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, gain, vel, a_brake, A, B, row):
     """The CBF row of point i (field sample in row src) into A[row], B[row] (barriers.*.rows)."""
     gx, gy, gz = grad[src, 0], grad[src, 1], grad[src, 2]
@@ -551,7 +378,7 @@ def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, ga
             B[row] = -curv - (k_fast + gamma) * hdot - gamma * k_fast * hb_i
 
 
-@_jit
+@jit
 def step_kernel(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref, ang,
                 flat, rgs, dims, shape, strides, forigin, inv_h, poly, table,
                 pts, dist, grad, hess, rgq, inside, gains, hb, A, B, A2, B2, u_box, u_bk,
@@ -646,7 +473,7 @@ def step_kernel(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state,
             if not math.isfinite(pts[i, a]):
                 out_i[0] = HANDBACK
                 return
-        _query(flat, rgs, dims, shape, strides, forigin, inv_h, poly, k, pts[i], i, dist, grad, hess, rgq, inside,
+        query_point(flat, rgs, dims, shape, strides, forigin, inv_h, poly, k, pts[i], i, dist, grad, hess, rgq, inside,
                block, w, r1, r2, r3)
     nt = table.shape[0]
     for i in range(npts):
@@ -816,23 +643,10 @@ class CompiledStep:
         self._field: tuple | None = None
 
     def prepare(self, field: EsdfField) -> tuple:
-        """The kernel's view of a field (converted once per map: float64 coefficients, uint8 groups)."""
+        """The kernel's view of a field (``fields.compiled.kernel_view``), kept per map."""
         if self._field is not None and self._field[0] is field:
             return self._field[1]
-        flat = field._flat
-        if flat.dtype != np.float64 or not flat.flags.writeable or not flat.flags.c_contiguous:
-            flat = np.array(flat, np.float64)
-        rgs = field._flat_rg
-        if rgs.dtype != np.uint8 or not rgs.flags.writeable or not rgs.flags.c_contiguous:
-            rgs = np.array(rgs, np.uint8)
-        dims = 2 if field.planar else 3
-        shape = np.ones(3, np.int64)
-        shape[:dims] = field._shape
-        strides = np.zeros(3, np.int64)
-        strides[:dims] = field._strides
-        origin = np.zeros(3)
-        origin[:dims] = field._origin_d
-        view = (flat, rgs, dims, shape, strides, origin, float(field._inv_h), stencil_polynomials(field))
+        view = kernel_view(field)
         self._field = (field, view)
         return view
 
