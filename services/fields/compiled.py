@@ -64,9 +64,10 @@ def stencil_polynomials(field: EsdfField) -> np.ndarray:
 # --------------------------------------------------------------------------- field query
 
 
-def kernel_view(field: EsdfField) -> tuple:
-    """(coefficients float64, risk groups uint8, dims, shape (3,), strides (3,), origin (3,), 1/h,
-    stencil polynomials): the arguments :func:`query_point` takes for ``field``."""
+def kernel_view(field: EsdfField) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(coefficients float64, risk groups uint8, [dims, shape (3), strides (3)] int64,
+    [origin (3), 1/h, stencil polynomials (48)] float64): ``field`` as :func:`query_point` reads it
+    (few arrays: a call into numba costs per argument)."""
     flat = field._flat
     if flat.dtype != np.float64 or not flat.flags.writeable or not flat.flags.c_contiguous:
         flat = np.array(flat, np.float64)
@@ -74,13 +75,16 @@ def kernel_view(field: EsdfField) -> tuple:
     if rgs.dtype != np.uint8 or not rgs.flags.writeable or not rgs.flags.c_contiguous:
         rgs = np.array(rgs, np.uint8)
     dims = 2 if field.planar else 3
-    shape = np.ones(3, np.int64)
-    shape[:dims] = field._shape
-    strides = np.zeros(3, np.int64)
-    strides[:dims] = field._strides
-    origin = np.zeros(3)
-    origin[:dims] = field._origin_d
-    return flat, rgs, dims, shape, strides, origin, float(field._inv_h), stencil_polynomials(field)
+    meta_i = np.zeros(7, np.int64)
+    meta_i[0] = dims
+    meta_i[1:4] = 1
+    meta_i[1:1 + dims] = field._shape
+    meta_i[4:4 + dims] = field._strides
+    meta_f = np.zeros(52)
+    meta_f[:dims] = field._origin_d
+    meta_f[3] = field._inv_h
+    meta_f[4:] = stencil_polynomials(field).ravel()
+    return flat, rgs, meta_i, meta_f
 
 
 @jit
@@ -88,7 +92,8 @@ def query_point(flat, rgs, dims, shape, strides, origin, inv_h, poly, k, p, i, d
            block, w, r1, r2, r3):
     """``EsdfField.query`` at one point p, into row i of the outputs (distance, gradient, Hessian when
     k = 3, risk group, inside); ``block``, ``w``, ``r1``-``r3`` are scratch ((4, 4, 4), (3, 3, 4),
-    (4, 4, 3), (4, 3, 3), (3, 3, 3)). The field enters as :func:`kernel_view` gives it."""
+    (4, 4, 3), (4, 3, 3), (3, 3, 3)). The field enters as :func:`kernel_view` gives it, its
+    metadata unpacked: dims, shape and strides (3 each), origin (3), 1/h, polynomials (3, 4, 4)."""
     ins = True
     ix0 = iy0 = iz0 = 0
     nx = ny = nz = 0

@@ -23,7 +23,6 @@ built — in the node's setup — never in the control loop.
 from __future__ import annotations
 
 import math
-from collections import namedtuple
 
 import numpy as np
 
@@ -271,11 +270,8 @@ def _dual_active_set(rc, rd, nr, n, z, norms, active, lam, gram, rhs, rr, step, 
 
 
 @jit
-def _active_set(w, r, A, b, nrow, lo, hi, n, u, ws):
+def _active_set(w, r, A, b, nrow, lo, hi, n, u, rc, rd, norms, gram, aug, z, rhs, rr, step, lam, marks, sw, active):
     """qp.ActiveSetSolver.solve on rows A[:nrow]: status 0 solved, 1 infeasible, 2 failed."""
-    rc, rd, norms, gram, aug = ws.rc, ws.rd, ws.norms, ws.gram, ws.aug
-    z, rhs, rr, step, lam, marks, sw = ws.z, ws.rhs, ws.rr, ws.step, ws.lam, ws.marks, ws.sw
-    active = ws.active
     if nrow == 1:
         return _one_row(w, r, A[0], b[0], lo, hi, n, u, marks)
     for j in range(n):
@@ -379,7 +375,7 @@ def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, ga
 
 
 @jit
-def step_kernel(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref, ang,
+def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref, ang,
                 flat, rgs, dims, shape, strides, forigin, inv_h, poly, table,
                 pts, dist, grad, hess, rgq, inside, gains, hb, A, B, A2, B2, u_box, u_bk,
                 rot, rot1, tmp, omega, pos1, block, w, r1, r2, r3, ws,
@@ -539,7 +535,7 @@ def step_kernel(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state,
                 A2[nlive, j] = A[i, j]
             B2[nlive] = B[i]
             nlive += 1
-    status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, ws)
+    status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
     code = OK
     if status == 2:
         out_i[0] = HANDBACK  # the numpy path takes it to OSQP
@@ -570,7 +566,7 @@ def step_kernel(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state,
                 blind = True
             B2[i] = min(B2[i], ab)
         if not blind:
-            status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, ws)
+            status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
             code = SLACK
             if status == 2:
                 out_i[0] = HANDBACK
@@ -593,9 +589,94 @@ def step_kernel(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state,
     out_f[1] = hb[kc]
 
 
-# --------------------------------------------------------------------------- the Python side
+@jit
+def _take(buf, at, size):
+    return buf[at:at + size], at + size
 
-QpWork = namedtuple("QpWork", "rc rd norms gram aug z rhs rr step lam marks sw active")
+
+@jit
+def step_kernel(ci, cf, inp, flat, rgs, fmi, fmf, table, wf, wi):
+    """One filter step over packed arrays (a numba call costs ~0.2 µs per argument: few arguments).
+
+    ci = [model kind, n, m, predictive rows, margins in filter, slack, first order];
+    cf = [δ, α cap, T, a_brake, a_max, offsets (m×3), radii (m), weights, lo, hi (n each)];
+    inp = [position, rotation (row-major), velocity, u_ref (n), angular (3)]; the field as
+    ``fields.compiled.kernel_view`` gives it (fmi = [dims, shape, strides], fmf = [origin, 1/h,
+    stencil polynomials]); ``table`` the gains per risk group. Outputs: wf[0:2] = [h at the
+    critical point, the barrier there], wf[2:2+n] = u; wi[0:4] = [code, risk group, rows,
+    intervening]. The rest of wf and wi is scratch, carved here.
+    """
+    kind, n, m = ci[0], ci[1], ci[2]
+    q = 2 * m
+    rows = q + 2 * n
+    par = cf[0:5]
+    offsets, o = _take(cf, 5, 3 * m)
+    offsets = offsets.reshape((m, 3))
+    radius, o = _take(cf, o, m)
+    weights, o = _take(cf, o, n)
+    lo, o = _take(cf, o, n)
+    hi, o = _take(cf, o, n)
+    state, u_ref, ang = inp[0:15], inp[15:15 + n], inp[15 + n:18 + n]
+    out_f, u_out = wf[0:2], wf[2:2 + n]
+    o = 2 + n
+    pts, o = _take(wf, o, 3 * q)
+    dist, o = _take(wf, o, q)
+    grad, o = _take(wf, o, 3 * q)
+    hess, o = _take(wf, o, 9 * q)
+    gains, o = _take(wf, o, 4 * q)
+    hb, o = _take(wf, o, m)
+    A, o = _take(wf, o, q * n)
+    B, o = _take(wf, o, q)
+    A2, o = _take(wf, o, q * n)
+    B2, o = _take(wf, o, q)
+    u_box, o = _take(wf, o, n)
+    u_bk, o = _take(wf, o, 3)
+    rot, o = _take(wf, o, 9)
+    rot1, o = _take(wf, o, 9)
+    tmp, o = _take(wf, o, 9)
+    omega, o = _take(wf, o, 3)
+    pos1, o = _take(wf, o, 3)
+    block, o = _take(wf, o, 64)
+    w, o = _take(wf, o, 36)
+    r1, o = _take(wf, o, 48)
+    r2, o = _take(wf, o, 36)
+    r3, o = _take(wf, o, 27)
+    rc, o = _take(wf, o, rows * n)
+    rd, o = _take(wf, o, rows)
+    norms, o = _take(wf, o, rows)
+    gram, o = _take(wf, o, 64)
+    aug, o = _take(wf, o, 72)
+    z, o = _take(wf, o, n)
+    rhs, o = _take(wf, o, 8)
+    rr, o = _take(wf, o, 8)
+    step, o = _take(wf, o, n)
+    lam, o = _take(wf, o, 8)
+    marks, o = _take(wf, o, 2 * n)
+    sw, o = _take(wf, o, n)
+    out_i = wi[0:4]
+    rgq, o = _take(wi, 4, q)
+    inside, o = _take(wi, o, q)
+    active, o = _take(wi, o, 8)
+    _step(kind, n, m, offsets, radius, weights, lo, hi, par, ci[3:7], state, u_ref, ang,
+          flat, rgs, fmi[0], fmi[1:4], fmi[4:7], fmf[0:3], fmf[3], fmf[4:52].reshape((3, 4, 4)), table,
+          pts.reshape((q, 3)), dist, grad.reshape((q, 3)), hess.reshape((q, 3, 3)), rgq, inside,
+          gains.reshape((q, 4)), hb, A.reshape((q, n)), B, A2.reshape((q, n)), B2, u_box, u_bk,
+          rot.reshape((3, 3)), rot1.reshape((3, 3)), tmp.reshape((3, 3)), omega, pos1, block.reshape((4, 4, 4)),
+          w.reshape((3, 3, 4)), r1.reshape((4, 4, 3)), r2.reshape((4, 3, 3)), r3.reshape((3, 3, 3)),
+          (rc.reshape((rows, n)), rd, norms, gram.reshape((8, 8)), aug.reshape((8, 9)), z, rhs, rr, step, lam,
+           marks, sw, active),
+          u_out, out_f, out_i)
+
+
+def workspace_sizes(m: int, n: int) -> tuple[int, int]:
+    """Lengths of :func:`step_kernel`'s float and int workspaces (its carving, summed)."""
+    q, rows = 2 * m, 2 * m + 2 * n
+    floats = (2 + n + 3 * q + q + 3 * q + 9 * q + 4 * q + m + q * n + q + q * n + q + n + 3 + 9 * 3 + 3 + 3
+              + 64 + 36 + 48 + 36 + 27 + rows * n + rows + rows + 64 + 72 + n + 8 + 8 + n + 8 + 2 * n + n)
+    return floats, 4 + 2 * q + 8
+
+
+# --------------------------------------------------------------------------- the Python side
 
 
 class CompiledStep:
@@ -613,33 +694,17 @@ class CompiledStep:
             raise RuntimeError("the compiled filter step needs numba (pip install '.[robot]')")
         m, n = model.m, model.n
         self.kind, self.m, self.n = kind, m, n
-        self.offsets = np.ascontiguousarray(model.offsets, np.float64)
-        self.radius = np.ascontiguousarray(model.radius, np.float64)
-        self.weights = np.ascontiguousarray(model.weights, np.float64)
-        self.lo = np.ascontiguousarray(model.lo, np.float64)
-        self.hi = np.ascontiguousarray(model.hi, np.float64)
         a_max = float(getattr(model, "a_max", 0.0))
         a_brake = float(getattr(model, "a_brake", 1.0))
-        self.par = np.array([delta, alpha_cap if math.isfinite(alpha_cap) else 1e300, dt, a_brake, a_max])
-        self.flags = np.array([predictive, margins_in_filter, slack, kind < DOUBLE_BRAKING], np.int64)
-        self.state = np.zeros(15)
-        self.u_ref = np.zeros(n)
-        self.ang = np.zeros(3)
-        q = 2 * m
-        self.pts, self.dist, self.grad = np.zeros((q, 3)), np.zeros(q), np.zeros((q, 3))
-        self.hess, self.rgq, self.inside = np.zeros((q, 3, 3)), np.zeros(q, np.int64), np.zeros(q, np.bool_)
-        self.gains, self.hb = np.zeros((q, 4)), np.zeros(m)
-        self.A, self.B, self.A2, self.B2 = np.zeros((q, n)), np.zeros(q), np.zeros((q, n)), np.zeros(q)
-        self.u_box, self.u_bk, self.u = np.zeros(n), np.zeros(3), np.zeros(n)
-        self.rot, self.rot1, self.tmp = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
-        self.omega, self.pos1 = np.zeros(3), np.zeros(3)
-        self.block, self.w = np.zeros((4, 4, 4)), np.zeros((3, 3, 4))
-        self.r1, self.r2, self.r3 = np.zeros((4, 4, 3)), np.zeros((4, 3, 3)), np.zeros((3, 3, 3))
-        rows, small = q + 2 * n, 8
-        self.ws = QpWork(np.zeros((rows, n)), np.zeros(rows), np.zeros(rows), np.zeros((small, small)),
-                         np.zeros((small, small + 1)), np.zeros(n), np.zeros(small), np.zeros(small), np.zeros(n),
-                         np.zeros(small), np.zeros(2 * n), np.zeros(n), np.zeros(small, np.int64))
-        self.out_f, self.out_i = np.zeros(2), np.zeros(4, np.int64)
+        cap = alpha_cap if math.isfinite(alpha_cap) else 1e300
+        self.ci = np.array([kind, n, m, predictive, margins_in_filter, slack, kind < DOUBLE_BRAKING], np.int64)
+        self.cf = np.concatenate([[delta, cap, dt, a_brake, a_max], np.asarray(model.offsets, np.float64).ravel(),
+                                  model.radius, model.weights, model.lo, model.hi]).astype(np.float64)
+        self.inp = np.zeros(18 + n)
+        floats, ints = workspace_sizes(m, n)
+        self.wf, self.wi = np.zeros(floats), np.zeros(ints, np.int64)
+        # Views of the outputs (step_kernel's docstring).
+        self.out_f, self.u, self.out_i = self.wf[0:2], self.wf[2:2 + n], self.wi[0:4]
         self._field: tuple | None = None
 
     def prepare(self, field: EsdfField) -> tuple:
@@ -652,19 +717,14 @@ class CompiledStep:
 
     def run(self, position: np.ndarray, rotation: np.ndarray, velocity: np.ndarray, u_ref: np.ndarray,
             ang: np.ndarray, field: EsdfField, table: np.ndarray) -> None:
-        st = self.state
-        st[0:3] = position
-        st[3:12] = rotation.reshape(9)
-        st[12:15] = velocity
-        self.u_ref[:] = u_ref
-        self.ang[:] = ang
-        flat, rgs, dims, shape, strides, origin, inv_h, poly = self.prepare(field)
-        step_kernel(self.kind, self.n, self.m, self.offsets, self.radius, self.weights, self.lo, self.hi, self.par,
-                    self.flags, st, self.u_ref, self.ang, flat, rgs, dims, shape, strides, origin, inv_h, poly,
-                    table, self.pts, self.dist, self.grad, self.hess, self.rgq, self.inside, self.gains, self.hb,
-                    self.A, self.B, self.A2, self.B2, self.u_box, self.u_bk, self.rot, self.rot1, self.tmp,
-                    self.omega, self.pos1, self.block, self.w, self.r1, self.r2, self.r3, self.ws, self.u,
-                    self.out_f, self.out_i)
+        inp, n = self.inp, self.n
+        inp[0:3] = position
+        inp[3:12] = rotation.reshape(9)
+        inp[12:15] = velocity
+        inp[15:15 + n] = u_ref
+        inp[15 + n:18 + n] = ang
+        flat, rgs, fmi, fmf = self.prepare(field)
+        step_kernel(self.ci, self.cf, inp, flat, rgs, fmi, fmf, table, self.wf, self.wi)
 
     def warm_up(self, table: np.ndarray) -> None:
         """Compile (or load from the on-disk cache) with the argument types of the control loop."""
