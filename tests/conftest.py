@@ -18,9 +18,20 @@ settings.register_profile("explore", deadline=None, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "riskfield"))
 
 
+def _warm_compiled_filter() -> None:
+    """A safety-filter node compiles the filter's numba kernel in its setup when numba's on-disk
+    cache is cold (~20 s here, on a fresh checkout): fill the cache once, before a test starts one."""
+    try:
+        from riskfield.services.safety_filter.filter import SafetyFilter
+    except ImportError:  # an install without the robot extra
+        return
+    SafetyFilter()
+
+
 @pytest.fixture(scope="session")
 def router() -> Iterator[ZenohRouter]:
     """One in-process Python router for the whole test session (tests use distinct robot ids)."""
+    _warm_compiled_filter()
     with ZenohRouter() as r:
         yield r
 

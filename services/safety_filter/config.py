@@ -111,6 +111,9 @@ class QpParams(BaseModel):
     its Hessian is continuous and, off the ridges, as small as the geometry's).
     ``slack``: when the QP is infeasible, solve it with every row relaxed to what the backup
     (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
+    ``backend``: ``numba`` runs each step on an ``EsdfField`` as one compiled call
+    (``compiled``: same results), ``numpy`` the plain path, ``auto`` the compiled one when numba
+    is installed and the active-set QP is in use.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -122,6 +125,7 @@ class QpParams(BaseModel):
     solver: Literal["auto", "active_set", "osqp"] = "auto"
     interpolation: Interpolation = "bspline_smooth"
     slack: bool = True
+    backend: Literal["auto", "numba", "numpy"] = "auto"
 
 
 class FilterConfig(QpParams, BoundsParams, BarrierParams):

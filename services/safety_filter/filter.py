@@ -35,7 +35,9 @@ import numpy as np
 from riskfield.protocol import RiskConfig
 
 from ..fields import DistanceField, EsdfField, FieldSample
+from . import compiled
 from .barriers import ALPHA1, ALPHA2, BarrierModel
+from .compiled import CompiledStep
 from .config import FilterConfig
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
@@ -110,7 +112,8 @@ class FilterResult:
 class SafetyFilter:
     """The pure filter: config → model + solvers; ``filter()`` once per control step."""
 
-    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None):
+    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None, warm_up: bool = True):
+        """``warm_up=False`` defers :meth:`warm_up` to the caller (a node subscribes first)."""
         self.config = config or FilterConfig()
         self.model: BarrierModel = self.config.build_model()
         self.delta = self.config.margin(self.model)
@@ -124,6 +127,34 @@ class SafetyFilter:
         self._first_order = model_is_first_order = not self.model.needs_hessian
         self._alpha_cap = self.model.alpha_cap(self.config.a_max) if model_is_first_order else math.inf
         self._wrapped: tuple[EsdfField, EsdfField] | None = None
+        self._compiled = self._build_compiled()
+        if warm_up:
+            self.warm_up()
+
+    def warm_up(self) -> None:
+        """Compile the compiled step (or load it from numba's on-disk cache: ~0.5 s; a cold cache
+        compiles for ~20 s) with the control loop's argument types: call before the first step."""
+        if self._compiled is not None:
+            self._compiled.warm_up(self.gains.for_groups(()))
+
+    def _build_compiled(self) -> CompiledStep | None:
+        """The compiled step (``compiled``) when the backend allows it and numba is installed."""
+        backend = self.config.backend
+        if backend == "numpy":
+            return None
+        if not compiled.HAVE_NUMBA or not self._use_active_set:
+            if backend == "numba":
+                raise ValueError("backend 'numba' needs numba installed and the active-set QP "
+                                 f"(solver 'auto' or 'active_set', at most {ACTIVE_SET_MAX_ROWS} rows)")
+            return None
+        return CompiledStep(self.model, compiled.model_kind(self.model), self.delta, self._alpha_cap,
+                            self.config.dt, self.config.predictive_rows, self.config.margins_in_filter,
+                            self.config.slack)
+
+    @property
+    def backend(self) -> str:
+        """``numba`` when steps on an ``EsdfField`` run compiled, else ``numpy``."""
+        return "numpy" if self._compiled is None else "numba"
 
     def field_for(self, field: DistanceField) -> DistanceField:
         """An ``EsdfField`` read with the configured interpolation (the wrap is kept per map)."""
@@ -157,8 +188,42 @@ class SafetyFilter:
         """The safe input closest to ``u_ref`` (model input space; see the barrier models).
 
         ``angular`` is the body-frame angular velocity passed through by single integrators.
+        On an ``EsdfField`` with the numba backend the step runs compiled (:mod:`.compiled`, the same
+        semantics; ``qp_us`` is then not measured apart and reads 0); otherwise with numpy.
         """
         t0 = time.perf_counter()
+        if self._compiled is not None:
+            grid = self.field_for(field)
+            if isinstance(grid, EsdfField):
+                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0)
+                if res is not None:
+                    return res
+        return self._filter_numpy(state, u_ref, field, angular, t0)
+
+    def _filter_compiled(self, step: CompiledStep, state: FilterState, u_ref: np.ndarray, field: EsdfField,
+                         angular: np.ndarray | None, t0: float) -> FilterResult | None:
+        """One compiled call; None hands the step to the numpy path (``compiled.HANDBACK``)."""
+        u_ref = np.asarray(u_ref, np.float64)
+        if u_ref.shape != (self.model.n,):
+            return self._brake(state, u_ref, "non_finite", t0)
+        ang = _ZERO3 if angular is None else np.asarray(angular, np.float64)
+        if ang.shape != (3,):
+            return None
+        step.run(state.position, state.rotation, state.velocity, u_ref, ang, field,
+                 self.gains.for_groups(field.groups))
+        code, rg, n_rows, intervening = step.out_i.tolist()
+        if code == compiled.HANDBACK:
+            return None
+        h, margin = step.out_f.tolist()
+        fallback = compiled.FALLBACK[code]
+        if code not in (compiled.OK, compiled.SLACK):
+            # n_rows is set once the rows are built: from then on the QP had its say.
+            return self._brake(state, u_ref, fallback, t0, h, rg, ActiveSetSolver.name if n_rows else "")
+        return FilterResult(step.u.copy(), u_ref, h, rg, bool(intervening), fallback,
+                            (time.perf_counter() - t0) * 1e6, ActiveSetSolver.name, margin, 0.0, n_rows)
+
+    def _filter_numpy(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
+                      angular: np.ndarray | None, t0: float) -> FilterResult:
         model = self.model
         ang = _ZERO3 if angular is None else np.asarray(angular, np.float64)
         u_ref = np.asarray(u_ref, np.float64)

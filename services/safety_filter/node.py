@@ -40,7 +40,7 @@ class FilterNode:
         self.settings = s
         # A bad file at start is a configuration error; later ones keep the configuration in force.
         risk = watch_risk_file(node, s.risk_file, s.risk_poll_s, self._set_risk) if s.risk_file else None
-        self.supervisor = FilterSupervisor(SafetyFilter(s.filter_config(), risk), s.map_timeout_s,
+        self.supervisor = FilterSupervisor(SafetyFilter(s.filter_config(), risk, warm_up=False), s.map_timeout_s,
                                            s.state_timeout_s, s.ref_timeout_s, s.clock_tolerance_s)
         self.period = 1.0 / s.rate_hz
         self._last_pub = -1e9
@@ -57,6 +57,12 @@ class FilterNode:
         node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
         node.every(self.period, self._on_timer)
+        # The compiled step is loaded (or compiled) here, in setup, never on a control step; after
+        # subscribing, so that what arrives meanwhile waits in the inbox for the loop.
+        t0 = time.perf_counter()
+        self.supervisor.filter.warm_up()
+        node.log.info("safety filter: %s step ready in %.2f s", self.supervisor.filter.backend,
+                      time.perf_counter() - t0)
         model = self.supervisor.filter.model
         node.log.info("safety filter: model %s, %d barrier row(s), δ = %.3f m, %.0f Hz", model.name, model.m,
                       self.supervisor.filter.delta, s.rate_hz)

@@ -116,12 +116,16 @@ class ActiveSetSolver:
         mu_prev, g_prev = 0.0, g
         for k, mu in enumerate([*marks, math.inf]):
             # Slope of g on (mu_prev, mu): components strictly inside their interval there.
-            mid = mu_prev + 1.0 if mu == math.inf else 0.5 * (mu_prev + mu)
+            # Past the last breakpoint any μ will do; 2μ + 1 stays clear of it in floating point too
+            # (μ + 1 rounds back to μ for μ ≳ 1e16, from a near-zero coefficient of a).
+            mid = 2.0 * mu_prev + 1.0 if mu == math.inf else 0.5 * (mu_prev + mu)
             slope = sum(al[j] * sl[j] for j in range(n) if lol[j] < r[j] + mid * sl[j] < hil[j])
             g_next = g_prev + slope * (mu - mu_prev) if mu != math.inf else (math.inf if slope > 0 else g_prev)
             if g_next >= b:
                 mu_star = mu_prev + (b - g_prev) / slope
                 u = [min(max(r[j] + mu_star * sl[j], lol[j]), hil[j]) for j in range(n)]
+                if _dot(al, u) < b - FEASIBILITY_TOL * (1.0 + abs(b)):
+                    break  # rounding on a breakpoint counted a saturated component: g never gets there
                 return QPResult(np.array(u), "solved", k + 1, self.name)
             mu_prev, g_prev = mu, g_next
         return QPResult(np.zeros(n), "infeasible", len(marks) + 1, self.name)

@@ -11,7 +11,10 @@ passes over the same cases) and writes ``summary.json``.
 Each model runs twice on the same cases: ``before`` is the paper's filter (trilinear field with
 finite-difference derivatives, control points only, the HOCBF for the double integrator, a
 blind brake on infeasibility) and ``after`` the default configuration (B-spline field, the
-footprint's disc cover, the braking-distance barrier, the slack-relaxed QP). A second table
+footprint's disc cover, the braking-distance barrier, the slack-relaxed QP), with numpy and
+compiled. A second table compares, per model, the compiled step (``backend: numba``, ``safety_filter.compiled``: one
+numba call per step) with the numpy step of the same configuration and with ``before``, as
+ratios measured in this run (issue 16: p99 ≤ 30 µs for every model). A third table
 shows the norms of the field's Hessian at the double integrator's query points for each
 interpolation against the analytic geometry's own (issue 13: finite-difference Hessians of the
 trilinear field reach tens of m⁻¹ on 5 cm voxels).
@@ -33,6 +36,7 @@ from rich.table import Table
 
 from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
+from riskfield.services.safety_filter.compiled import HAVE_NUMBA
 from riskfield.services.safety_filter.config import FilterConfig, Footprint
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.state import FilterState, so3_exp
@@ -43,12 +47,17 @@ MODELS = ("unicycle", "single2d", "single3d", "double3d")
 INTERPOLATIONS = ("trilinear", "catmull_rom", "bspline", "bspline_smooth")
 
 
-def variant(name: str, which: str, solver: str) -> FilterConfig:
-    """``before``: the paper's filter as it was; ``after``: today's defaults."""
+def variant(name: str, which: str, solver: str, backend: str = "numpy") -> FilterConfig:
+    """``before``: the paper's filter as it was (numpy); ``after``: today's defaults on ``backend``."""
     if which == "before":
         return FilterConfig(model=name, solver=solver, footprint=Footprint(shape="none"),  # type: ignore[arg-type]
-                            interpolation="trilinear", barrier="hocbf", slack=False)
-    return FilterConfig(model=name, solver=solver)  # type: ignore[arg-type]
+                            interpolation="trilinear", barrier="hocbf", slack=False, backend="numpy")
+    return FilterConfig(model=name, solver=solver, backend=backend)  # type: ignore[arg-type]
+
+
+#: (variant, solver, backend) timed per model; the compiled step runs only with the exact QP.
+RUNS = (("before", "active_set", "numpy"), ("before", "osqp", "numpy"), ("after", "active_set", "numpy"),
+        ("after", "active_set", "numba"), ("after", "osqp", "numpy"))
 
 
 def hessian_norms(grid, cases, model, truth: AnalyticField) -> dict[str, dict[str, float]]:
@@ -104,6 +113,23 @@ def _stats(x: list[float]) -> dict[str, float]:
     return {"median": float(np.median(a)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
 
 
+def speed_ratios(results: dict[str, dict]) -> dict[str, dict[str, float]]:
+    """Per model: step p50/p99 (µs) of the compiled step, the numpy step (both today's defaults,
+    exact QP) and the paper's filter, and the speed-ups (×: the other's time over the compiled one's)."""
+    out = {}
+    for name in MODELS:
+        runs = {k: results.get(f"{name}/{k}") for k in ("after/active_set/numba", "after/active_set/numpy",
+                                                          "before/active_set/numpy")}
+        if any(v is None for v in runs.values()):
+            continue
+        fast, slow, before = (runs[k]["step_us"] for k in runs)  # type: ignore[index]
+        out[name] = {"numba p50": fast["median"], "numba p99": fast["p99"], "numpy p50": slow["median"],
+                     "numpy p99": slow["p99"], "before p50": before["median"], "before p99": before["p99"],
+                     "×numpy p50": slow["median"] / fast["median"], "×numpy p99": slow["p99"] / fast["p99"],
+                     "×before p50": before["median"] / fast["median"], "×before p99": before["p99"] / fast["p99"]}
+    return out
+
+
 @app.command()
 def main(
     out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-filter"),
@@ -132,45 +158,58 @@ def main(
             t0 = time.perf_counter()
             grid.query(p, hessian=hess)
             query_us.append((time.perf_counter() - t0) * 1e6)
-        for which in ("before", "after"):
-            for solver in ("active_set", "osqp"):
-                filt = SafetyFilter(variant(name, which, "auto" if solver == "active_set" else solver))
-                # Three passes over the same cases; each step's time is its fastest pass. The first
-                # pass warms caches and OSQP's warm start, and on a shared machine the minimum drops
-                # the steps that were merely preempted (the p99 is otherwise the scheduler's).
-                passes = []
-                for _ in range(3):
-                    step_us, qp_us, hits, fallbacks, slack, rows = [], [], 0, 0, 0, []
-                    for s, u_ref, ang in cases:
-                        t0 = time.perf_counter()
-                        res = filt.filter(s, u_ref, grid, ang)
-                        step_us.append((time.perf_counter() - t0) * 1e6)
-                        qp_us.append(res.qp_us)
-                        rows.append(res.rows)
-                        hits += res.intervening and res.fallback is None
-                        fallbacks += res.fallback not in (None, "slack")
-                        slack += res.fallback == "slack"
-                    passes.append((step_us, qp_us))
-                step_us = np.min([p[0] for p in passes], axis=0).tolist()
-                qp_us = np.min([p[1] for p in passes], axis=0).tolist()
-                results[f"{name}/{which}/{solver}"] = {
-                    "model": name, "variant": which, "solver": solver, "steps": len(cases),
-                    "points": filt.model.m, "rows_mean": float(np.mean(rows)), "step_us": _stats(step_us),
-                    "qp_us": _stats(qp_us), "field_query_us": _stats(query_us),
-                    "intervening_fraction": hits / len(cases), "fallback_fraction": fallbacks / len(cases),
-                    "slack_fraction": slack / len(cases),
-                }
+        for which, solver, backend in RUNS:
+            if backend == "numba" and not HAVE_NUMBA:
+                continue
+            filt = SafetyFilter(variant(name, which, "auto" if solver == "active_set" else solver, backend))
+            # Three passes over the same cases; each step's time is its fastest pass. The first
+            # pass warms caches and OSQP's warm start, and on a shared machine the minimum drops
+            # the steps that were merely preempted (the p99 is otherwise the scheduler's).
+            passes = []
+            for _ in range(3):
+                step_us, qp_us, hits, fallbacks, slack, rows = [], [], 0, 0, 0, []
+                for s, u_ref, ang in cases:
+                    t0 = time.perf_counter()
+                    res = filt.filter(s, u_ref, grid, ang)
+                    step_us.append((time.perf_counter() - t0) * 1e6)
+                    qp_us.append(res.qp_us)
+                    rows.append(res.rows)
+                    hits += res.intervening and res.fallback is None
+                    fallbacks += res.fallback not in (None, "slack")
+                    slack += res.fallback == "slack"
+                passes.append((step_us, qp_us))
+            step_us = np.min([p[0] for p in passes], axis=0).tolist()
+            qp_us = np.min([p[1] for p in passes], axis=0).tolist()
+            results[f"{name}/{which}/{solver}/{backend}"] = {
+                "model": name, "variant": which, "solver": solver, "backend": backend, "steps": len(cases),
+                "points": filt.model.m, "rows_mean": float(np.mean(rows)), "step_us": _stats(step_us),
+                "qp_us": _stats(qp_us), "field_query_us": _stats(query_us),
+                "intervening_fraction": hits / len(cases), "fallback_fraction": fallbacks / len(cases),
+                "slack_fraction": slack / len(cases),
+            }
     table = Table(title=f"safety filter per step (µs), {steps} steps per row, voxel {voxel} m")
-    for col in ("model", "variant", "solver", "points", "rows", "step p50", "step p99", "QP p50", "QP p99",
-                "intervening", "brake", "slack"):
-        table.add_column(col, justify="right" if col not in ("model", "variant", "solver") else "left")
+    for col in ("model", "variant", "solver", "backend", "points", "rows", "step p50", "step p99", "QP p50",
+                "QP p99", "intervening", "brake", "slack"):
+        table.add_column(col, justify="right" if col not in ("model", "variant", "solver", "backend") else "left")
     for r in results.values():
-        table.add_row(r["model"], r["variant"], r["solver"], str(r["points"]), f"{r['rows_mean']:.1f}",
-                      f"{r['step_us']['median']:.1f}", f"{r['step_us']['p99']:.1f}",
-                      f"{r['qp_us']['median']:.1f}", f"{r['qp_us']['p99']:.1f}",
+        # The compiled step does not time its QP apart (one call): no QP columns for it.
+        qp = ("–", "–") if r["backend"] == "numba" else (f"{r['qp_us']['median']:.1f}", f"{r['qp_us']['p99']:.1f}")
+        table.add_row(r["model"], r["variant"], r["solver"], r["backend"], str(r["points"]), f"{r['rows_mean']:.1f}",
+                      f"{r['step_us']['median']:.1f}", f"{r['step_us']['p99']:.1f}", *qp,
                       f"{100 * r['intervening_fraction']:.0f} %", f"{100 * r['fallback_fraction']:.1f} %",
                       f"{100 * r['slack_fraction']:.1f} %")
     console.print(table)
+    ratios = speed_ratios(results)
+    if ratios:
+        rtable = Table(title="compiled step (numba) vs the numpy step and the paper's filter (before), same run")
+        cols = ("numba p50", "numba p99", "numpy p50", "numpy p99", "before p50", "before p99", "×numpy p50",
+                "×numpy p99", "×before p50", "×before p99", "p99 ≤ 30 µs")
+        rtable.add_column("model")
+        for col in cols:
+            rtable.add_column(col, justify="right")
+        for name, r in ratios.items():
+            rtable.add_row(name, *(f"{r[k]:.1f}" for k in cols[:-1]), "yes" if r["numba p99"] <= 30.0 else "NO")
+        console.print(rtable)
     htable = Table(title="‖∇²d‖₂ at the double integrator's barrier points (m⁻¹), 3-D grid")
     cols = ("p50", "p99", "p99.9", "max", "off_ridge_max", "over_estimate_mm")
     htable.add_column("field")
@@ -181,6 +220,7 @@ def main(
     console.print(htable)
     out.mkdir(parents=True, exist_ok=True)
     summary = {"benchmark": "filter", "python": platform.python_version(), "machine": platform.machine(),
-               "steps": steps, "voxel_size": voxel, "results": results, "hessian_norm": hessians}
+               "steps": steps, "voxel_size": voxel, "results": results, "compiled_vs_numpy": ratios,
+               "hessian_norm": hessians}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"wrote {out / 'summary.json'}")

@@ -1,0 +1,64 @@
+"""``fields.compiled.query_point`` against ``EsdfField.query`` (the oracle) on random points."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from riskfield.protocol import EsdfGrid, decode, encode
+from riskfield.services.fields import AnalyticField, EsdfField, to_esdf, to_grid_message
+from riskfield.services.fields import compiled as fc
+from riskfield.services.geometry.shapes import Plane, Sphere
+
+pytestmark = pytest.mark.skipif(not fc.HAVE_NUMBA, reason="numba is not installed")
+
+INTERPOLATIONS = ["trilinear", "catmull_rom", "bspline", "bspline_smooth"]
+
+
+def compiled_query(field: EsdfField, pts: np.ndarray, hessian: bool) -> tuple[np.ndarray, ...]:
+    n = pts.shape[0]
+    dist, grad, hess = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3, 3))
+    rg, inside = np.zeros(n, np.int64), np.zeros(n, np.bool_)
+    scratch = np.zeros((4, 4, 4)), np.zeros((3, 3, 4)), np.zeros((4, 4, 3)), np.zeros((4, 3, 3)), np.zeros((3, 3, 3))
+    flat, rgs, mi, mf = fc.kernel_view(field)
+    poly = mf[4:].reshape(3, 4, 4)
+    for i in range(n):
+        fc.query_point(flat, rgs, mi[0], mi[1:4], mi[4:7], mf[0:3], mf[3], poly, 3 if hessian else 2, pts[i], i,
+                       dist, grad, hess, rg, inside, *scratch)
+    return dist, grad, hess, rg, inside
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), planar=st.booleans(), kind=st.sampled_from(INTERPOLATIONS),
+       hessian=st.booleans())
+def test_compiled_point_query_equals_the_grid_query(seed, planar, kind, hessian):
+    rng = np.random.default_rng(seed)
+    shapes = [Sphere(tuple(rng.uniform(-0.5, 0.5, 3)), float(rng.uniform(0.1, 0.4)), label=int(rng.integers(0, 3)),
+                     planar=planar), Plane.through((0.0, -0.6, 0.0), (0.1, 1.0, 0.0), label=1)]
+    field = AnalyticField(shapes, groups=["a", "b"])
+    z = (0.0, 0.0) if planar else (-0.3, 0.3 + rng.uniform(0, 0.2))
+    grid = to_esdf(field, [-0.8, -0.7, z[0]], [0.8 + rng.uniform(0, 0.3), 0.7, z[1]],
+                   float(rng.choice([0.05, 0.1])), planar=planar).with_interpolation(kind)
+    # Inside, on the border layers (extrapolated stencil) and past the map (flagged, clamped).
+    pts = rng.uniform([-1.0, -0.9, -0.5], [1.2, 0.9, 0.6], (200, 3))
+    pts[:10] = grid.origin + rng.uniform(0, 0.5 * grid.voxel_size, (10, 3))
+    dist, grad, hess, rg, inside = compiled_query(grid, pts, hessian)
+    ref = grid.query(pts, hessian=hessian)
+    np.testing.assert_allclose(dist, ref.distance, atol=1e-9, rtol=0)
+    np.testing.assert_allclose(grad, ref.gradient, atol=1e-8, rtol=0)
+    if hessian:
+        np.testing.assert_allclose(hess, ref.hessian, atol=1e-6, rtol=1e-12)
+    np.testing.assert_array_equal(rg, ref.risk_group)
+    np.testing.assert_array_equal(inside, ref.inside)
+    assert inside.any() and not inside.all()
+
+
+def test_a_decoded_message_gives_the_same_kernel_arrays():
+    local = to_esdf(AnalyticField(Sphere((0.0, 0.0, 0.0), 0.3, label=1), groups=["a"]), [-1, -1, -1], [1, 1, 1], 0.1)
+    wire = EsdfField.from_grid(decode(encode(to_grid_message(local)), EsdfGrid))
+    a, b = fc.kernel_view(local), fc.kernel_view(wire)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert b[0].dtype == np.float64 and b[0].flags.writeable and b[1].dtype == np.uint8 and b[1].flags.writeable
