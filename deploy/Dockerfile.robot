@@ -29,9 +29,12 @@ COPY protocol protocol
 COPY services services
 COPY edge edge
 # "." is this repository: its dependencies' version ranges live in pyproject.toml.
+# The filter's compiled step (numba) is built here once, into the venv's cache, so a node's first
+# start does not spend 20 s compiling.
 # hadolint ignore=DL3013
 RUN pip install ".[robot]" \
- && ! pip show open3d torch numba 2>/dev/null | grep -q '^Name:'
+ && ! pip show open3d torch 2>/dev/null | grep -q '^Name:' \
+ && python -c "from riskfield.services.safety_filter.filter import SafetyFilter; SafetyFilter()"
 
 FROM ${PYTHON_IMAGE}
 # Debian/Ubuntu package versions follow the base image's suite (security updates); exact pins

@@ -82,6 +82,8 @@ if [ "$PIP" = 1 ]; then
   [ -x "$DEST/venv/bin/python" ] || python3 -m venv "$DEST/venv"
   "$DEST/venv/bin/python" -m pip install -q --upgrade pip
   "$DEST/venv/bin/python" -m pip install -q "$REPO[robot]"
+  # Compile the filter's step once now (numba's cache), not on the robot's first start.
+  "$DEST/venv/bin/python" -c "from riskfield.services.safety_filter.filter import SafetyFilter; SafetyFilter()"
 fi
 
 # -- settings -------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """The thin node every service is: decode → call the core → encode → publish.
 
-One ``Node`` owns one Zenoh session, a liveliness token ``{prefix}/{robot}/alive/{service}``,
+One ``Node`` owns one Zenoh session, a liveliness token ``{prefix}/{robot}/alive/{service}`` (declared once it serves),
 per-key counters published as ``NodeStatus`` on ``{prefix}/{robot}/status/{service}``, and
 a single loop thread that runs every handler and timer. Because handlers never run
 concurrently, a service's core needs no locks. Bad input never reaches a handler: it is
@@ -94,7 +94,10 @@ class Node:
         self.stop_reason = ""
         self._t0 = time.monotonic()
         self._closed = False
-        self._token = self.session.liveliness().declare_token(self.keys.alive(service))
+        # Declared when the loop starts (``run``), after the service's setup: "alive" then means
+        # subscribed, warmed up (a compiled filter step) and serving, which is what a launcher
+        # waiting for readiness, a supervisor or an operator needs to know.
+        self._token: Any = None
         self.every(settings.status_period_s, self._publish_status)
 
     # -- declarations -----------------------------------------------------------------------
@@ -216,6 +219,8 @@ class Node:
         """Serve until SIGINT/SIGTERM, ``stop()`` or ``duration_s``; close; return 0."""
         restore = catch_stop_signals(self.stop)
         end = None if duration_s is None else time.monotonic() + duration_s
+        if self._token is None:
+            self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
         self.log.info("%s up as %s on %s (robot %s)", self.service, self.settings.mode,
                       ", ".join(self.settings.connect or self.settings.listen), self.settings.robot)
         try:
@@ -345,7 +350,8 @@ class Node:
             except Exception:
                 pass
         try:
-            self._token.undeclare()
+            if self._token is not None:
+                self._token.undeclare()
         except Exception:
             pass
         if self._own_session:
