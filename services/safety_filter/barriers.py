@@ -346,6 +346,23 @@ class DoubleIntegrator(BarrierModel):
 
         (s₊/a_b) ∇dᵀu ≥ -κ h_b - ḣ - (s₊/a_b) vᵀ∇²d v.
 
+    Far from the boundary the linear class-K function is needlessly tight: the row asks
+    ḣ_b ≥ -κ h_b, and where the nearest obstacle changes (the ridge of the distance field
+    between two obstacles or around a corner, vᵀ∇²d v ≈ -|∇²d| |v|² with |∇²d| up to
+    20 m⁻¹ on 5 cm voxels) the approach speed s grows at -vᵀ∇²d v, so ḣ_b needs
+    -s (1 + |vᵀ∇²d v| / a_b), several times κ h_b although braking (s²/(2a_b) of a few mm)
+    is nowhere near. Any extended class-K function keeps {h_b ≥ 0} forward invariant, so the
+    row uses
+
+        α(h_b) = κ h_b (1 + h_b₊ / ℓ),      h_b₊ = max(h_b, 0),   ℓ = ``brake_rate_length``
+
+    (continuous, strictly increasing, α(0) = 0; ℓ = ∞ is the linear κ h_b): the same κ h_b
+    near the boundary — the settling speed and the groups' ordering are unchanged — and a
+    rate that grows with the remaining clearance, so a state whose braking distance is far
+    from the obstacle is not relaxed at a ridge. Per control period T, h_b can still drop by at
+    most α(h_b) T < h_b while κ T (1 + h_b / ℓ) < 1 (κ = 1 s⁻¹, T = 50 ms, ℓ = 5 cm: every
+    h_b < 0.95 m; rows with larger h_b hold for the whole input box and are dropped).
+
     h_b ≥ 0 says that braking at a_b along the gradient stops the approach before d - r - δ
     reaches zero. Feasibility under the bounds: u = a_max ∇d/|∇d| (norm a_max, inside the box)
     gives ∇dᵀu ≥ a_max |∇d|, so at h_b = 0 the row holds whenever vᵀ∇²d v ≥ -(a_max|∇d| - a_b):
@@ -370,7 +387,7 @@ class DoubleIntegrator(BarrierModel):
 
     def __init__(self, radius: float | np.ndarray = 0.15, a_max: float = 3.0, k_v: float = 2.0, dt: float = 0.02,
                  points: list[tuple[float, float, float]] | None = None, v_max: float = 1.0,
-                 barrier: str = "braking", brake_fraction: float = 0.7):
+                 barrier: str = "braking", brake_fraction: float = 0.7, brake_rate_length: float = math.inf):
         super().__init__(np.array(points or [(0.0, 0.0, 0.0)]), radius, np.ones(3),
                          -np.full(3, a_max), np.full(3, a_max))
         if barrier not in ("braking", "hocbf") or not 0 < brake_fraction <= 1:
@@ -379,6 +396,9 @@ class DoubleIntegrator(BarrierModel):
         self.kind = barrier
         self.a_max = a_max
         self.a_brake = brake_fraction * a_max
+        if not brake_rate_length > 0:
+            raise ValueError("brake_rate_length must be positive (inf: the linear class-K function)")
+        self.rate_length = brake_rate_length
 
     def max_point_speed(self) -> float:
         # Velocity is a state here, not an input: v_max is the nominal speed the reference keeps.
@@ -425,7 +445,8 @@ class DoubleIntegrator(BarrierModel):
         a1, a2 = gains[:, ALPHA1], gains[:, ALPHA2]
         kappa = 0.5 * (a1 - np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0)))
         c = np.maximum(approach, 1e-3) / self.a_brake
-        return sample.gradient * c[:, None], -kappa * hbrake - hdot - c * curvature
+        rate = kappa * hbrake * (1.0 + np.maximum(hbrake, 0.0) / self.rate_length)  # α(h_b), class docstring
+        return sample.gradient * c[:, None], -rate - hdot - c * curvature
 
     def _hocbf_rows(self, s: FilterState, sample: FieldSample, h: np.ndarray,
                     gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

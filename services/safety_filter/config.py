@@ -63,6 +63,9 @@ class BarrierParams(BaseModel):
     of ``robot_radius`` otherwise) adds the body's disc cover to the control points.
     ``barrier`` picks the double integrator's barrier: ``braking`` (braking distance at
     ``brake_fraction`` · a_max, feasible under the bounds) or ``hocbf`` (the paper's).
+    ``brake_rate_length`` ℓ (m) shapes the braking barrier's class-K function
+    κ h_b (1 + h_b/ℓ): linear near the boundary, more permissive with clearance, so the ridges
+    of the distance field do not make the QP infeasible far from any obstacle (``inf``: linear).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -77,6 +80,7 @@ class BarrierParams(BaseModel):
     footprint: Footprint | None = None
     barrier: Literal["braking", "hocbf"] = "braking"
     brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
+    brake_rate_length: Annotated[float, Field(gt=0)] = 0.05
 
 
 class BoundsParams(BaseModel):
@@ -195,4 +199,4 @@ class FilterConfig(QpParams, BoundsParams, BarrierParams):
             return SingleIntegrator(2 if self.model == "single2d" else 3, radii, self.v_max,
                                     self.vz_max, pts, self.w_max)  # type: ignore[arg-type]
         return DoubleIntegrator(radii, self.a_max, self.k_v, self.dt, pts, self.v_max,  # type: ignore[arg-type]
-                                self.barrier, self.brake_fraction)
+                                self.barrier, self.brake_fraction, self.brake_rate_length)
