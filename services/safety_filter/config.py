@@ -113,6 +113,14 @@ class QpParams(BaseModel):
     ``bspline_smooth``, the default: C², never more than h²/6 ∂²d (≈ 2-3 mm) above the true
     distance and below it at ridges, where the interpolating kernels overshoot by up to 8 mm;
     its Hessian is continuous and, off the ridges, as small as the geometry's).
+    ``map_margin_voxels`` adds that many voxels of a gridded field (``EsdfField.voxel_size``; 0
+    for analytic fields and point clouds) to δ: the ESDF locates a surface that no ray hit
+    face-on only to within a voxel. A projective TSDF gives a voxel whose centre lies just
+    inside an object the depth of the background seen past the object's edge, so an
+    unobserved face (a bed's side seen only from above) reads up to one voxel further than it
+    is: 3.6 cm on 5 cm voxels in the safety benchmark, more than the sampled-data δ = v_max T
+    (2.5 cm at 20 Hz) the filter settles to. Half a voxel on top of δ keeps the settled
+    clearance ≥ one voxel.
     ``slack``: when the QP is infeasible, solve it with every row relaxed to what the backup
     (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
     """
@@ -120,6 +128,7 @@ class QpParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     sampled_data_margin: NonNeg | None = None
+    map_margin_voxels: NonNeg = 0.5
     rate_hz: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 50.0
     margins_in_filter: bool = False
     predictive_rows: bool = True
