@@ -67,6 +67,11 @@ class BenchConfig:
     image: tuple[int, int] = (256, 192)
     voxel: float = 0.05
     seed: int = 0
+    end_clearance: float = 0.2
+    """Ground-truth clearance (beyond ``robot_radius``) of every start and goal: outside the largest
+    class margin (0.15 m) with the filter's margin (δ + half a voxel, 5 cm) to spare. An end
+    inside a class margin puts the semantic ESDF's robot outside its safe set at the start (every
+    step until it has backed out is a relaxed QP) or makes its goal unreachable."""
 
 
 # -- scenes ---------------------------------------------------------------------------------------
@@ -281,7 +286,7 @@ def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, c
 def pairs_for(case: SceneCase, n: int, cfg: BenchConfig, first_id: int) -> list[Pair]:
     rng = np.random.default_rng([cfg.seed, first_id, 11])
     return sample_pairs(case.targets, n, case.clearance, rng, robot_radius=cfg.robot_radius,
-                        bounds_lo=case.lo, bounds_hi=case.hi, first_id=first_id)
+                        bounds_lo=case.lo, bounds_hi=case.hi, min_free=cfg.end_clearance, first_id=first_id)
 
 
 def uniform_gains(risk: RiskConfig, alpha1: float, alpha2: float) -> RiskConfig:
