@@ -66,6 +66,8 @@ class BarrierParams(BaseModel):
     ``brake_rate_length`` ℓ (m) shapes the braking barrier's class-K function
     κ h_b (1 + h_b/ℓ): linear near the boundary, more permissive with clearance, so the ridges
     of the distance field do not make the QP infeasible far from any obstacle (``inf``: linear).
+    ``brake_speed_floor`` s₀ (m/s) keeps the braking barrier's input coefficient ≥ s₀/a_b, so a
+    robot at rest just inside its barrier can still raise it (``DoubleIntegrator``).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -81,6 +83,7 @@ class BarrierParams(BaseModel):
     barrier: Literal["braking", "hocbf"] = "braking"
     brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
     brake_rate_length: Annotated[float, Field(gt=0)] = 0.05
+    brake_speed_floor: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 0.1
 
 
 class BoundsParams(BaseModel):
@@ -208,4 +211,5 @@ class FilterConfig(QpParams, BoundsParams, BarrierParams):
             return SingleIntegrator(2 if self.model == "single2d" else 3, radii, self.v_max,
                                     self.vz_max, pts, self.w_max)  # type: ignore[arg-type]
         return DoubleIntegrator(radii, self.a_max, self.k_v, self.dt, pts, self.v_max,  # type: ignore[arg-type]
-                                self.barrier, self.brake_fraction, self.brake_rate_length)
+                                self.barrier, self.brake_fraction, self.brake_rate_length,
+                                self.brake_speed_floor)
