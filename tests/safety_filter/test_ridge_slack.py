@@ -79,3 +79,26 @@ def test_slack_backup_at_a_ridge_does_not_drive_into_the_other_obstacle() -> Non
     worst = lambda u_: float(((a @ u_ - b) / np.linalg.norm(a, axis=1)).min())  # noqa: E731
     assert worst(u) >= worst(f.model.backup(s, grads[0])) and worst(u) >= worst(f.model.backup(s, grads[1]))
     assert u[0] < 0  # it brakes the approach to the +x wall
+
+
+@pytest.mark.parametrize(("floor", "fallback"), [(1e-3, "slack"), (0.1, None)])
+def test_at_rest_just_inside_the_barrier_the_qp_stays_feasible(floor: float, fallback: str | None) -> None:
+    """A robot stopped 5 mm inside its barrier (a sampled-data overshoot where it came to rest):
+    with the braking barrier's coefficient s/a_b alone no input raises h_b at once."""
+    exact = AnalyticField(Sphere([0.0, 0.0, 0.0], 0.3))
+    fc = FilterConfig(model="double3d", robot_radius=0.15, a_max=A_MAX, v_max=0.5, rate_hz=20,
+                      brake_speed_floor=floor)
+    f = SafetyFilter(fc, RiskConfig())
+    s = FilterState(np.array([-(0.3 + 0.15 + f.delta - 0.005), 0.0, 0.0]), velocity=np.zeros(3))
+    res = f.filter(s, np.array([1.0, 0.0, 0.0]), exact)  # the reference pushes on towards the ball
+    assert res.fallback == fallback
+    assert res.u[0] < 0  # either way it backs out
+
+
+def test_braking_distance_is_c1_and_covers_the_stopping_distance() -> None:
+    m = DoubleIntegrator(0.15, a_max=A_MAX, brake_speed_floor=0.1)
+    s = np.linspace(-0.5, 1.0, 3001)
+    phi, dphi = m.braking_distance(s)
+    assert np.all(phi[s >= 0] >= s[s >= 0] ** 2 / (2 * m.a_brake) - 1e-12)
+    assert np.allclose(np.gradient(phi, s), dphi, atol=1e-3)
+    assert phi[np.argmin(np.abs(s))] == pytest.approx(0.0, abs=1e-3)
