@@ -369,8 +369,9 @@ class DoubleIntegrator(BarrierModel):
     near the boundary — the settling speed and the groups' ordering are unchanged — and a
     rate that grows with the remaining clearance, so a state whose braking distance is far
     from the obstacle is not relaxed at a ridge. Per control period T, h_b can still drop by at
-    most α(h_b) T < h_b while κ T (1 + h_b / ℓ) < 1 (κ = 1 s⁻¹, T = 50 ms, ℓ = 5 cm: every
-    h_b < 0.95 m; rows with larger h_b hold for the whole input box and are dropped).
+    most α(h_b) T < h_b while κ T (1 + h_b / ℓ) < 1 (κ = 1 s⁻¹, T = 50 ms, ℓ = 2 cm: every
+    h_b < 0.38 m; beyond, the row allows more than h_b per period, but at |v| ≤ 0.5 m/s h_b
+    cannot fall by more than a few cm in 50 ms).
 
     h_b ≥ 0 says that braking at a_b along the gradient stops the approach before d - r - δ
     reaches zero. Feasibility under the bounds: u = a_max ∇d/|∇d| (norm a_max, inside the box)

@@ -82,7 +82,7 @@ class BarrierParams(BaseModel):
     footprint: Footprint | None = None
     barrier: Literal["braking", "hocbf"] = "braking"
     brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
-    brake_rate_length: Annotated[float, Field(gt=0)] = 0.05
+    brake_rate_length: Annotated[float, Field(gt=0)] = 0.02
     brake_speed_floor: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 0.1
 
 

@@ -37,7 +37,7 @@ def ridge_state(hb: float) -> tuple[FilterState, FieldSample]:
     return FilterState(np.zeros(3), velocity=v), sample
 
 
-@pytest.mark.parametrize(("ell", "feasible"), [(math.inf, False), (0.05, True)])
+@pytest.mark.parametrize(("ell", "feasible"), [(math.inf, False), (0.02, True)])
 def test_braking_row_at_a_ridge_far_from_the_obstacle(ell: float, feasible: bool) -> None:
     s, sample = ridge_state(0.155)
     m = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, brake_rate_length=ell)
@@ -52,7 +52,7 @@ def test_the_class_k_function_is_the_linear_one_at_the_boundary() -> None:
     hb = np.array([1e-4])
     assert new.rows(s, sample, hb, GAINS, np.zeros(3))[1] == pytest.approx(
         lin.rows(s, sample, hb, GAINS, np.zeros(3))[1], abs=1e-6)
-    assert FilterConfig(model="double3d").build_model().rate_length == 0.05
+    assert FilterConfig(model="double3d").build_model().rate_length == 0.02
     with pytest.raises(ValueError):
         DoubleIntegrator(0.15, brake_rate_length=0.0)
 
