@@ -121,6 +121,12 @@ class OccupancyParams(BaseModel):
     gaps narrower than this behind an obstacle (a doorway's part hidden by its jamb) read closed
     until the camera looks into them. Deeper closes more gaps, shallower leaves big objects hollow
     at the back."""
+    unobserved_below_obstacle: Literal["free", "solid"] = "solid"
+    """Never-observed voxels straight below an obstacle (``solid``, with the ``solid`` fill behind
+    surfaces): up to ``below_obstacle_depth`` they join it, so an object whose top was seen at a
+    grazing angle and whose sides were not is not a lid over free space (``occupancy.py``)."""
+    below_obstacle_depth: Annotated[float, Field(ge=0, le=5.0, allow_inf_nan=False)] = 1.0
+    """Depth (m) of the ``solid`` fill below obstacles; any observed voxel ends it earlier."""
     unknown_is_occupied: bool = False
     """Treat never-observed voxels as obstacles (of ``unknown_group``)."""
     unknown_group: str | None = None
@@ -189,3 +195,10 @@ class MapperConfig(EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
         if self.obstacle_interior != "solid" or self.unobserved_behind_surface != "solid":
             return 0
         return int(self.behind_surface_depth / self.voxel_size + 1e-9)
+
+    @property
+    def support_steps(self) -> int:
+        """Voxel steps of the never-observed fill below obstacles (0 unless both fills are ``solid``)."""
+        if self.fill_steps == 0 or self.unobserved_below_obstacle != "solid":
+            return 0
+        return int(self.below_obstacle_depth / self.voxel_size + 1e-9)

@@ -192,7 +192,8 @@ class Mapper:
         c = self.config
         return semantic_occupancy(self.tsdf, self.semantic, self.label_to_group, c.min_weight, c.surface_band,
                                   self.unknown_group_id if c.unknown_is_occupied else 0,
-                                  interior=c.obstacle_interior, fill_steps=c.fill_steps)
+                                  interior=c.obstacle_interior, fill_steps=c.fill_steps,
+                                  support_steps=c.support_steps)
 
     def band_indices(self) -> tuple[int, int, float]:
         """z-voxel range [k_lo, k_hi) whose centres lie in the height band, and the slice's z."""

@@ -336,8 +336,17 @@ class DoubleIntegrator(BarrierModel):
     speed along the gradient and a_b = ``brake_fraction`` · a_max the deceleration the barrier
     budgets for,
 
-        h_b = h - s₊² / (2 a_b),      s₊ = max(s, 0)              (C¹ in x)
-        ḣ_b = ḣ + (s₊ / a_b) ḧ = ḣ + (s₊ / a_b)(∇dᵀu + vᵀ∇²d v)
+        h_b = h - φ(s),   φ(s) = (s² + s₀²) / (2 a_b)  for s ≥ s₀,   s₀ s / a_b  for s < s₀
+        ḣ_b = ḣ - φ'(s) ṡ = ḣ + c (∇dᵀu + vᵀ∇²d v),   c = φ'(s) = max(s, s₀) / a_b
+
+    φ is C¹ and φ(s) ≥ s²/(2a_b) for 0 ≤ s, so h_b ≥ 0 still means the robot can stop at a_b.
+    The speed floor s₀ (``brake_speed_floor``) keeps the input's coefficient c ≥ s₀/a_b: with
+    φ = s²/(2a_b) alone, c vanishes at rest and a robot at rest just inside its barrier (a
+    sampled-data overshoot, in the corner between two obstacles where it has stopped) has no
+    input that raises h_b at once — every such step was a relaxed QP. It costs at most
+    s₀²/(2a_b) (5 mm for s₀ = 0.1 m/s, a_b = 1.05 m/s²) of clearance at s = s₀. For s < 0
+    (moving away) φ < 0 credits the receding speed; h only grows while s < 0, and φ(0) = 0,
+    so a state that keeps h_b ≥ 0 has h ≥ 0 whenever it approaches.
 
     and the row is the first-order CBF ḣ_b ≥ -κ h_b with κ = k₁, the slower root of the group's
     s² + α₁ s + α₂ = (s + k₁)(s + k₂): on the HOCBF's boundary h decays as e^{-k₁t} once the
@@ -346,12 +355,29 @@ class DoubleIntegrator(BarrierModel):
 
         (s₊/a_b) ∇dᵀu ≥ -κ h_b - ḣ - (s₊/a_b) vᵀ∇²d v.
 
+    Far from the boundary the linear class-K function is needlessly tight: the row asks
+    ḣ_b ≥ -κ h_b, and where the nearest obstacle changes (the ridge of the distance field
+    between two obstacles or around a corner, vᵀ∇²d v ≈ -|∇²d| |v|² with |∇²d| up to
+    20 m⁻¹ on 5 cm voxels) the approach speed s grows at -vᵀ∇²d v, so ḣ_b needs
+    -s (1 + |vᵀ∇²d v| / a_b), several times κ h_b although braking (s²/(2a_b) of a few mm)
+    is nowhere near. Any extended class-K function keeps {h_b ≥ 0} forward invariant, so the
+    row uses
+
+        α(h_b) = κ h_b (1 + h_b₊ / ℓ),      h_b₊ = max(h_b, 0),   ℓ = ``brake_rate_length``
+
+    (continuous, strictly increasing, α(0) = 0; ℓ = ∞ is the linear κ h_b): the same κ h_b
+    near the boundary — the settling speed and the groups' ordering are unchanged — and a
+    rate that grows with the remaining clearance, so a state whose braking distance is far
+    from the obstacle is not relaxed at a ridge. Per control period T, h_b can still drop by at
+    most α(h_b) T < h_b while κ T (1 + h_b / ℓ) < 1 (κ = 1 s⁻¹, T = 50 ms, ℓ = 2 cm: every
+    h_b < 0.38 m; beyond, the row allows more than h_b per period, but at |v| ≤ 0.5 m/s h_b
+    cannot fall by more than a few cm in 50 ms).
+
     h_b ≥ 0 says that braking at a_b along the gradient stops the approach before d - r - δ
     reaches zero. Feasibility under the bounds: u = a_max ∇d/|∇d| (norm a_max, inside the box)
     gives ∇dᵀu ≥ a_max |∇d|, so at h_b = 0 the row holds whenever vᵀ∇²d v ≥ -(a_max|∇d| - a_b):
     the unused fraction of the deceleration absorbs the field's concave curvature (ridges between
-    obstacles). Away from the obstacle (s₊ = 0) the row is empty (h_b = h ≥ 0); its coefficient
-    uses max(s₊, 10⁻³ m/s) so the row stays well defined as the approach starts.
+    obstacles).
 
     ``barrier="hocbf"``: the paper's high-order CBF. With ψ₀ = h and the class-K pair (k₁, k₂),
     ψ₁ = ḣ + k₁ h and ψ̇₁ + k₂ ψ₁ ≥ 0 is ḧ + α₁ ḣ + α₂ h ≥ 0 with α₁ = k₁ + k₂, α₂ = k₁ k₂.
@@ -370,7 +396,8 @@ class DoubleIntegrator(BarrierModel):
 
     def __init__(self, radius: float | np.ndarray = 0.15, a_max: float = 3.0, k_v: float = 2.0, dt: float = 0.02,
                  points: list[tuple[float, float, float]] | None = None, v_max: float = 1.0,
-                 barrier: str = "braking", brake_fraction: float = 0.7):
+                 barrier: str = "braking", brake_fraction: float = 0.7, brake_rate_length: float = math.inf,
+                 brake_speed_floor: float = 1e-3):
         super().__init__(np.array(points or [(0.0, 0.0, 0.0)]), radius, np.ones(3),
                          -np.full(3, a_max), np.full(3, a_max))
         if barrier not in ("braking", "hocbf") or not 0 < brake_fraction <= 1:
@@ -379,6 +406,18 @@ class DoubleIntegrator(BarrierModel):
         self.kind = barrier
         self.a_max = a_max
         self.a_brake = brake_fraction * a_max
+        if not brake_rate_length > 0:
+            raise ValueError("brake_rate_length must be positive (inf: the linear class-K function)")
+        self.rate_length = brake_rate_length
+        if not brake_speed_floor > 0:
+            raise ValueError("brake_speed_floor must be positive")
+        self.speed_floor = brake_speed_floor
+
+    def braking_distance(self, approach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(φ(s), φ'(s)) of the braking barrier at the signed approach speeds s (class docstring)."""
+        s0, ab = self.speed_floor, self.a_brake
+        phi = np.where(approach >= s0, (approach * approach + s0 * s0) / (2 * ab), s0 * approach / ab)
+        return phi, np.maximum(approach, s0) / ab
 
     def max_point_speed(self) -> float:
         # Velocity is a state here, not an input: v_max is the nominal speed the reference keeps.
@@ -403,8 +442,7 @@ class DoubleIntegrator(BarrierModel):
     def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray) -> np.ndarray:
         if self.kind == "hocbf":
             return hb
-        approach = np.maximum(-(sample.gradient @ s.velocity), 0.0)
-        return hb - approach * approach / (2 * self.a_brake)
+        return hb - self.braking_distance(-(sample.gradient @ s.velocity))[0]
 
     def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
         # Maximal acceleration along the gradient (norm a_max: inside the per-axis box).
@@ -420,12 +458,12 @@ class DoubleIntegrator(BarrierModel):
         assert sample.hessian is not None
         curvature = np.einsum("i,mij,j->m", v, sample.hessian, v)
         hdot = sample.gradient @ v
-        approach = np.maximum(-hdot, 0.0)
-        hbrake = h - approach * approach / (2 * self.a_brake)
+        phi, c = self.braking_distance(-hdot)
+        hbrake = h - phi
         a1, a2 = gains[:, ALPHA1], gains[:, ALPHA2]
         kappa = 0.5 * (a1 - np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0)))
-        c = np.maximum(approach, 1e-3) / self.a_brake
-        return sample.gradient * c[:, None], -kappa * hbrake - hdot - c * curvature
+        rate = kappa * hbrake * (1.0 + np.maximum(hbrake, 0.0) / self.rate_length)  # α(h_b), class docstring
+        return sample.gradient * c[:, None], -rate - hdot - c * curvature
 
     def _hocbf_rows(self, s: FilterState, sample: FieldSample, h: np.ndarray,
                     gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

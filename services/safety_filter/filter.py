@@ -10,8 +10,8 @@ be active, and the exact active-set path stays small with a whole-body cover.
 Infeasible QP (fallback ``slack``). With the barrier's stopping condition a state inside the
 safe set keeps the QP feasible (``barriers``); a moved obstacle or a new map can still leave
 none. Then the filter solves the same QP with every row relaxed to what the backup input u_bk
-(maximal braking along the field's gradient at the critical point, ``BarrierModel.backup``)
-achieves:
+achieves — of the maximal-braking inputs along each row's gradient (``BarrierModel.backup``)
+and the braking input, the one whose worst row does best (``SafetyFilter._backup``):
 
     min_u ½ (u - u_ref)ᵀ W (u - u_ref)   s.t.  A u ≥ min(b, A u_bk),  u ∈ U.
 
@@ -244,7 +244,7 @@ class SafetyFilter:
         if self._first_order:
             gains = gains.copy()
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
-        hb = clearance - self.delta
+        hb = clearance - self.delta - self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
         if self.config.margins_in_filter:
             hb = hb - gains[:m, MARGIN]
         k = int(np.argmin(model.barrier(state, sample, hb)))
@@ -252,6 +252,7 @@ class SafetyFilter:
         if not sample.inside.all():
             return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
         a, b = model.rows(state, sample, hb, gains[:m], ang)
+        gradients = sample.gradient  # one per row: the candidate backup directions
         if self.config.predictive_rows:
             # The same CBF row with the gradient (and group) found at the predicted point: where the
             # nearest obstacle changes within one period (the ridge between two obstacles, where the
@@ -264,6 +265,7 @@ class SafetyFilter:
                 ahead_s.risk_group == sample.risk_group)
             keep = ahead_s.inside & ~same
             if keep.any():
+                gradients = np.concatenate([gradients, ahead_s.gradient[keep]])
                 a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang)
                 a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
@@ -277,7 +279,7 @@ class SafetyFilter:
         res = self._solve(a, b, u_ref)
         fallback = None
         if res.status == "infeasible" and self.config.slack:
-            u_bk = model.backup(state, sample.gradient[k])
+            u_bk = self._backup(state, a, b, gradients[live])
             ab = a @ u_bk
             # A violated row without a direction (zero gradient: deep inside a solid region) cannot
             # tell a better input from a worse one: brake (fallback "infeasible").
@@ -296,6 +298,24 @@ class SafetyFilter:
         intervening = fallback is not None or bool(np.abs(res.u - u_box).max() > 1e-6)
         return FilterResult(res.u, u_ref, h_crit, rg, intervening, fallback, (time.perf_counter() - t0) * 1e6,
                             res.solver, float(hb[k]), qp_us, n_rows)
+
+    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray) -> np.ndarray:
+        """The backup input of the slack-relaxed QP (module docstring): of the maximal-braking
+        inputs along each row's gradient and the model's braking input, the one whose worst row
+        does best, min_i (a_iᵀu - b_i)/|a_i|. With a single gradient this is the maximal braking
+        along the critical point's gradient; where two obstacles meet (the field's ridge) the
+        gradient at the critical point only knows one of them, and braking away from it would
+        drive the robot into the other, whose row the relaxation would then give up."""
+        model = self.model
+        cands = [model.brake(state)]
+        seen: list[np.ndarray] = []
+        for g in gradients:
+            if all(np.abs(g - o).max() > 1e-6 for o in seen):
+                seen.append(g)
+                cands.append(model.backup(state, g))
+        norm = np.maximum(np.linalg.norm(a, axis=1), 1e-9)
+        scores = [float(((a @ u - b) / norm).min()) for u in cands]
+        return cands[int(np.argmax(scores))]
 
     def _solve(self, a: np.ndarray, b: np.ndarray, u_ref: np.ndarray) -> QPResult:
         m = self.model

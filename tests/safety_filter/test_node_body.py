@@ -40,7 +40,7 @@ class Robot:
         self.session, self.root = session, f"rf/{robot}"
         self.status = Collector(session, f"{self.root}/safety/status", SafetyStatus)
         self.cmds = Collector(session, f"{self.root}/cmd/safe", VelocityCommand)
-        self.core = SafetyFilter(FilterConfig())  # the node's defaults: what it must compute
+        self.core = SafetyFilter(FilterConfig(map_margin_voxels=0))  # the node's settings: what it must compute
         self.model: UnicycleLookahead = self.core.model  # type: ignore[assignment]
 
     def close(self) -> None:
@@ -86,7 +86,9 @@ class Robot:
 def limo(router_endpoint):
     robot = "t_sf_body"
     args = ["--robot", robot, "--set", "map_timeout_s=60", "--set", "state_timeout_s=60",
-            "--set", "ref_timeout_s=60"]  # the test steps in simulated time, however slow the machine
+            "--set", "ref_timeout_s=60",  # the test steps in simulated time, however slow the machine
+            # the grids are sampled from exact shapes: no mapper's half-voxel error to allow for
+            "--set", "map_margin_voxels=0"]
     with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/safety-filter"), proc.output
         sim = Robot(session, robot)

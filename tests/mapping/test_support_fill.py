@@ -1,0 +1,75 @@
+"""Never-observed space below an observed obstacle (``unobserved_below_obstacle``, issue 13).
+
+Regression of the safety benchmark's bed: its top was seen only at a grazing angle (viewing
+direction nearly horizontal, so the fill along it reached 0.15 m down) and its long side by no
+frame, so below a thin lid the bed read as free space, +0.075 m at 0.2 m height. The layers are
+set by hand: one column through a lid, never-observed space and the observed floor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from riskfield.protocol import RiskConfig, ade20k
+from riskfield.services.mapping.config import MapperConfig
+from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
+from riskfield.services.mapping.occupancy import semantic_occupancy
+
+V = 0.05
+BED, FLOOR = ade20k.index("bed"), ade20k.index("floor")
+SHAPE = (5, 5, 24)
+
+
+def layers(free_at: int | None = None) -> tuple[TsdfLayer, SemanticLayer]:
+    """Columns: the floor surface observed at k = 2 (free label), never observed from k = 3 to 15,
+    the bed's observed interior at k = 16 and its labelled top at k = 17 (seen along a grazing,
+    nearly horizontal ray), observed free space above. ``free_at``: one observed free voxel in
+    the gap (seen under the lid)."""
+    tsdf, sem = TsdfLayer(SHAPE, 0.15), SemanticLayer(SHAPE)
+    tsdf.weight[:, :, 18:] = 10.0
+    tsdf.tsdf[:, :, 18:] = 0.15
+    tsdf.weight[:, :, 16:18] = 10.0
+    tsdf.tsdf[:, :, 17] = 0.0
+    tsdf.tsdf[:, :, 16] = -0.1
+    tsdf.view[:, :, 16] = (120, 0, -20)
+    sem.label[:, :, 17] = BED
+    tsdf.weight[:, :, :3] = 10.0
+    tsdf.tsdf[:, :, 2] = 0.0
+    tsdf.tsdf[:, :, :2] = -0.1
+    sem.label[:, :, 2] = FLOOR
+    if free_at is not None:
+        tsdf.weight[:, :, free_at] = 10.0
+        tsdf.tsdf[:, :, free_at] = 0.15
+    return tsdf, sem
+
+
+def occupancy(support_steps: int, free_at: int | None = None) -> np.ndarray:
+    tsdf, sem = layers(free_at)
+    lut = RiskConfig().label_to_group()
+    return semantic_occupancy(tsdf, sem, lut, 0.5, 0.75 * V, interior="solid", fill_steps=10,
+                              support_steps=support_steps)
+
+
+def test_never_observed_space_below_an_obstacle_joins_it() -> None:
+    bed_group = int(RiskConfig().label_to_group()[BED])
+    assert bed_group > 0
+    hollow = occupancy(0)[2, 2]
+    assert np.all(hollow[3:16] == 0)  # the lid over free space the benchmark's robot flew into
+    solid = occupancy(20)[2, 2]
+    assert np.all(solid[3:18] == bed_group)
+    assert np.all(solid[:3] == 0) and np.all(solid[18:] == 0)  # the floor and the space above stay free
+
+
+def test_the_fill_below_stops_at_its_depth_and_at_observed_space() -> None:
+    short = occupancy(4)[2, 2]
+    assert np.all(short[12:16] > 0) and np.all(short[3:12] == 0)
+    seen = occupancy(20, free_at=9)[2, 2]  # a ray crossed under the lid at k = 9
+    assert np.all(seen[10:16] > 0) and seen[9] == 0 and np.all(seen[3:9] == 0)
+
+
+@pytest.mark.parametrize(("policy", "steps"), [("solid", 20), ("free", 0)])
+def test_the_policy_and_depth_come_from_the_config(policy: str, steps: int) -> None:
+    c = MapperConfig(unobserved_below_obstacle=policy)
+    assert c.support_steps == steps
+    assert MapperConfig(unobserved_behind_surface="free").support_steps == 0  # needs the solid fill
