@@ -326,7 +326,18 @@ def _active_set(w, r, A, b, nrow, lo, hi, n, u, rc, rd, norms, gram, aug, z, rhs
 
 
 @jit
-def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, gain, vel, a_brake, A, B, row):
+def _braking(approach, s0, a_brake):
+    """(φ(s), φ'(s)) of the braking barrier (``DoubleIntegrator.braking_distance``)."""
+    if approach >= s0:
+        phi = (approach * approach + s0 * s0) / (2 * a_brake)
+    else:
+        phi = s0 * approach / a_brake
+    return phi, max(approach, s0) / a_brake
+
+
+@jit
+def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, gain, vel, a_brake, s0, ell, A, B,
+          row):
     """The CBF row of point i (field sample in row src) into A[row], B[row] (barriers.*.rows)."""
     gx, gy, gz = grad[src, 0], grad[src, 1], grad[src, 2]
     if kind == UNICYCLE:
@@ -358,13 +369,13 @@ def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, ga
         a1, a2 = gain[1], gain[2]
         disc = math.sqrt(max(a1 * a1 - 4 * a2, 0.0))
         if kind == DOUBLE_BRAKING:
-            approach = max(-hdot, 0.0)
-            hbrake = hb_i - approach * approach / (2 * a_brake)
+            phi, cc = _braking(-hdot, s0, a_brake)
+            hbrake = hb_i - phi
             kappa = 0.5 * (a1 - disc)
-            cc = max(approach, 1e-3) / a_brake
+            rate = kappa * hbrake * (1.0 + max(hbrake, 0.0) / ell)  # α(h_b), DoubleIntegrator's docstring
             for a in range(3):
                 A[row, a] = grad[src, a] * cc
-            B[row] = -kappa * hbrake - hdot - cc * curv
+            B[row] = -rate - hdot - cc * curv
         else:
             k_slow, k_fast = 0.5 * (a1 - disc), 0.5 * (a1 + disc)
             psi1 = hdot + k_fast * hb_i
@@ -375,14 +386,40 @@ def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, ga
 
 
 @jit
+def _brake_input(kind, n, vel, dt, hi, out):
+    """``BarrierModel.brake``: zero velocity, or against the velocity scaled into the bounds."""
+    for j in range(n):
+        out[j] = 0.0
+    if kind >= DOUBLE_BRAKING:
+        peak = 0.0
+        for j in range(3):
+            peak = max(peak, abs(-vel[j] / dt) / hi[j])
+        for j in range(3):
+            out[j] = -vel[j] / dt / peak if peak > 1.0 else -vel[j] / dt
+
+
+@jit
+def _worst_row(A, B, nrows, n, u):
+    """min_i (a_iᵀu - b_i)/max(|a_i|, 1e-9) over the rows."""
+    worst = math.inf
+    for i in range(nrows):
+        au, nn = 0.0, 0.0
+        for j in range(n):
+            au += A[i, j] * u[j]
+            nn += A[i, j] * A[i, j]
+        worst = min(worst, (au - B[i]) / max(math.sqrt(nn), 1e-9))
+    return worst
+
+
+@jit
 def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref, ang,
                 flat, rgs, dims, shape, strides, forigin, inv_h, poly, table,
                 pts, dist, grad, hess, rgq, inside, gains, hb, A, B, A2, B2, u_box, u_bk,
                 rot, rot1, tmp, omega, pos1, block, w, r1, r2, r3, ws,
-                u_out, out_f, out_i):
+                u_out, out_f, out_i, rsrc, rsrc2, seen, u_c):
     """One filter step (SafetyFilter.filter); outcome in out_i = [code, risk group, rows, intervening],
     out_f = [h at the critical point, the barrier there]."""
-    delta, alpha_cap, dt, a_brake, a_max = par[0], par[1], par[2], par[3], par[4]
+    delta, alpha_cap, dt, a_brake, a_max, s0, ell = par[0], par[1], par[2], par[3], par[4], par[5], par[6]
     predictive, margins, slack_on, first_order = flags[0], flags[1], flags[2], flags[3]
     out_i[0], out_i[1], out_i[2], out_i[3] = OK, 0, 0, 0
     out_f[0], out_f[1] = 0.0, 0.0
@@ -485,8 +522,8 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
             hb[i] = hb[i] - gains[i, 3]
         val = hb[i]
         if kind == DOUBLE_BRAKING:
-            approach = max(-(grad[i, 0] * vel[0] + grad[i, 1] * vel[1] + grad[i, 2] * vel[2]), 0.0)
-            val = hb[i] - approach * approach / (2 * a_brake)
+            phi, _ = _braking(-(grad[i, 0] * vel[0] + grad[i, 1] * vel[1] + grad[i, 2] * vel[2]), s0, a_brake)
+            val = hb[i] - phi
         if val < best or i == 0:
             kbest, best = i, val
     kc = kbest
@@ -498,7 +535,9 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
             out_i[0] = OUTSIDE_MAP
             return
     for i in range(m):
-        _rows(kind, n, m, i, i, rot, omega, offsets, centred, grad, hess, hb[i], gains[i], vel, a_brake, A, B, i)
+        _rows(kind, n, m, i, i, rot, omega, offsets, centred, grad, hess, hb[i], gains[i], vel, a_brake, s0, ell,
+              A, B, i)
+        rsrc[i] = i
     nrows = m
     if predictive:
         for i in range(m):
@@ -509,7 +548,8 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
             same = diff < 0.05 and rgq[j] == rgq[i]
             if inside[j] and not same:
                 _rows(kind, n, m, i, j, rot, omega, offsets, centred, grad, hess, hb[i], gains[j], vel, a_brake,
-                      A, B, nrows)
+                      s0, ell, A, B, nrows)
+                rsrc[nrows] = j
                 nrows += 1
     for i in range(nrows):
         ok = math.isfinite(B[i])
@@ -534,6 +574,7 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
             for j in range(n):
                 A2[nlive, j] = A[i, j]
             B2[nlive] = B[i]
+            rsrc2[nlive] = rsrc[i]
             nlive += 1
     status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
     code = OK
@@ -541,20 +582,41 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
         out_i[0] = HANDBACK  # the numpy path takes it to OSQP
         return
     if status == 1 and slack_on:
-        # backup(): u_bk = a_max ∇d/|∇d| at the critical point (double integrator), else 0
-        for j in range(n):
-            u_bk[j] = 0.0
-        if kind >= DOUBLE_BRAKING:
-            gn = math.sqrt(grad[kc, 0] ** 2 + grad[kc, 1] ** 2 + grad[kc, 2] ** 2)
-            if gn > 1e-9:
-                for j in range(3):
-                    u_bk[j] = a_max * grad[kc, j] / gn
+        # SafetyFilter._backup: of the braking input and the maximal braking along each live row's
+        # (distinct) gradient, the one whose worst row does best, min_i (a_iᵀu - b_i)/|a_i|.
+        _brake_input(kind, n, vel, dt, hi, u_bk)
+        best_score = _worst_row(A2, B2, nlive, n, u_bk)
+        nseen = 0
+        for i in range(nlive):
+            src = rsrc2[i]
+            new = True
+            for s_ in range(nseen):
+                o = seen[s_]
+                diff = 0.0
+                for a in range(3):
+                    diff = max(diff, abs(grad[src, a] - grad[o, a]))
+                if diff <= 1e-6:
+                    new = False
+                    break
+            if not new:
+                continue
+            seen[nseen] = src
+            nseen += 1
+            if kind >= DOUBLE_BRAKING:
+                gn = math.sqrt(grad[src, 0] ** 2 + grad[src, 1] ** 2 + grad[src, 2] ** 2)
+                if gn > 1e-9:
+                    for j in range(3):
+                        u_c[j] = a_max * grad[src, j] / gn
+                else:
+                    _brake_input(kind, n, vel, dt, hi, u_c)
             else:
-                peak = 0.0
-                for j in range(3):
-                    peak = max(peak, abs(-vel[j] / dt) / hi[j])
-                for j in range(3):
-                    u_bk[j] = -vel[j] / dt / peak if peak > 1.0 else -vel[j] / dt
+                for j in range(n):
+                    u_c[j] = 0.0
+            score = _worst_row(A2, B2, nlive, n, u_c)
+            if score > best_score:
+                best_score = score
+                for j in range(n):
+                    u_bk[j] = u_c[j]
         blind = False
         for i in range(nlive):
             ab = 0.0
@@ -599,7 +661,8 @@ def step_kernel(ci, cf, inp, flat, rgs, fmi, fmf, table, wf, wi):
     """One filter step over packed arrays (a numba call costs ~0.2 µs per argument: few arguments).
 
     ci = [model kind, n, m, predictive rows, margins in filter, slack, first order];
-    cf = [δ, α cap, T, a_brake, a_max, offsets (m×3), radii (m), weights, lo, hi (n each)];
+    cf = [δ (+ the map margin of the field in hand), α cap, T, a_brake, a_max, braking speed floor s₀,
+    braking rate length ℓ, offsets (m×3), radii (m), weights, lo, hi (n each)];
     inp = [position, rotation (row-major), velocity, u_ref (n), angular (3)]; the field as
     ``fields.compiled.kernel_view`` gives it (fmi = [dims, shape, strides], fmf = [origin, 1/h,
     stencil polynomials]); ``table`` the gains per risk group. Outputs: wf[0:2] = [h at the
@@ -609,8 +672,8 @@ def step_kernel(ci, cf, inp, flat, rgs, fmi, fmf, table, wf, wi):
     kind, n, m = ci[0], ci[1], ci[2]
     q = 2 * m
     rows = q + 2 * n
-    par = cf[0:5]
-    offsets, o = _take(cf, 5, 3 * m)
+    par = cf[0:7]
+    offsets, o = _take(cf, 7, 3 * m)
     offsets = offsets.reshape((m, 3))
     radius, o = _take(cf, o, m)
     weights, o = _take(cf, o, n)
@@ -653,10 +716,14 @@ def step_kernel(ci, cf, inp, flat, rgs, fmi, fmf, table, wf, wi):
     lam, o = _take(wf, o, 8)
     marks, o = _take(wf, o, 2 * n)
     sw, o = _take(wf, o, n)
+    u_c, o = _take(wf, o, 3)
     out_i = wi[0:4]
     rgq, o = _take(wi, 4, q)
     inside, o = _take(wi, o, q)
     active, o = _take(wi, o, 8)
+    rsrc, o = _take(wi, o, q)
+    rsrc2, o = _take(wi, o, q)
+    seen, o = _take(wi, o, q)
     _step(kind, n, m, offsets, radius, weights, lo, hi, par, ci[3:7], state, u_ref, ang,
           flat, rgs, fmi[0], fmi[1:4], fmi[4:7], fmf[0:3], fmf[3], fmf[4:52].reshape((3, 4, 4)), table,
           pts.reshape((q, 3)), dist, grad.reshape((q, 3)), hess.reshape((q, 3, 3)), rgq, inside,
@@ -665,15 +732,15 @@ def step_kernel(ci, cf, inp, flat, rgs, fmi, fmf, table, wf, wi):
           w.reshape((3, 3, 4)), r1.reshape((4, 4, 3)), r2.reshape((4, 3, 3)), r3.reshape((3, 3, 3)),
           (rc.reshape((rows, n)), rd, norms, gram.reshape((8, 8)), aug.reshape((8, 9)), z, rhs, rr, step, lam,
            marks, sw, active),
-          u_out, out_f, out_i)
+          u_out, out_f, out_i, rsrc, rsrc2, seen, u_c)
 
 
 def workspace_sizes(m: int, n: int) -> tuple[int, int]:
     """Lengths of :func:`step_kernel`'s float and int workspaces (its carving, summed)."""
     q, rows = 2 * m, 2 * m + 2 * n
     floats = (2 + n + 3 * q + q + 3 * q + 9 * q + 4 * q + m + q * n + q + q * n + q + n + 3 + 9 * 3 + 3 + 3
-              + 64 + 36 + 48 + 36 + 27 + rows * n + rows + rows + 64 + 72 + n + 8 + 8 + n + 8 + 2 * n + n)
-    return floats, 4 + 2 * q + 8
+              + 64 + 36 + 48 + 36 + 27 + rows * n + rows + rows + 64 + 72 + n + 8 + 8 + n + 8 + 2 * n + n + 3)
+    return floats, 4 + 2 * q + 8 + 3 * q
 
 
 # --------------------------------------------------------------------------- the Python side
@@ -689,16 +756,21 @@ class CompiledStep:
     """
 
     def __init__(self, model, kind: int, delta: float, alpha_cap: float, dt: float, predictive: bool,
-                 margins_in_filter: bool, slack: bool):
+                 margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0):
         if not HAVE_NUMBA:
             raise RuntimeError("the compiled filter step needs numba (pip install '.[robot]')")
         m, n = model.m, model.n
         self.kind, self.m, self.n = kind, m, n
         a_max = float(getattr(model, "a_max", 0.0))
         a_brake = float(getattr(model, "a_brake", 1.0))
+        s0 = float(getattr(model, "speed_floor", 1.0))
+        ell = float(getattr(model, "rate_length", math.inf))
+        # δ of the kernel = δ + map_margin_voxels · the voxel size of the field in hand (``prepare``).
+        self.delta, self.map_margin_voxels = delta, map_margin_voxels
         cap = alpha_cap if math.isfinite(alpha_cap) else 1e300
         self.ci = np.array([kind, n, m, predictive, margins_in_filter, slack, kind < DOUBLE_BRAKING], np.int64)
-        self.cf = np.concatenate([[delta, cap, dt, a_brake, a_max], np.asarray(model.offsets, np.float64).ravel(),
+        self.cf = np.concatenate([[delta, cap, dt, a_brake, a_max, s0, ell],
+                                  np.asarray(model.offsets, np.float64).ravel(),
                                   model.radius, model.weights, model.lo, model.hi]).astype(np.float64)
         self.inp = np.zeros(18 + n)
         floats, ints = workspace_sizes(m, n)
@@ -713,6 +785,7 @@ class CompiledStep:
             return self._field[1]
         view = kernel_view(field)
         self._field = (field, view)
+        self.cf[0] = self.delta + self.map_margin_voxels * field.voxel_size
         return view
 
     def run(self, position: np.ndarray, rotation: np.ndarray, velocity: np.ndarray, u_ref: np.ndarray,

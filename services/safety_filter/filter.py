@@ -149,7 +149,7 @@ class SafetyFilter:
             return None
         return CompiledStep(self.model, compiled.model_kind(self.model), self.delta, self._alpha_cap,
                             self.config.dt, self.config.predictive_rows, self.config.margins_in_filter,
-                            self.config.slack)
+                            self.config.slack, self.config.map_margin_voxels)
 
     @property
     def backend(self) -> str:

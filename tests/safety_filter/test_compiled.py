@@ -48,8 +48,11 @@ def random_config(rng: np.random.Generator, model: str, backend: str) -> FilterC
     kw: dict = {"interpolation": INTERPOLATIONS[int(rng.integers(0, 4))],
                 "predictive_rows": bool(rng.random() < 0.8), "margins_in_filter": bool(rng.random() < 0.3),
                 "slack": bool(rng.random() < 0.8)}
+    kw["map_margin_voxels"] = float(rng.choice([0.0, 0.5, 1.0]))
     if model == "double3d":
         kw["barrier"] = "hocbf" if rng.random() < 0.4 else "braking"
+        kw["brake_speed_floor"] = float(rng.choice([1e-3, 0.1, 0.3]))
+        kw["brake_rate_length"] = float(rng.choice([0.02, 0.2, np.inf]))
         if rng.random() < 0.3:
             kw["footprint"] = Footprint(shape="none")
     else:
