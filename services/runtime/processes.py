@@ -467,6 +467,8 @@ class ProcessRunner:
                     return self._exit_message(child)
                 continue
             ran = now - child.started_at
+            if ran >= policy.healthy_s:
+                child.streak = 0  # it crashed after a healthy run (perhaps between two passes)
             if code in NO_RESTART_CODES:
                 return f"{self._exit_message(child)} (a configuration error: not restarted)"
             if policy.max_restarts and child.streak >= policy.max_restarts:
