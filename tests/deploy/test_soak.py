@@ -39,6 +39,7 @@ pytestmark = pytest.mark.slow
 SOAK_S = float(os.environ.get("RISKFIELD_SOAK_S", "600"))
 KILL_EVERY_S = 60.0
 WARMUP_S = 60.0
+SAMPLE_EVERY_S = 10.0
 BRAKE_WITHIN_S = 0.5
 RSS_GROWTH = 0.05
 MOVING = 0.02  # m/s: cmd/safe faster than this is motion
@@ -119,6 +120,7 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
     kills: list[dict] = []
     rss: dict[str, dict[str, int]] = {}
     perception_rss: list[dict] = []
+    series = []
     log = lambda: (tmp_path / "stack.log").read_text()[-4000:]  # noqa: E731
     try:
         with client_session(endpoint, timeout_s=60) as session:
@@ -133,6 +135,8 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
             end = t0 + SOAK_S
             next_kill = t0 + KILL_EVERY_S
             warm = False
+            series: list[dict] = []
+            next_sample = t0
             while True:
                 now = time.monotonic()
                 if not warm and now >= t0 + WARMUP_S:
@@ -140,6 +144,10 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
                     warm = True
                 if now >= end:
                     break
+                if now >= next_sample:  # the RSS trend (in soak.json): a plateau or a leak
+                    series.append({"t_s": round(now - t0, 1), **{label: rss_kb(c.proc.pid) for label, c in
+                                                                 runner.children.items() if c.alive()}})
+                    next_sample += SAMPLE_EVERY_S
                 if now < next_kill:
                     # The cadence of the scenario; meanwhile nobody but perception may have restarted.
                     time.sleep(min(0.5, next_kill - now, max(0.0, end - now)))
@@ -177,7 +185,8 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
     for r in rss.values():
         r["growth_pct"] = round(100.0 * (r["end_kb"] - r["warm_kb"]) / r["warm_kb"], 2)
     report = {"duration_s": SOAK_S, "kill_every_s": KILL_EVERY_S, "rss": rss, "perception_rss": perception_rss,
-              "kills": kills, "watch_exit": code}
+              "kills": kills, "watch_exit": code,
+              "rss_series_kb": series}
     (tmp_path / "soak.json").write_text(json.dumps(report, indent=2) + "\n")
     with capsys.disabled():
         print(f"\nsoak {SOAK_S:.0f} s, perception SIGKILLed every {KILL_EVERY_S:.0f} s ({tmp_path / 'soak.json'})")
