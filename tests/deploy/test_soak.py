@@ -97,6 +97,7 @@ class Timeline:
             s.undeclare()
 
 
+@pytest.mark.timeout(SOAK_S + 600)  # the soak itself, plus start-up and a bounded stop
 def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, capsys, monkeypatch) -> None:
     # The services refuse unknown RISKFIELD_* variables (strict settings): this one is the test's.
     monkeypatch.delenv("RISKFIELD_SOAK_S", raising=False)
@@ -120,7 +121,7 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
     kills: list[dict] = []
     rss: dict[str, dict[str, int]] = {}
     perception_rss: list[dict] = []
-    series = []
+    series: list[dict] = []
     log = lambda: (tmp_path / "stack.log").read_text()[-4000:]  # noqa: E731
     try:
         with client_session(endpoint, timeout_s=60) as session:
@@ -135,7 +136,6 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
             end = t0 + SOAK_S
             next_kill = t0 + KILL_EVERY_S
             warm = False
-            series: list[dict] = []
             next_sample = t0
             while True:
                 now = time.monotonic()
