@@ -177,7 +177,6 @@ def describe_exit(code: int | None) -> str:
     return f"code {code}"
 
 
-
 def service_argv(service: str, args: Sequence[str] = ()) -> list[str]:
     """The command line of one service in a fresh interpreter of this Python."""
     return [sys.executable, "-m", "riskfield", "run", service, *map(str, args)]
