@@ -165,12 +165,26 @@ def up(
     prefix: Annotated[str | None, typer.Option()] = None,
     config: Annotated[Path | None, typer.Option("--config", "-c")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop everything after this many seconds.")] = None,
+    restart: Annotated[bool, typer.Option(help="Restart a crashed service with back-off (--no-restart: stop "
+                                          "the whole stack at the first exit, exit code 1, for tests and CI).")
+                       ] = True,
+    max_restarts: Annotated[int, typer.Option(min=0, help="Crashes in a row (without a healthy run) a service may "
+                                              "have before the stack stops with exit code 1; 0: no limit.")] = 10,
+    backoff: Annotated[float, typer.Option(min=0.01, help="First restart delay (s), doubled on each crash in a "
+                                           "row.")] = 0.5,
+    backoff_max: Annotated[float, typer.Option(min=0.01, help="Longest restart delay (s).")] = 30.0,
+    healthy: Annotated[float, typer.Option(min=0.01, help="Seconds a restarted service must run to count as "
+                                           "healthy again (back-off and budget reset).")] = 30.0,
 ) -> None:
     """Start the router and services as separate processes; logs are prefixed by service.
-    Ctrl-C or SIGTERM stops them all; if a service dies, the rest are stopped and the exit code is 1."""
+
+    A crashed service is restarted after a back-off (one log line each time) while the others keep
+    running. Ctrl-C or SIGTERM stops them all: exit code 0 if all stopped cleanly, 1 if any ended
+    badly. Exit code 1 also when a service exhausts its restart budget or has a configuration
+    error (exit code 2 is never restarted), and with --no-restart as soon as a service exits."""
     from riskfield.protocol import Keys
     from riskfield.services.runtime import SERVICES, NodeSettings
-    from riskfield.services.runtime.processes import ProcessRunner
+    from riskfield.services.runtime.processes import NO_RESTART, ProcessRunner, RestartPolicy
 
     names = services or []
     unknown = [n for n in names if n not in SERVICES or n == "router"]
@@ -186,7 +200,13 @@ def up(
         keys = Keys(robot=ident.robot, prefix=ident.prefix)
     except (ValueError, OSError):  # a broken config: the services will say so and exit, and so will we
         keys = Keys(robot=robot or "limo1", prefix=prefix or "rf")
-    runner = ProcessRunner(listen, keys, echo=True, console=console)
+    try:
+        policy = RestartPolicy(backoff_s=backoff, backoff_max_s=backoff_max, healthy_s=healthy,
+                               max_restarts=max_restarts) if restart else NO_RESTART
+    except ValueError as exc:
+        console.print(f"[red]{escape(str(exc))}[/red]")
+        raise typer.Exit(2) from None
+    runner = ProcessRunner(listen, keys, echo=True, console=console, restart=policy)
     if router:
         runner.add("router", "router", common)
     for name in names:

@@ -14,7 +14,15 @@ Used by ``riskfield up``, ``riskfield demo``, the experiments' stack and ``riskf
   wait; services first, routers last, so nobody loses its router while closing.
 * **Readiness.** A service is ready when its liveliness token ``{prefix}/{robot}/alive/{service}``
   is visible (declared by ``Node`` once its session is open).
-* **Failure.** ``watch`` returns non-zero as soon as a *required* child exits by itself.
+* **Supervision.** ``watch`` (``riskfield up``) restarts a child that crashed (any exit but a
+  clean one, ``CLEAN_EXIT``, or a configuration error, ``NO_RESTART_CODES``) after an
+  exponential back-off, bounded by ``RestartPolicy.backoff_max_s`` and reset once the child has
+  run ``healthy_s``; each crash is one log line. The other children keep running: a crashed
+  perception must not take the safety filter (and its brake) down with it. A child that crashes
+  ``max_restarts`` times in a row without a healthy run in between has exhausted its budget: the
+  stack stops and ``watch`` returns 1, so an outer supervisor (systemd, compose) takes over.
+  ``RestartPolicy(enabled=False)`` (``riskfield up --no-restart``) is the fail-fast mode for tests
+  and CI: the stack stops as soon as a *required* child exits by itself.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -46,6 +55,9 @@ if TYPE_CHECKING:
 CLEAN_EXIT = (0, -signal.SIGINT)
 #: Lines of output each child keeps in memory (its log file, if any, has all of them).
 OUTPUT_LINES = 20000
+#: Exit codes that a restart cannot fix: 2 is the CLI's code for a bad configuration or usage
+#: (systemd's ``RestartPreventExitStatus=2`` in ``deploy/robot`` says the same).
+NO_RESTART_CODES = (2,)
 COLOURS = ("cyan", "magenta", "green", "yellow", "blue", "bright_red", "bright_cyan", "bright_magenta")
 
 
@@ -128,6 +140,43 @@ class EmbeddedRouter:
 # -- processes ----------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class RestartPolicy:
+    r"""How ``ProcessRunner.watch`` treats a child that crashed.
+
+    The n-th restart in a row waits :math:`\min(b_{max}, b_0 2^{n-1})`; a child that has
+    run ``healthy_s`` since its last start is healthy again (back-off and budget reset). After
+    ``max_restarts`` restarts in a row (0: no limit) the next crash stops the stack.
+    """
+
+    enabled: bool = True
+    backoff_s: float = 0.5
+    backoff_max_s: float = 30.0
+    healthy_s: float = 30.0
+    max_restarts: int = 10
+
+    def __post_init__(self) -> None:
+        if not (0 < self.backoff_s <= self.backoff_max_s) or self.healthy_s <= 0 or self.max_restarts < 0:
+            raise ValueError(f"bad restart policy {self}: need 0 < backoff_s <= backoff_max_s, healthy_s > 0, "
+                             "max_restarts >= 0")
+
+    def delay(self, attempt: int) -> float:
+        """Back-off before restart number ``attempt`` (1-based) of a streak."""
+        return min(self.backoff_max_s, self.backoff_s * 2.0 ** max(0, attempt - 1))
+
+
+#: Today's fail-fast behaviour: no restarts, the stack stops when a required child exits.
+NO_RESTART = RestartPolicy(enabled=False)
+
+
+def describe_exit(code: int | None) -> str:
+    """``code 1`` or ``signal SIGKILL`` for a ``Popen.returncode``."""
+    if code is not None and code < 0:
+        with contextlib.suppress(ValueError):
+            return f"signal {signal.Signals(-code).name}"
+    return f"code {code}"
+
+
 def service_argv(service: str, args: Sequence[str] = ()) -> list[str]:
     """The command line of one service in a fresh interpreter of this Python."""
     return [sys.executable, "-m", "riskfield", "run", service, *map(str, args)]
@@ -148,17 +197,34 @@ class Child:
         self._lines: deque[str] = deque(maxlen=OUTPUT_LINES)
         self._lock = threading.Lock()
         self._reader: threading.Thread | None = None
+        self.started_at = 0.0  # time.monotonic() of the last start
+        self.restarts = 0  # restarts since the first start
+        self.streak = 0  # restarts in a row without a healthy run between them
+        self.restart_at: float | None = None  # when a pending restart is due (time.monotonic())
+        self.pids: list[int] = []  # one per start, oldest first
 
     def start(self) -> Child:
         if self.proc is not None:
             raise RuntimeError(f"{self.label} was started already")
+        self.started_at = time.monotonic()
         self.proc = subprocess.Popen(
             self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=self.env,
             start_new_session=True,  # a terminal's Ctrl-C reaches us only; we stop children in order
         )
+        self.pids.append(self.proc.pid)
         self._reader = threading.Thread(target=self._pump, name=f"output:{self.label}", daemon=True)
         self._reader.start()
         return self
+
+    def restart(self) -> Child:
+        """Start again after the process ended by itself (its earlier output is kept)."""
+        if self.alive():
+            raise RuntimeError(f"{self.label} is still running")
+        self.join_output()
+        self.proc = None
+        self.restart_at = None
+        self.restarts += 1
+        return self.start()
 
     def _pump(self) -> None:
         assert self.proc is not None and self.proc.stdout is not None
@@ -223,8 +289,9 @@ class ProcessRunner:
 
     def __init__(self, endpoint: str, keys: Keys | None = None, *, env: dict[str, str] | None = None,
                  log_path: str | os.PathLike | None = None, echo: bool = False, console: Console | None = None,
-                 stop_timeout_s: float = 10.0):
+                 stop_timeout_s: float = 10.0, restart: RestartPolicy = NO_RESTART):
         self.endpoint = endpoint
+        self.restart = restart
         self.keys = keys or Keys()
         self.env = dict(env or {})
         self.echo = echo
@@ -234,6 +301,7 @@ class ProcessRunner:
         self._console = console
         self._log = open(log_path, "a", buffering=1) if log_path else None  # closed in close()
         self._out_lock = threading.Lock()
+        self._stop_requested = threading.Event()
 
     # -- building ---------------------------------------------------------------------------------
     def add(self, label: str, service: str | None = None, args: Sequence[str] = (), *, required: bool = True,
@@ -371,12 +439,59 @@ class ProcessRunner:
         self.close()
 
     # -- the ``riskfield up`` loop ----------------------------------------------------------------
+    def request_stop(self) -> None:
+        """Ask a running ``watch`` to stop everything and return (any thread)."""
+        self._stop_requested.set()
+
+    def _supervise(self, now: float) -> str | None:
+        """One pass over the children: restart the crashed ones that are due, schedule the newly
+        crashed, reset the back-off of the healthy. Returns why the stack must stop, if it must."""
+        policy = self.restart
+        for child in self.children.values():
+            code = child.returncode
+            if child.proc is None:
+                continue
+            if code is None:
+                if child.streak and now - child.started_at >= policy.healthy_s:
+                    child.streak = 0
+                continue
+            if child.restart_at is not None:
+                if now >= child.restart_at:
+                    child.restart()
+                continue
+            if code in CLEAN_EXIT and policy.enabled:
+                continue  # it finished (or someone stopped it on purpose): on-failure does not restart
+            if not policy.enabled:
+                if child.required:
+                    return self._exit_message(child)
+                continue
+            ran = now - child.started_at
+            if ran >= policy.healthy_s:
+                child.streak = 0  # it crashed after a healthy run (perhaps between two passes)
+            if code in NO_RESTART_CODES:
+                return f"{self._exit_message(child)} (a configuration error: not restarted)"
+            if policy.max_restarts and child.streak >= policy.max_restarts:
+                return (f"{child.label} exited with {describe_exit(code)} after {ran:.1f} s; restart budget "
+                        f"exhausted ({child.streak} restarts in a row)")
+            child.streak += 1
+            delay = policy.delay(child.streak)
+            child.restart_at = now + delay
+            self._say(f"{child.label} exited with {describe_exit(code)} after {ran:.1f} s; restarting in "
+                      f"{delay:.1f} s (restart {child.restarts + 1}, {child.streak} in a row)", "bold yellow")
+        return None
+
     def watch(self, duration_s: float | None = None, ready_timeout_s: float | None = 60.0) -> int:
-        """Start what is not started, then serve until SIGINT/SIGTERM, ``duration_s``, or a
-        required child's exit; stop everything. Exit code: 0 on a clean run, 1 when a required
-        child died or any child ended badly. With ``ready_timeout_s``, says once when every
-        service is alive on the network (or which are not, after that long)."""
-        stop = threading.Event()
+        """Start what is not started, then serve until SIGINT/SIGTERM, ``request_stop``,
+        ``duration_s``, or a failure; stop everything. Crashed children are restarted as the
+        runner's ``RestartPolicy`` says (see the module docstring).
+
+        Exit code: 0 when asked to stop and everything stopped cleanly; 1 when something ended
+        badly at that stop (a crashed child, even one waiting for its restart, or one that needed
+        SIGTERM/SIGKILL counts by its last exit code), when a child exhausted its restart budget
+        or exited with a configuration error, or (``NO_RESTART``) when a required child exited
+        by itself. With ``ready_timeout_s``, says once when every service is alive on the network
+        (or which are not, after that long)."""
+        stop = self._stop_requested
         restore = catch_stop_signals(lambda _name: stop.set())
         end = None if duration_s is None else time.monotonic() + duration_s
         t0 = time.monotonic()
@@ -385,9 +500,9 @@ class ProcessRunner:
         try:
             self.start()
             while not stop.is_set() and (end is None or time.monotonic() < end):
-                dead = [c for c in self.exited() if c.required]
-                if dead:
-                    self.failed = self._exit_message(dead[0])
+                failure = self._supervise(time.monotonic())
+                if failure is not None:
+                    self.failed = failure
                     self._say(f"{self.failed}; stopping the stack", "bold red")
                     break
                 if pending:
@@ -400,7 +515,7 @@ class ProcessRunner:
                         late = [label for label in self.children if label not in up]
                         self._say(f"not alive after {ready_timeout_s:.0f} s: {', '.join(late)}", "yellow")
                         pending = False
-                stop.wait(0.1)
+                stop.wait(0.1)  # the supervision period (a signal or request_stop ends it at once)
         finally:
             if session is not None:
                 session.close()
@@ -409,7 +524,7 @@ class ProcessRunner:
         bad = self.ended_badly()
         for label in bad:
             if self.failed is None or not self.failed.startswith(f"{label} "):
-                self._say(f"{label} ended with code {self.children[label].returncode}", "red")
+                self._say(f"{label} ended with {describe_exit(self.children[label].returncode)}", "red")
         return 1 if self.failed or bad else 0
 
 

@@ -65,6 +65,14 @@ def endpoint_config(mode: str = "client", connect: Sequence[str] = (), listen: S
     for e in (*connect, *listen):
         check_endpoint(e)
     cfg = zenoh.Config.from_file(str(base)) if base else zenoh.Config()
+    if base is None:
+        # Zenoh's default (zenoh-python 1.x: transport/shared_memory enabled with
+        # transport_optimization, a 16 MiB pool per session for messages over 3 KB) makes every
+        # same-host peer keep the pool of each session it ever talked to: a router or a mapper
+        # grew ~20 MB per perception restart in the soak (tests/deploy/test_soak.py). Loopback
+        # TCP carries our images well, and containers do not share /dev/shm anyway; a user's
+        # own Zenoh config file decides for itself.
+        cfg.insert_json5("transport/shared_memory/enabled", "false")
     cfg.insert_json5("mode", json.dumps(mode))
     connect = [e for e in connect if e not in listen]  # a router never dials itself
     if connect:

@@ -14,6 +14,12 @@ future, whose publisher's ``seq`` went backwards, or that is older than the map 
 refused, counted (``map_refused``, ``map_refused_<reason>``) and logged, and the map in force is
 kept; ``SafetyStatus.esdf_age_ms`` is the content age, ``esdf_publishers`` the number of
 publishers on ``map/esdf`` lately (2 or more is a fault: a stuck or rogue mapper).
+
+The last word is a brake: on every shutdown the process can act on (SIGINT, SIGTERM, an exception
+that ends the loop) a close hook publishes a zero ``cmd/safe`` with ``fallback="shutdown"`` while
+the session is still open, and a step that raises publishes a zero command with
+``fallback="internal_error"`` before the error is logged. After a SIGKILL nothing can be sent:
+the bridges' watchdogs stop the platform.
 """
 
 from __future__ import annotations
@@ -63,6 +69,7 @@ class FilterNode:
         self.supervisor.filter.warm_up()
         node.log.info("safety filter: %s step ready in %.2f s", self.supervisor.filter.backend,
                       time.perf_counter() - t0)
+        node.on_close(self._brake_on_close)
         model = self.supervisor.filter.model
         node.log.info("safety filter: model %s, %d barrier row(s), δ = %.3f m, %.0f Hz", model.name, model.m,
                       self.supervisor.filter.delta, s.rate_hz)
@@ -121,9 +128,28 @@ class FilterNode:
         if time.monotonic() - self._last_pub >= 0.5 * self.period:
             self._step()
 
+    def _brake(self, reason: str) -> None:
+        """Publish a zero command and a status saying ``reason``, outside the supervisor's tick."""
+        cmd, status = self.supervisor.brake(reason, time.monotonic())
+        self.node.publish(self.node.keys.cmd_safe, cmd)
+        self.node.publish(self.node.keys.safety_status, status)
+        self._last_pub = time.monotonic()
+
+    def _brake_on_close(self) -> None:
+        # The session is still open here (Node.close runs hooks first): without this, the last
+        # cmd/safe of a stopped filter is whatever it last sent, possibly a moving command.
+        self._brake("shutdown")
+        self.node.log.info("safety filter stopping: sent a brake on %s", self.node.keys.cmd_safe)
+
     def _step(self) -> None:
         now = time.monotonic()
-        cmd, status = self.supervisor.tick(now, time.time_ns())
+        try:
+            cmd, status = self.supervisor.tick(now, time.time_ns())
+        except Exception:
+            # A bug in the core must not leave the last moving command in force; the runtime
+            # logs and counts the error (Node._call) and the next step tries again.
+            self._brake("internal_error")
+            raise
         status.risk_errors = int(self.node.stats.get("risk_errors", 0))
         fresh = self.supervisor.freshness
         status.esdf_publishers = fresh.publishers(now)

@@ -152,6 +152,11 @@ class FilterSupervisor:
                               solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now))
         return cmd, status
 
+    def brake(self, reason: str, now: float) -> tuple[VelocityCommand, SafetyStatus]:
+        """A brake decided outside ``tick`` (the node's shutdown, an error in the core), counted
+        like the others."""
+        return self._brake(reason, now, 0.0, 0)
+
     def _brake(self, reason: str, now: float, h: float, rg: int, solve_us: float = 0.0) -> tuple[
             VelocityCommand, SafetyStatus]:
         self._count(reason)

@@ -134,6 +134,14 @@ def test_dependencies_are_started_by_every_profile_of_the_dependent(stack: dict[
             assert set(svc["profiles"]) <= set(stack[dep]["profiles"]), (name, dep)
 
 
+def test_every_service_is_restarted_after_a_crash_in_both_files(stack: dict[str, Any],
+                                                               secure_stack: dict[str, Any]) -> None:
+    # Docker restarts with its own back-off (docs/deployment.md); `no` or a missing policy would
+    # leave a crashed perception or router down for good.
+    for services in (stack, secure_stack):
+        assert {n: s.get("restart") for n, s in services.items()} == {n: "unless-stopped" for n in services}
+
+
 # -- routers ----------------------------------------------------------------------------------
 
 

@@ -132,7 +132,9 @@ def test_install_stages_units_and_settings(tmp_path: Path) -> None:
     node = unit_directives(units / "riskfield@.service")
     assert router["ExecStart"] == ["/opt/riskfield/venv/bin/riskfield run router"]
     assert node["ExecStart"] == ["/opt/riskfield/venv/bin/riskfield run %i"]
-    assert node["Restart"] == ["always"] and "riskfield-router.service" in node["After"][0]
+    assert node["Restart"] == ["on-failure"] and "riskfield-router.service" in node["After"][0]
+    assert node["RestartPreventExitStatus"] == ["2"] and node["StartLimitBurst"] == ["10"]
+    assert router["Restart"] == ["on-failure"] and router["StartLimitIntervalSec"] == ["0"]
     assert "dialout" in node["SupplementaryGroups"][0] and "input" in node["SupplementaryGroups"][0]
     env = Unit(tmp_path, "riskfield@.service", "safety-filter").environment()
     assert env["RISKFIELD_CONNECT"] == "tcp/127.0.0.1:7447" and env["RISKFIELD_ROBOT"] == "limo9"

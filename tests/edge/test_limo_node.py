@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
 import signal
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -11,7 +13,9 @@ from pathlib import Path
 from riskfield.edge.limo import protocol as p
 from riskfield.edge.limo.emulator import ChassisEmulator
 from riskfield.edge.limo.messages import LimoDiagnostics, decode_diagnostics
-from riskfield.protocol import Keys, RobotState, VelocityCommand
+from riskfield.protocol import EsdfGrid, Keys, RobotState, SafetyStatus, VelocityCommand
+from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
+from riskfield.services.geometry.shapes import Sphere
 from riskfield.testing import (
     Collector,
     ServiceProcess,
@@ -22,6 +26,12 @@ from riskfield.testing import (
     wait_alive,
     wait_until,
 )
+
+
+def free_space_map() -> EsdfGrid:
+    """An ESDF around the LIMO's odometry origin with one far obstacle: the filter lets it drive."""
+    far = AnalyticField(Sphere([5.5, 2.5, 0.0], 0.3, planar=True, label=2), groups=["high", "mid", "low"])
+    return to_grid_message(to_esdf(far, [-3, -3, 0], [6, 3, 0], 0.1, planar=True))
 
 
 def cmd(vx: float, wz: float = 0.0) -> VelocityCommand:
@@ -125,3 +135,48 @@ def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str,
             assert node.stop() == 0
         for c in (diags, states, status):
             c.close()
+
+
+def test_after_the_filter_is_sigkilled_the_watchdog_stops_the_chassis(router_endpoint: str, tmp_path: Path) -> None:
+    """The real chain ref → safety filter → cmd/safe → LIMO node → chassis; the filter dies by
+    SIGKILL (no brake of its own can go out): the bridge's watchdog stops the platform within its
+    period (plus one poll and a scheduling margin) of the last command."""
+    robot = f"t_limo_{uuid.uuid4().hex[:6]}"
+    keys = Keys(robot)
+    watchdog_s, poll_s = 0.2, 0.005
+    grid = free_space_map()
+    stop_feed = threading.Event()
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu, client_session(router_endpoint) as s, \
+            start(robot, router_endpoint, emu.port, "--set", f"watchdog_s={watchdog_s}",
+                  "--set", f"poll_s={poll_s}") as node, \
+            ServiceProcess("safety-filter", router_endpoint, ["--robot", robot]) as sf:
+        assert wait_alive(s, keys.alive("limo")) and wait_alive(s, keys.alive("safety-filter")), sf.output
+        status = Collector(s, keys.safety_status, SafetyStatus)
+
+        def feed() -> None:  # a teleop reference and a live mapper (fresh stamps), at 20 Hz (scenario)
+            while not stop_feed.is_set():
+                grid.header.stamp_ns = time.time_ns()
+                put(s, keys.esdf, grid)
+                put(s, keys.cmd_ref, cmd(0.3))
+                stop_feed.wait(0.05)
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        try:
+            assert wait_until(lambda: emu.model.v > 0.1, 20.0), (status.items[-1:], sf.output, node.output)
+            assert status.items[-1].fallback is None
+            t_kill = time.perf_counter()
+            os.kill(sf.proc.pid, signal.SIGKILL)  # the reference keeps asking to move
+            assert wait_until(lambda: emu.model.v == 0.0, 5.0), node.output
+            moving = [t for t, m in emu.frames(p.MotionCommand) if not m.is_stop]
+            stops = [t for t, m in emu.frames(p.MotionCommand) if m.is_stop and t > moving[-1]]
+            assert moving[-1] < t_kill + 0.1  # the last moving frame came from the live filter
+            latency = stops[0] - moving[-1]
+            assert latency <= watchdog_s + 0.15, latency  # the watchdog period + a busy machine's margin
+            print(f"\nwatchdog stop {1e3 * latency:.0f} ms after the last command "
+                  f"({1e3 * (stops[0] - t_kill):.0f} ms after SIGKILL)")
+        finally:
+            stop_feed.set()
+            feeder.join(2)
+            status.close()
+        assert sf.proc.wait(5) == -signal.SIGKILL

@@ -10,7 +10,7 @@ import subprocess
 import sys
 
 from riskfield import __version__
-from riskfield.testing import client_session, free_port, wait_alive
+from riskfield.testing import StatusWatch, client_session, free_port, wait_alive
 
 RF = [sys.executable, "-m", "riskfield"]
 
@@ -70,6 +70,49 @@ def test_up_exits_non_zero_when_a_service_dies():
                         "--config", "/nonexistent/riskfield.yaml"], capture_output=True, text=True, timeout=90)
     assert r.returncode == 1
     assert "exited with code" in r.stderr + r.stdout
+
+
+def _up_and_kill_relay(robot: str, *flags: str) -> tuple[subprocess.Popen, int, StatusWatch, object]:
+    """``riskfield up relay`` with ``flags``; SIGKILL the relay (its pid from its NodeStatus)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([*RF, "up", "relay", "--listen", endpoint, "--robot", robot, *flags],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    session_cm = client_session(endpoint, timeout_s=30)
+    session = session_cm.__enter__()
+    status = StatusWatch(session, f"rf/{robot}/status/relay")
+    pid = status.wait(lambda st: True, 30.0).pid
+    os.kill(pid, signal.SIGKILL)
+    return proc, pid, status, session_cm
+
+
+def test_up_restarts_a_crashed_service_and_a_later_stop_is_clean():
+    proc, pid, status, session_cm = _up_and_kill_relay("t_up_restart", "--backoff", "0.2")
+    try:
+        assert status.wait(lambda st: st.pid != pid, 60.0).pid != pid  # a new relay process serves
+        assert proc.poll() is None
+        status.close()
+        session_cm.__exit__(None, None, None)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    assert out.count("restarting in 0.2 s") == 1 and "relay exited with signal SIGKILL" in out, out
+    assert "router stopped" in out and out.count("relay stopped") == 1
+
+
+def test_up_no_restart_is_fail_fast():
+    proc, _, status, session_cm = _up_and_kill_relay("t_up_failfast", "--no-restart")
+    try:
+        out, _ = proc.communicate(timeout=60)  # returns by itself: the stack stopped
+    finally:
+        status.close()
+        session_cm.__exit__(None, None, None)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1 and "relay exited with code -9; stopping the stack" in out, out
+    assert "restarting" not in out
 
 
 def test_bench_codec_writes_a_summary(tmp_path):

@@ -83,6 +83,16 @@ def test_zenoh_config_has_no_multicast_and_no_self_dial(clean_env):
     assert cfg.get_json("transport/link/tls/enable_mtls") == "true"
 
 
+def test_shared_memory_is_off_unless_a_zenoh_config_file_decides(clean_env, tmp_path):
+    from riskfield.services.runtime import endpoint_config
+
+    shm = "transport/shared_memory/enabled"
+    assert endpoint_config("client", ["tcp/127.0.0.1:9"]).get_json(shm) == "false"
+    own = tmp_path / "zenoh.json5"
+    own.write_text("{transport: {shared_memory: {enabled: true}}}")
+    assert endpoint_config("client", ["tcp/127.0.0.1:9"], base=own).get_json(shm) == "true"
+
+
 def test_latest_slot_keeps_only_the_newest():
     inbox = Inbox()
     slot = inbox.slot("s", "latest")

@@ -231,3 +231,88 @@ def test_a_bad_risk_file_at_start_is_a_configuration_error(router_endpoint, tmp_
         assert wait_until(lambda: not p.alive(), 20)
         assert p.proc.returncode == 2, p.output
         assert "invalid configuration" in p.output
+
+
+# -- the last word is a brake ------------------------------------------------------------------
+
+#: The filter service with a fault injected from outside the shipped modules: once the trigger
+#: file exists, either the supervisor's tick raises (a bug in the core, caught per step by the
+#: runtime) or the node loop itself raises (the process ends with a traceback).
+FAULTY_FILTER = """
+import os, sys
+mode, trigger = sys.argv[1], sys.argv[2]
+from riskfield.services.runtime.node import Node
+from riskfield.services.safety_filter.supervisor import FilterSupervisor
+if mode == "handler":
+    tick = FilterSupervisor.tick
+    def faulty_tick(self, *a, **kw):
+        if os.path.exists(trigger):
+            raise RuntimeError("injected fault in the core")
+        return tick(self, *a, **kw)
+    FilterSupervisor.tick = faulty_tick
+else:
+    timers = Node._run_due_timers
+    def faulty_timers(self):
+        if os.path.exists(trigger):
+            raise RuntimeError("injected fault in the loop")
+        return timers(self)
+    Node._run_due_timers = faulty_timers
+from riskfield.cli import app
+app(prog_name="riskfield", args=sys.argv[3:])
+"""
+
+
+def _moving(session, robot: str, proc) -> tuple[Collector, Collector]:
+    """Collectors of cmd/safe and safety/status once the filter passes a moving command."""
+    assert wait_alive(session, f"rf/{robot}/alive/safety-filter"), proc.output
+    status = Collector(session, f"rf/{robot}/safety/status", SafetyStatus)
+    cmds = Collector(session, f"rf/{robot}/cmd/safe", VelocityCommand)
+    wait_fallback(status, None)
+    assert wait_until(lambda: cmds.items and cmds.items[-1].linear[0] > 0.05), cmds.items[-3:]
+    return status, cmds
+
+
+def _last_word_is_a_brake(status: Collector, cmds: Collector, reason: str) -> None:
+    # cmd/safe goes out before the status on one session: once the status arrived, so did the command.
+    assert wait_until(lambda: any(s.fallback == reason for s in status.items), 10.0), status.items[-3:]
+    last = cmds.items[-1]
+    assert last.linear == (0, 0, 0) and last.angular == (0, 0, 0) and last.source == "safety-filter"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_the_last_cmd_safe_after_a_stop_signal_is_a_brake(router_endpoint, sig):
+    robot = f"t_sf_last_{sig.name.lower()}"
+    with ServiceProcess("safety-filter", router_endpoint, ["--robot", robot]) as proc, \
+            client_session(router_endpoint) as session, Feeder(session, robot):
+        status, cmds = _moving(session, robot, proc)
+        assert proc.stop(sig) == 0, proc.output  # while the reference still asks to move
+        _last_word_is_a_brake(status, cmds, "shutdown")
+        assert "sent a brake" in proc.output
+
+
+@pytest.mark.parametrize("mode", ["handler", "loop"])
+def test_an_exception_in_a_step_brakes_and_one_that_ends_the_loop_brakes_last(router_endpoint, tmp_path, mode):
+    from riskfield.testing import Child, service_argv
+
+    robot, trigger = f"t_sf_fault_{mode}", tmp_path / f"fault-{mode}"
+    argv = service_argv("safety-filter", ["--connect", router_endpoint, "--robot", robot])
+    argv[1:3] = ["-c", FAULTY_FILTER, mode, str(trigger)]  # the same CLI, behind the injection
+    proc = Child(mode, "safety-filter", argv).start()
+    try:
+        with client_session(router_endpoint) as session, Feeder(session, robot):
+            status, cmds = _moving(session, robot, proc)
+            trigger.touch()
+            if mode == "handler":  # every step fails now, and every one of them brakes
+                _last_word_is_a_brake(status, cmds, "internal_error")
+                n = len(cmds.items)
+                assert wait_until(lambda: len(cmds.items) >= n + 3), proc.output
+                assert all(c.linear == (0, 0, 0) for c in cmds.items[n - 1:])
+                assert proc.alive() and "injected fault in the core" in proc.output
+                assert proc.stop(signal.SIGTERM)[0] == 0
+                _last_word_is_a_brake(status, cmds, "shutdown")
+            else:  # the loop dies: the close hook still sends the brake
+                assert wait_until(lambda: not proc.alive(), 15.0), proc.output
+                assert proc.returncode not in (0, None) and "injected fault in the loop" in proc.output
+                _last_word_is_a_brake(status, cmds, "shutdown")
+    finally:
+        proc.stop(signal.SIGKILL, timeout_s=5.0)
