@@ -93,6 +93,21 @@ class EsdfIntegrator:
         """3-D field from the per-voxel obstacle group map; returns (distance f4, risk_group u1)."""
         return self._field3d(groups, margins)
 
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the 3-D passes before serving: on a small grid whose
+        group boxes are parts of it (strided views) and one where a box is all of it."""
+        if self.config.esdf_kernel != "numba":
+            return
+        margins = np.array([0.0, 0.1, 0.0])
+        groups = np.zeros((24, 24, 24), np.uint8)
+        groups[:, :, 0:4] = 2  # deep base group
+        groups[2, 2, 6] = 1
+        self._field3d(groups, margins)
+        self._field3d(np.ones((2, 2, 2), np.uint8), np.array([0.0, 0.1]))
+        groups[:] = 0
+        groups[0, 0, 0], groups[-1, -1, -1] = 1, 2
+        self._field3d(groups, margins)
+
     def compute_reference(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``compute`` by the numpy path (``esdf_kernel = "numpy"``): the cross-check of the compiled one."""
         return self._field(self._masks(groups, margins.shape[0] - 1), margins, shape=groups.shape)
@@ -158,6 +173,8 @@ class EsdfIntegrator:
 
         v, dmax = c.voxel_size, c.max_distance
         groups = np.ascontiguousarray(groups, dtype=np.uint8)
+        if not groups.flags.writeable:  # one compiled signature (numba types read-only arrays apart)
+            groups = groups.copy()
         if int(groups.max(initial=0)) > n_groups:
             groups = np.where(groups > n_groups, 0, groups).astype(np.uint8)  # as _masks: unknown ids are free
         local, lo, hi, depth = k.scan(groups, n_groups, np.float32(v))
