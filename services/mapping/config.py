@@ -152,6 +152,9 @@ class EsdfParams(BaseModel):
     esdf_update: Literal["incremental", "full"] = "incremental"
     """3-D grid: ``incremental`` recomputes only the box the changed voxels can reach (max_distance
     + the largest margin), ``full`` the whole grid every time (the same result)."""
+    esdf_kernel: Literal["numba", "numpy"] = "numba"
+    """3-D exact field: ``numba`` compiled passes around the EDTs (``esdf_kernels``), ``numpy`` the
+    array-operation path (the cross-check; the same result)."""
 
     @model_validator(mode="after")
     def _band_order(self) -> EsdfParams:

@@ -91,6 +91,25 @@ class EsdfIntegrator:
     # -- the two public forms ---------------------------------------------------------------
     def compute(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """3-D field from the per-voxel obstacle group map; returns (distance f4, risk_group u1)."""
+        return self._field3d(groups, margins)
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the 3-D passes before serving: on a small grid whose
+        group boxes are parts of it (strided views) and one where a box is all of it."""
+        if self.config.esdf_kernel != "numba":
+            return
+        margins = np.array([0.0, 0.1, 0.0])
+        groups = np.zeros((24, 24, 24), np.uint8)
+        groups[:, :, 0:4] = 2  # deep base group
+        groups[2, 2, 6] = 1
+        self._field3d(groups, margins)
+        self._field3d(np.ones((2, 2, 2), np.uint8), np.array([0.0, 0.1]))
+        groups[:] = 0
+        groups[0, 0, 0], groups[-1, -1, -1] = 1, 2
+        self._field3d(groups, margins)
+
+    def compute_reference(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``compute`` by the numpy path (``esdf_kernel = "numpy"``): the cross-check of the compiled one."""
         return self._field(self._masks(groups, margins.shape[0] - 1), margins, shape=groups.shape)
 
     def update(self, groups: np.ndarray, margins: np.ndarray, previous_groups: np.ndarray,
@@ -123,7 +142,7 @@ class EsdfIntegrator:
             return dist, grp, groups.size
         counts = np.bincount(groups.ravel(), minlength=n_groups + 1)
         sub = groups[in_box]
-        d_sub, g_sub = self._field(self._masks(sub, n_groups), margins, shape=sub.shape, counts=counts)
+        d_sub, g_sub = self._field3d(sub, margins, counts=counts)
         inner = tuple(slice(o.start - i.start, o.stop - i.start) for o, i in zip(out_box, in_box, strict=True))
         dist, grp = previous[0].copy(), previous[1].copy()
         dist[out_box] = d_sub[inner]
@@ -142,6 +161,64 @@ class EsdfIntegrator:
         return dist[:, :, None], grp[:, :, None]
 
     # -- internals ------------------------------------------------------------------------------
+    def _field3d(self, groups: np.ndarray, margins: np.ndarray,
+                 counts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The 3-D field of a group map by the compiled kernels (``esdf_kernels``), when configured
+        and exact inflation; else by ``_field``. The same steps and float32 arithmetic as ``_field``."""
+        c = self.config
+        n_groups = margins.shape[0] - 1
+        if c.esdf_kernel != "numba" or c.inflation != "exact" or groups.ndim != 3:
+            return self._field(self._masks(groups, n_groups), margins, shape=groups.shape, counts=counts)
+        from . import esdf_kernels as k
+
+        v, dmax = c.voxel_size, c.max_distance
+        groups = np.ascontiguousarray(groups, dtype=np.uint8)
+        if not groups.flags.writeable:  # one compiled signature (numba types read-only arrays apart)
+            groups = groups.copy()
+        if int(groups.max(initial=0)) > n_groups:
+            groups = np.where(groups > n_groups, 0, groups).astype(np.uint8)  # as _masks: unknown ids are free
+        local, lo, hi, depth = k.scan(groups, n_groups, np.float32(v))
+        present = [g for g in range(1, n_groups + 1) if local[g] > 0]
+        if not present:
+            return np.full(groups.shape, dmax, dtype=np.float32), np.zeros(groups.shape, dtype=np.uint8)
+        union = groups != 0
+        m_min = min(float(margins[g]) for g in present)
+        size = local if counts is None else counts
+        base = max((g for g in present if float(margins[g]) == m_min), key=lambda g: (int(size[g]), -g))
+        e: np.ndarray | None = None
+        if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _inside)
+            pad = math.ceil((dmax + v) / v) + 1
+            dbox = tuple(slice(max(int(lo[n_groups + 1, a]) - pad, 0), min(int(hi[n_groups + 1, a]) + pad + 1, n))
+                         for a, n in enumerate(groups.shape))
+            if math.prod(s.stop - s.start for s in dbox) > groups.size // 2:
+                e = self._edt(union.view(np.uint8) + np.uint8(1))
+            else:
+                d = depth[dbox]
+                deep = d < 0
+                d[deep] = self._edt(union[dbox].view(np.uint8))[deep]
+        if e is None:
+            e = self._edt((~union).view(np.uint8))
+        half = np.float32(0.5 * v)
+        dist = k.base_term(groups, depth, e, base, half, np.float32(m_min))
+        grp = np.full(groups.shape, base, dtype=np.uint8)
+        for g in sorted(present, reverse=True):
+            if g == base:
+                continue
+            m_g = float(margins[g])
+            far = dmax + m_g + 0.5 * v
+            pad = math.ceil(far / v) + 1
+            llo = np.maximum(lo[g] - pad, 0)
+            lhi = np.minimum(hi[g] + pad + 1, np.asarray(groups.shape))
+            blo, bhi = k.reach_box(e, lo[g], hi[g], llo, lhi, np.float32(m_g - m_min), np.float32(far),
+                                   np.float32(v))
+            box = tuple(slice(int(a), int(b)) for a, b in zip(blo, bhi, strict=True))
+            sub = groups[box]
+            s = self._edt((sub != g).view(np.uint8))
+            k.combine(sub, depth[box], s, dist[box], grp[box], g, base, half, np.float32(m_g),
+                      np.float32(0.5 * v + m_g))
+        k.clip(dist, grp, np.float32(dmax))
+        return dist, grp
+
     @staticmethod
     def _masks(groups: np.ndarray, n_groups: int) -> dict[int, np.ndarray]:
         counts = np.bincount(groups.ravel(), minlength=n_groups + 1)

@@ -185,6 +185,7 @@ class Mapper:
         c = self.config
         semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
                            fill_steps=1)
+        self.esdf_integrator.warm_up()
 
     # -- outputs --------------------------------------------------------------------------------
     def occupancy(self) -> np.ndarray:
