@@ -4,9 +4,9 @@
 numpy — the same barrier points (and their predicted positions), the same query of an
 :class:`~riskfield.services.fields.grid.EsdfField` (stencil, border extrapolation, trilinear or
 cubic kernel of ``fields.spline``), the same CBF rows per model, the same dropping of rows that
-hold on the whole box, the same dual active-set QP (``qp.ActiveSetSolver``) and slack
-relaxation — in a single ``numba.njit`` function over preallocated buffers, so a step
-allocates nothing in Python but its result.
+hold on the whole box, the same dual active-set QP (``qp.ActiveSetSolver``), the soft
+predictive rows and the slack relaxation — in a single ``numba.njit`` function over
+preallocated buffers, so a step allocates nothing in Python but its result.
 
 It is an accelerator, not a second definition: wherever the compiled step would leave the
 numpy path's well-trodden cases it hands the step back (:data:`HANDBACK`) and the numpy path
@@ -617,6 +617,25 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
                 best_score = score
                 for j in range(n):
                     u_bk[j] = u_c[j]
+        # filter's soft predictive rows: first relax only the rows ahead (rsrc2 ≥ m) that the backup
+        # violates, keeping the current rows hard; B keeps the live rows' b meanwhile.
+        soft = False
+        for i in range(nlive):
+            B[i] = B2[i]
+            if rsrc2[i] >= m:
+                ab = 0.0
+                for j in range(n):
+                    ab += A2[i, j] * u_bk[j]
+                if B2[i] > ab:
+                    B2[i] = ab
+                    soft = True
+        if soft:
+            status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
+            if status == 2:
+                out_i[0] = HANDBACK
+                return
+            for i in range(nlive):
+                B2[i] = B[i]
         blind = False
         for i in range(nlive):
             ab = 0.0
@@ -627,7 +646,7 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
             if B2[i] > ab and amax <= 1e-9:
                 blind = True
             B2[i] = min(B2[i], ab)
-        if not blind:
+        if status == 1 and not blind:
             status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
             code = SLACK
             if status == 2:
