@@ -27,11 +27,9 @@ import numpy as np
 from riskfield.experiments import authors as A
 from riskfield.experiments.metrics import Rollout, matched, summarise
 from riskfield.experiments.safersplat import EllipsoidBarrier, fit_gaussians
-from riskfield.experiments.safety_benchmark import Frame, _warm_up, camera_poses, make_case
+from riskfield.experiments.safety_benchmark import Frame, camera_poses, integrate_within_budget, make_case
 from riskfield.protocol import RiskConfig
 from riskfield.services.fields import EsdfField
-from riskfield.services.mapping.config import MapperConfig
-from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.navigator.clf import DoubleIntegratorCLF
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
@@ -64,20 +62,7 @@ def esdf_variants(case, frames: Sequence[Frame], budget_s: float, voxel: float, 
                   modes: Sequence[str], scene: bool = False) -> tuple[dict[str, EsdfField], dict]:
     """The ESDF variants from one semantic TSDF fed within the budget: ``plain``, ``target:<tier>``
     for each tier with a non-zero margin, ``scene``."""
-    half = tuple(float(h) for h in (case.hi - case.lo) / 2 + 0.3)
-    mc = MapperConfig(voxel_size=voxel, half_extent=half, output="3d", recentre_distance=1e3, pixel_stride=1,
-                      max_distance=2.0)
-    _warm_up(mc, risk, frames[0])
-    mapper = Mapper(mc, risk)
-    mapper.set_robot_position((case.lo + case.hi) / 2)
-    used, spent = 0, 0.0
-    for f in frames:
-        if spent >= budget_s:
-            break
-        t0 = time.perf_counter()
-        mapper.integrate(f.points, f.confidence, f.labels, f.T_WC)
-        spent += time.perf_counter() - t0
-        used += 1
+    mapper, used, spent = integrate_within_budget(case, frames, budget_s, voxel, risk)
     variants: list[tuple[str, RiskConfig]] = [("plain", A.only_tier(risk, None))]
     if "target" in modes:
         variants += [(f"target:{g.name}", A.only_tier(risk, g.name)) for g in risk.groups if g.margin > 0]

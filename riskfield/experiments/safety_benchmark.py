@@ -326,17 +326,16 @@ def zero_margins(risk: RiskConfig) -> RiskConfig:
     return risk.model_copy(update={"groups": [g.model_copy(update={"margin": 0.0}) for g in risk.groups]})
 
 
-def build_esdf_maps(case: SceneCase, frames: Sequence[Frame], budget_s: float, cfg: BenchConfig,
-                    risk: RiskConfig) -> list[BuiltMap]:
-    """Both ESDF variants from one semantic TSDF fed within the budget: the variants differ
-    only in the inflation margins applied before the ESDF, so they share the integration."""
-
+def integrate_within_budget(case: SceneCase, frames: Sequence[Frame], budget_s: float, voxel: float,
+                            risk: RiskConfig) -> tuple[Mapper, int, float]:
+    """One semantic TSDF over the whole room (a fixed volume), fed the stream in order until its
+    integration time exceeds the budget: the mapper, the frames used and the seconds spent."""
     half = tuple(float(h) for h in (case.hi - case.lo) / 2 + 0.3)
-    mc = MapperConfig(voxel_size=cfg.voxel, half_extent=half, output="3d", recentre_distance=1e3, pixel_stride=1,
+    mc = MapperConfig(voxel_size=voxel, half_extent=half, output="3d", recentre_distance=1e3, pixel_stride=1,
                       max_distance=2.0)
     _warm_up(mc, risk, frames[0])
     mapper = Mapper(mc, risk)
-    mapper.set_robot_position((case.lo + case.hi) / 2)  # a fixed volume over the whole room
+    mapper.set_robot_position((case.lo + case.hi) / 2)
     used, spent = 0, 0.0
     for f in frames:
         if spent >= budget_s:
@@ -345,6 +344,14 @@ def build_esdf_maps(case: SceneCase, frames: Sequence[Frame], budget_s: float, c
         mapper.integrate(f.points, f.confidence, f.labels, f.T_WC)
         spent += time.perf_counter() - t0
         used += 1
+    return mapper, used, spent
+
+
+def build_esdf_maps(case: SceneCase, frames: Sequence[Frame], budget_s: float, cfg: BenchConfig,
+                    risk: RiskConfig) -> list[BuiltMap]:
+    """Both ESDF variants from one semantic TSDF fed within the budget: the variants differ
+    only in the inflation margins applied before the ESDF, so they share the integration."""
+    mapper, used, spent = integrate_within_budget(case, frames, budget_s, cfg.voxel, risk)
     out = []
     for method, r in ((ESDF, zero_margins(risk)), (SEMANTIC, risk)):
         mapper.set_risk_config(r)
