@@ -184,7 +184,7 @@ def test_the_same_rollouts_without_the_filter_collide(model_name):
 # filter drives on the published ESDF for 200 steps from states it can stop from, with random
 # references. The body's clearance, measured on the *true* geometry, never goes below zero.
 #
-# The unicycle reads the ground robot's 2-D slice, the double integrator the 3-D grid; both use
+# Ground models (unicycle, single2d) read the 2-D slice, the others the 3-D grid; all use
 # the node's defaults (footprint, braking barrier, B-spline field, slack fallback). The helpers
 # (start states, references, closed loop) are those of the analytic-field property test.
 
@@ -242,7 +242,7 @@ def mapped_start(rng: np.random.Generator, filt: SafetyFilter, truth: AnalyticFi
                  near: bool) -> FilterState | None:
     """A state the robot can stop from (on the truth, and in the filter's own view of the map)."""
     model = filt.model
-    planar = model.name == "unicycle"
+    planar = model.name in ("unicycle", "single2d")
     for _ in range(2000):
         p = np.array([*rng.uniform(0.2, 2.8, 2), 0.0 if planar else rng.uniform(0.2, 0.7)])
         s = FilterState.planar(p[0], p[1], rng.uniform(-math.pi, math.pi), p[2])
@@ -265,12 +265,12 @@ def true_clearance(filt: SafetyFilter, truth: AnalyticField, s: FilterState) -> 
     return float((truth.query(filt.model.points(s)[b]).distance - filt.model.radius[b]).min())
 
 
-@pytest.mark.parametrize("model_name", ["unicycle", "double3d"])
+@pytest.mark.parametrize("model_name", MODELS)
 @settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31), near=st.booleans())
 def test_the_body_never_touches_what_the_mapper_mapped(model_name, seed, near):
     rng = np.random.default_rng(seed)
-    planar = model_name == "unicycle"
+    planar = model_name in ("unicycle", "single2d")
     filt = SafetyFilter(FilterConfig(model=model_name), no_margins())
     scene, truth = mapped_layout(rng, planar)
     field = mapped(scene, planar)
