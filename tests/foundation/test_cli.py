@@ -9,6 +9,8 @@ import signal
 import subprocess
 import sys
 
+import pytest
+
 from riskfield import __version__
 from riskfield.testing import StatusWatch, client_session, free_port, wait_alive
 
@@ -209,6 +211,7 @@ def test_missing_router_is_said_once_with_a_countdown_and_no_rust_paths():
     assert "no Zenoh router at" in r.stderr and ".rs:" not in r.stderr and "cargo" not in r.stderr
 
 
+@pytest.mark.slow
 def test_examples_ship_in_the_sdist(tmp_path):
     from pathlib import Path
 

@@ -7,6 +7,7 @@ import signal
 import time
 
 import numpy as np
+import pytest
 
 from riskfield.protocol import NavGoal, NodeStatus, RobotState, VelocityCommand
 from riskfield.testing import (
@@ -26,6 +27,7 @@ def state(x: float, y: float, yaw: float) -> RobotState:
                       linear_velocity=(0.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.0))
 
 
+@pytest.mark.slow
 def test_closed_loop_over_zenoh_reaches_goal_and_stops(router_endpoint):
     robot = "t_nav_loop"
     args = ["--robot", robot, "--set", "rate_hz=50", "--set", "nav.v_max=0.8", "--set", "stop_hold_s=30"]

@@ -295,6 +295,7 @@ def test_replay_cli_refuses_bad_remaps(tmp_path):
 # -- crash safety and damaged files -------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_recorder_killed_loses_at_most_about_a_second(router_endpoint, tmp_path):
     robot = "t_kill"
     args = ["--robot", robot, "--set", f"out={tmp_path}", "--set", "status_period_s=0.1"]

@@ -23,6 +23,9 @@ from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.state import FilterState
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
 
+# Each drives a simulated LIMO through the filter process for up to 300 control periods.
+pytestmark = pytest.mark.slow
+
 GROUPS = ["high", "mid", "low"]
 CORNERS = np.array([[sx * LIMO_LENGTH / 2, sy * LIMO_WIDTH / 2, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
 
