@@ -1,7 +1,7 @@
 """Zenoh session from node settings: mode, endpoints, scouting, TLS, user/password.
 
 ``endpoint_config`` is the one Zenoh config builder: nodes (``zenoh_config``), the test
-helpers (``riskfield.testing``), the fault-drill agents and the codec bench all use it.
+helpers (``riskfield/testing.py``), the fault-drill agents and the codec bench all use it.
 """
 
 from __future__ import annotations
