@@ -1,6 +1,6 @@
 """Services as processes: the one process runner, and the client-side helpers around it.
 
-Used by ``riskfield up``, ``riskfield demo``, the experiments' stack and ``riskfield.testing``.
+Used by ``riskfield up``, ``riskfield demo``, the experiments' stack and the test helpers (``riskfield/testing.py``).
 
 * **Spawn model.** A Zenoh session must never be forked once open (its runtime threads do not
   survive a ``fork``), so every service starts as a *new interpreter*
