@@ -26,6 +26,7 @@ from riskfield.protocol import ENCODING, DecodeError, Keys, Limits, Message, Nod
 
 from .inbox import Inbox, QueueKind, Slot
 from .logs import RateLimitedLog, setup_logging
+from .memory import HeapTrimmer
 from .session import open_session
 from .settings import NodeSettings
 from .signals import catch_stop_signals
@@ -99,6 +100,9 @@ class Node:
         # waiting for readiness, a supervisor or an operator needs to know.
         self._token: Any = None
         self.every(settings.status_period_s, self._publish_status)
+        self._heap = HeapTrimmer()
+        if settings.heap_trim_s > 0 and self._heap.available:
+            self.every(settings.heap_trim_s, self._heap)
 
     # -- declarations -----------------------------------------------------------------------
     def backlog(self, key: str) -> int:
@@ -312,6 +316,7 @@ class Node:
         extra = {k: float(v) for k, v in self.stats.items() if np.isfinite(v)}
         # Wildcard (or otherwise foreign-keyed) puts dropped by the runtime, all subscriptions.
         extra["wildcard_dropped"] = extra.get("wildcard_dropped", 0.0) + sum(s.foreign for s in self._subs)
+        extra["heap_trimmed_kb"] = float(self._heap.released_kb)
         return NodeStatus(
             service=self.service,
             pid=os.getpid(),

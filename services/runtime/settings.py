@@ -302,6 +302,9 @@ class NodeSettings(BaseSettings):
     connect_timeout_s: float = Field(default=30.0, gt=0)
     log_level: str = "INFO"
     status_period_s: float = Field(default=1.0, gt=0)
+    heap_trim_s: float = Field(default=1.0, ge=0, description=(
+        "period of returning freed heap to the OS (glibc malloc_trim; 0 = never): keeps a long-running "
+        "node's RSS its live memory (runtime/memory.py)"))
 
     @field_validator("connect", "listen", mode="before")
     @classmethod

@@ -4,9 +4,9 @@ perception SIGKILLed every 60 s and restarted by the runner.
 Shows, over ``RISKFIELD_SOAK_S`` seconds (default 600; CI runs the full 10 minutes through
 ``make test``, a developer may run it shorter):
 
-* memory: each service's RSS (``/proc/<pid>/status`` VmRSS) grows < 5 % from 60 s after start
-  to the end; the router (which steps up at some reconnects, then plateaus) < 10 % and flat over
-  the last third of the run. Perception is excluded from that bound: it is killed every 60 s, so no incarnation
+* memory: each service's RSS (``/proc/<pid>/status`` VmRSS, sampled every 5 s; a level is the
+  median over a minute, see ``rss_level``) grows < 5 % from 60 s after start to the end, the
+  router included. Perception is excluded from that bound: it is killed every 60 s, so no incarnation
   lives past the 60 s warm-up the bound starts from; its RSS is reported per incarnation (just
   before each kill) instead;
 * a brake (``SafetyStatus.fallback`` set, ``cmd/safe`` zero) within 0.5 s of every kill;
@@ -40,7 +40,8 @@ pytestmark = pytest.mark.slow
 SOAK_S = float(os.environ.get("RISKFIELD_SOAK_S", "600"))
 KILL_EVERY_S = 60.0
 WARMUP_S = 60.0
-SAMPLE_EVERY_S = 10.0
+SAMPLE_EVERY_S = 5.0
+LEVEL_WINDOW_S = 60.0  # an RSS level is the median of the samples over this long
 BRAKE_WITHIN_S = 0.5
 RSS_GROWTH = 0.05
 MOVING = 0.02  # m/s: cmd/safe faster than this is motion
@@ -53,6 +54,17 @@ def rss_kb(pid: int) -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     raise RuntimeError(f"no VmRSS for pid {pid}")
+
+
+def rss_level(series: list[dict], label: str, t_from: float, t_to: float) -> int | None:
+    """The median RSS (kB) of ``label`` over the samples in ``[t_from, t_to)`` s, None if none.
+
+    A process that forwards large messages (the router, every perception frame) holds a few MB
+    more or less at any instant, depending on what is in flight: one sample at 60 s and one at
+    the end differ by that noise (±3 MB of the router's ~75 MB measured here). The median over a
+    minute of samples is the level the growth bound compares."""
+    values = sorted(s[label] for s in series if label in s and t_from <= s["t_s"] < t_to)
+    return values[len(values) // 2] if values else None
 
 
 class Timeline:
@@ -184,16 +196,22 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
         runner.request_stop()
         watcher.join(120)
     for r in rss.values():
-        r["growth_pct"] = round(100.0 * (r["end_kb"] - r["warm_kb"]) / r["warm_kb"], 2)
+        r["point_growth_pct"] = round(100.0 * (r["end_kb"] - r["warm_kb"]) / r["warm_kb"], 2)
+    for label, r in rss.items():
+        r["warm_level_kb"] = rss_level(series, label, WARMUP_S, WARMUP_S + LEVEL_WINDOW_S) or r["warm_kb"]
+        r["end_level_kb"] = rss_level(series, label, SOAK_S - LEVEL_WINDOW_S, SOAK_S) or r["end_kb"]
+        r["growth_pct"] = round(100.0 * (r["end_level_kb"] - r["warm_level_kb"]) / r["warm_level_kb"], 2)
     report = {"duration_s": SOAK_S, "kill_every_s": KILL_EVERY_S, "rss": rss, "perception_rss": perception_rss,
               "kills": kills, "watch_exit": code,
               "rss_series_kb": series}
     (tmp_path / "soak.json").write_text(json.dumps(report, indent=2) + "\n")
     with capsys.disabled():
         print(f"\nsoak {SOAK_S:.0f} s, perception SIGKILLed every {KILL_EVERY_S:.0f} s ({tmp_path / 'soak.json'})")
-        print(f"{'service':<14}{'RSS @60 s kB':>14}{'RSS end kB':>12}{'growth %':>10}")
+        print(f"{'service':<14}{'RSS @60 s kB':>14}{'RSS end kB':>12}{'point %':>9}"
+              f"{'level 60-120 s':>16}{'level last 60 s':>17}{'growth %':>10}")
         for label, r in rss.items():
-            print(f"{label:<14}{r['warm_kb']:>14}{r['end_kb']:>12}{r['growth_pct']:>10.2f}")
+            print(f"{label:<14}{r['warm_kb']:>14}{r['end_kb']:>12}{r['point_growth_pct']:>9.2f}"
+                  f"{r['warm_level_kb']:>16}{r['end_level_kb']:>17}{r['growth_pct']:>10.2f}")
         print("perception RSS per incarnation (kB, at its kill / at the end): "
               + ", ".join(f"{p['rss_kb']} ({p['lived_s']:.0f} s)" for p in perception_rss))
         print(f"{'kill at s':>10}{'brake ms':>10}{'restart s':>11}{'resume s':>10}")
@@ -204,12 +222,8 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
     assert runner.children["perception"].restarts == len(kills)
     assert all(k["brake_ms"] <= 1e3 * BRAKE_WITHIN_S for k in kills), kills
     if SOAK_S > WARMUP_S:
-        assert all(r["growth_pct"] < 100 * RSS_GROWTH for label, r in rss.items() if label != "router"), rss
-        # The router forwards every (large) perception frame; at some of perception's reconnects its
-        # RSS steps up by 1-4 MB and then stays flat (measured: +5.6 % and +6.8 % over 5 and 10 min,
-        # the last minutes flat). Not yet under the 5 % bar (issue 19 stays open for it); what is
-        # asserted is that it is no leak: bounded, and flat over the last third of the run.
-        router = [s["router"] for s in series if "router" in s and s["t_s"] >= WARMUP_S]
-        tail = router[len(router) * 2 // 3:]
-        assert rss["router"]["growth_pct"] < 10.0, rss
-        assert len(tail) < 2 or max(tail) <= 1.01 * tail[0], router
+        # Every service, the router included: it forwards every (large) perception frame, and
+        # each restarted perception is a new session with new transport buffers. Without the
+        # runtime's heap trimming (``heap_trim_s``, runtime/memory.py) glibc kept those freed
+        # buffers resident and the router grew 5.6-10.4 % here, flat between restarts.
+        assert all(r["growth_pct"] < 100 * RSS_GROWTH for r in rss.values()), rss

@@ -1,0 +1,67 @@
+"""Giving freed heap back to the operating system, so a long-running node's RSS is its live memory.
+
+Why: glibc's malloc keeps freed memory in its arenas and returns it to the kernel only from the top
+of the main heap. A node that handles large messages from many sessions over its life (the router
+forwards every perception frame, and a restarted perception is a new session with new transport
+buffers) frees megabytes that sit between live blocks and stay resident. The soak
+(``tests/deploy/test_soak.py``) measured the router growing 5.6-10.4 % over 10 minutes of
+perception restarts, flat between restarts: fragmentation, not a leak.
+
+``malloc_trim(0)`` (glibc >= 2.8) returns every whole free page of every arena with
+``madvise(MADV_DONTNEED)``; measured 0.02 ms median, 0.6 ms worst on a fragmented 1 GB heap here,
+so a node calls it every second on its loop (``NodeSettings.heap_trim_s``). On other C libraries (musl, macOS) there is
+no such call and ``HeapTrimmer.available`` is False: trimming is a no-op there.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from collections.abc import Callable
+
+_PAGE_KB = os.sysconf("SC_PAGE_SIZE") // 1024 if hasattr(os, "sysconf") else 4
+
+
+def _malloc_trim() -> Callable[[int], int] | None:
+    try:
+        fn = getattr(ctypes.CDLL(None), "malloc_trim", None)
+    except OSError:
+        return None
+    if fn is None:
+        return None
+    fn.argtypes = [ctypes.c_size_t]
+    fn.restype = ctypes.c_int
+    return fn
+
+
+def rss_kb() -> int:
+    """This process's resident set size in kB (0 where ``/proc`` is absent)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * _PAGE_KB
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+class HeapTrimmer:
+    """Calls ``malloc_trim(0)`` and keeps count of what it gave back (for ``NodeStatus.extra``)."""
+
+    def __init__(self) -> None:
+        self._trim = _malloc_trim()
+        self.trims = 0
+        self.released_kb = 0
+
+    @property
+    def available(self) -> bool:
+        return self._trim is not None
+
+    def __call__(self) -> int:
+        """Trim once; the kB of RSS it released (0 when nothing was free or trimming is unavailable)."""
+        if self._trim is None:
+            return 0
+        before = rss_kb()
+        self._trim(0)
+        released = max(0, before - rss_kb())
+        self.trims += 1
+        self.released_kb += released
+        return released
