@@ -47,7 +47,7 @@ class MapFreshness:
     """Admission and content age of maps; pure (every time is an argument)."""
 
     timeout_s: float = 0.3
-    clock_tolerance_s: float = 0.2
+    clock_tolerance_s: float = 0.1
     window_s: float = 2.0
     stamp_ns: int | None = None  # content stamp of the map in force
     refused: dict[str, int] = field(default_factory=dict)

@@ -23,7 +23,10 @@ class FilterSettings(NodeSettings, FilterConfig):
     ref_timeout_s: Seconds = 0.2
     clock_tolerance_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False, description=(
         "how far the clock that stamped the map may be from this one: the map's content age "
-        "(now - header stamp) may reach map_timeout_s + clock_tolerance_s"))] = 0.2
+        "(now - header stamp) may reach map_timeout_s + clock_tolerance_s"))] = 0.1
+    # 0.1 s: one host has no offset and chrony on a LAN a few ms, while the sum with map_timeout_s
+    # (0.4 s) bounds how long the robot drives on after perception dies, the last map's
+    # perception latency included (tests/deploy/test_soak.py: a brake within 0.5 s of the kill).
     risk_file: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
     risk_poll_s: Seconds = 1.0
     max_map_bytes: Annotated[int, Field(gt=0)] = 64 * 1024 * 1024

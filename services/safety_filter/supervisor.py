@@ -51,7 +51,7 @@ class FilterSupervisor:
     """Tracks the inputs and turns them into (cmd/safe, safety/status) on every tick."""
 
     def __init__(self, filt: SafetyFilter, map_timeout_s: float = 0.3, state_timeout_s: float = 0.3,
-                 ref_timeout_s: float = 0.2, clock_tolerance_s: float = 0.2):
+                 ref_timeout_s: float = 0.2, clock_tolerance_s: float = 0.1):
         self.filter = filt
         self.freshness = MapFreshness(map_timeout_s, clock_tolerance_s, window_s=max(2.0, 5 * map_timeout_s))
         self._wall_ns: int | None = None  # the wall clock of the current tick, when the caller gives it
