@@ -231,8 +231,13 @@ def pipeline_stages(stamped: dict[str, list[tuple[float, float]]],
 
 
 #: The nodes' own timing of each stage's work, from their status snapshots: label → (service, stat).
-STAGE_WORK = {"simulator render": ("simulator", "render_ms"), "perception process": ("perception", "process_ms"),
-              "mapping integrate": ("mapping", "integrate_ms"), "mapping ESDF update": ("mapping", "total_ms")}
+STAGE_WORK = {"simulator render": ("simulator", "render_ms"),
+              "perception: stamp → processing starts": ("perception", "start_age_ms"),
+              "perception process": ("perception", "process_ms"),
+              "mapping: stamp → frame arrives": ("mapping", "frame_arrival_age_ms"),
+              "mapping: frame arrives → handled (queue, decode)": ("mapping", "frame_wait_ms"),
+              "mapping integrate": ("mapping", "integrate_ms"), "mapping ESDF update": ("mapping", "total_ms"),
+              "mapping: stamp → ESDF published": ("mapping", "esdf_content_age_ms")}
 
 
 def latency_summary(stamped: dict[str, list[tuple[float, float]]], safe_t: list[float],
@@ -261,7 +266,7 @@ def latency_table(lat: dict[str, Any], title: str = "Camera frame → safe comma
     def mp(s: dict[str, float] | None) -> str:
         return "–" if s is None else f"{s['median']:.1f} / {s['p99']:.1f}"
 
-    t = Table(title=title)
+    t = Table(title=title, caption="node: the nodes' own timings, sampled by their 1 Hz status snapshots")
     for col in ("stage", "from camera stamp ms (p50 / p99)", "hop ms (p50 / p99)", "camera frames skipped"):
         t.add_column(col)
     for key, row in lat["stages"].items():
@@ -271,7 +276,7 @@ def latency_table(lat: dict[str, Any], title: str = "Camera frame → safe comma
     t.add_row("ESDF content age, the filter's status", mp(lat["esdf_age_ms"]), "", "")
     t.add_row("ESDF arrival age at cmd/safe", mp(lat["esdf_arrival_age_ms"]), "", "")
     for label, s in lat["work_ms"].items():
-        t.add_row(f"work: {label} (status snapshots)", "", mp(s), "")
+        t.add_row(f"node: {label}", "", mp(s), "")
     return t
 
 
