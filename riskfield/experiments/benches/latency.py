@@ -60,6 +60,8 @@ TARGET_P99_MS = 5.0
 MAX_LINEAR = 0.5
 #: The camera path's target: ESDF content age p99 ≤ the camera period + this (issue 16).
 CONTENT_AGE_MARGIN_MS = 60.0
+#: ``--previous``: the scheduling before issue 16's latency work, per service label.
+PREVIOUS = {"mapping": ["--set", "esdf_rate_hz=10"], "safety-filter": ["--set", "step_on_map=false"]}
 
 
 def far_obstacles_esdf() -> EsdfGrid:
@@ -127,6 +129,8 @@ def latency(
     camera_seconds: Annotated[float, typer.Option(help="Camera path: seconds measured.")] = 30.0,
     camera_warmup_s: Annotated[float, typer.Option(help="Camera path: seconds after the first ESDF not counted.")] =
     3.0,
+    previous: Annotated[bool, typer.Option(help="Camera path: first also as the previous scheduling ran it "
+                                                "(mapping esdf_rate_hz=10, no filter step on a new map).")] = False,
 ) -> None:
     """Teleop latency (p99 target ≤ 5 ms on loopback) and camera → cmd/safe latency with the ESDF's age
     (content age p99 target ≤ camera period + 60 ms)."""
@@ -140,9 +144,14 @@ def latency(
         summary.update(teleop)
         ok = ok and teleop["target_met"]
     if path in ("camera", "both"):
+        if previous:
+            summary["camera_path_previous"] = camera_path(console, camera_seconds, camera_warmup_s, PREVIOUS,
+                                                          "previous scheduling")
         cam = camera_path(console, camera_seconds, camera_warmup_s)
         summary["camera_path"] = cam
         ok = ok and cam["target_met"]
+        if previous:
+            console.print(compare_table(summary["camera_path_previous"], cam))
     summary["all_targets_met"] = ok
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -264,9 +273,27 @@ def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, fil
             "hops": hops, "lost": lost, "target_p99_ms": TARGET_P99_MS, "target_met": ok, **stats}
 
 
-def camera_path(console: Console, seconds: float, warmup_s: float, turn_rad_s: float = 0.4) -> dict[str, Any]:
-    """The demo's camera → ``cmd/safe`` services over a loopback router: ``latency_summary`` of
-    what arrives here during ``seconds`` (after ``warmup_s`` past the first usable ESDF)."""
+def compare_table(before: dict[str, Any], after: dict[str, Any]) -> Table:
+    """Previous vs current scheduling, same invocation: medians / p99 (ms)."""
+    def mp(s: dict[str, float] | None) -> str:
+        return "–" if not s else f"{s['median']:.1f} / {s['p99']:.1f}"
+
+    rows = [(f"camera stamp → {k} arrives", lambda r, k=k: r["stages"][k]["from_camera_ms"])
+            for k in before.get("stages", {})]
+    rows += [("camera stamp → first cmd/safe after its ESDF", lambda r: r["camera_to_cmd_safe_ms"]),
+             ("ESDF content age at cmd/safe", lambda r: r["esdf_content_age_ms"]),
+             ("ESDF arrival age at cmd/safe", lambda r: r["esdf_arrival_age_ms"])]
+    t = Table("figure (ms, p50 / p99)", "previous scheduling", "now", title="camera path: previous vs now")
+    for label, get in rows:
+        t.add_row(label, mp(get(before)) if "stages" in before else "–", mp(get(after)) if "stages" in after else "–")
+    return t
+
+
+def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[str, list[str]] | None = None,
+                label: str = "", turn_rad_s: float = 0.4) -> dict[str, Any]:
+    """The demo's camera → ``cmd/safe`` services over a loopback router (``extra`` arguments per
+    service label): ``latency_summary`` of what arrives here during ``seconds`` (after ``warmup_s``
+    past the first usable ESDF)."""
     import yaml
 
     from riskfield.experiments.demo.report import STAGES, latency_summary, latency_table
@@ -287,12 +314,12 @@ def camera_path(console: Console, seconds: float, warmup_s: float, turn_rad_s: f
     safe_ns: list[int] = []
     ages: list[tuple[int, float]] = []  # (arrival, SafetyStatus.esdf_age_ms)
     extra: dict[str, dict[str, list[tuple[int, float]]]] = defaultdict(lambda: defaultdict(list))
-    console.print(f"[bold]latency bench, camera path[/bold]: {', '.join(s for _, s, _ in camera_pipeline(cfg))}, "
-                  f"robot id {robot}, camera {camera_hz:g} Hz")
+    console.print(f"[bold]latency bench, camera path{' (' + label + ')' if label else ''}[/bold]: "
+                  f"{', '.join(s for _, s, _ in camera_pipeline(cfg))}, robot id {robot}, camera {camera_hz:g} Hz")
     with Stack(robot) as stack:
         keys = stack.keys
-        for label, service, args in camera_pipeline(cfg):
-            stack.start(label, service, args)
+        for name, service, args in camera_pipeline(cfg, extra):
+            stack.start(name, service, args)
 
         def on_stamped(sample: Any, rel: str) -> None:
             t = time.time_ns()
@@ -358,11 +385,12 @@ def camera_path(console: Console, seconds: float, warmup_s: float, turn_rad_s: f
             [a for t, a in ages if t_from <= t <= t_end and a >= 0],
             {svc: {k: [v for t, v in vals if t_from <= t <= t_end] for k, vals in d.items()}
              for svc, d in extra.items()})
-    console.print(latency_table(lat, f"camera → cmd/safe, {seconds:g} s, camera {camera_hz:g} Hz"))
+    console.print(latency_table(lat, f"camera → cmd/safe, {seconds:g} s, camera {camera_hz:g} Hz"
+                                     + (f", {label}" if label else "")))
     p99 = (lat["esdf_content_age_ms"] or {}).get("p99")
     ok = p99 is not None and p99 <= target
     console.print(f"ESDF content age at cmd/safe p99 {p99 if p99 is None else round(p99, 1)} ms; target ≤ camera "
                   f"period + {CONTENT_AGE_MARGIN_MS:g} ms = {target:g} ms: "
                   + ("[green]met[/green]" if ok else "[red]not met[/red]"))
-    return {"seconds": seconds, "camera_hz": camera_hz, "target_content_age_p99_ms": target, "target_met": ok,
-            "load_average": list(os.getloadavg()), **lat}
+    return {"seconds": seconds, "camera_hz": camera_hz, "extra_args": extra or {}, "target_content_age_p99_ms": target,
+            "target_met": ok, "load_average": list(os.getloadavg()), **lat}

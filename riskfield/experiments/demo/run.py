@@ -40,18 +40,19 @@ class DemoConfig:
     phases: dict[str, float] = field(default_factory=dict)
 
 
-def camera_pipeline(c: DemoConfig) -> list[tuple[str, str, list[str]]]:
+def camera_pipeline(c: DemoConfig, extra: dict[str, list[str]] | None = None) -> list[tuple[str, str, list[str]]]:
     """(label, service, arguments) of the services from the camera to ``cmd/safe``, as the demo runs
-    them (``--robot`` aside); ``riskfield bench latency`` times the same ones. The scenario is
-    ``c.out / "scenario.yaml"``."""
+    them (``--robot`` aside), with ``extra`` arguments per label appended; ``riskfield bench latency``
+    times the same ones. The scenario is ``c.out / "scenario.yaml"``."""
     rgbd = c.perception == "rgbd"  # the simulator's depth + odometry instead of degraded truth
     depth = ["--set", "publish_depth=true", "--set", "publish_truth=false"] if rgbd else []
-    return [
+    services = [
         ("simulator", "simulator", ["--set", f"scenario={c.out / 'scenario.yaml'}", *depth]),
         ("perception", "perception", ["--set", "geometry=rgbd"] if rgbd else []),
         ("mapping", "mapping", []),
         ("safety-filter", "safety-filter", ["--set", f"robot_radius={c.robot_radius}"]),
     ]
+    return [(label, service, [*args, *(extra or {}).get(label, [])]) for label, service, args in services]
 
 
 class Demo:
