@@ -7,7 +7,7 @@ stands in for ``/dev/input/eventN``: it writes ``struct input_event`` records in
 on the serial line (``t_serial``); both use ``time.perf_counter`` of this process. Each event
 moves the stick to a new position, so each command value identifies its event; the value
 alternates forward/backward, which keeps the emulated robot near its start. The filter gets a
-synthetic ESDF with obstacles 15 m away (it passes the reference through unchanged) and the
+synthetic ESDF with obstacles 15 m away, stamped when sent (it passes the reference through unchanged) and the
 LIMO node's odometry as its state. The bench also listens on ``cmd/ref`` and ``cmd/safe`` to
 split the total into hops (those subscribers add a little load of their own).
 
@@ -200,9 +200,11 @@ def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, fil
         stop_esdf = threading.Event()
 
         def esdf_loop() -> None:
-            payload = encode(esdf)
             while not stop_esdf.is_set():
-                publish(session, keys.esdf, payload)
+                # stamped now: the filter refuses a map whose content is older than its timeout
+                # (freshness by content, DESIGN "What a stamp means"); unstamped, every event was lost
+                esdf.header.stamp_ns = time.time_ns()
+                publish(session, keys.esdf, encode(esdf))
                 stop_esdf.wait(0.1)
 
         esdf_thread = threading.Thread(target=esdf_loop, daemon=True)
