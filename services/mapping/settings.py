@@ -20,10 +20,11 @@ class MappingSettings(NodeSettings, MapperConfig):
     SERVICE: ClassVar[str] = "mapping"
 
     esdf_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
-    """The ESDF is rebuilt and published at most this often, and only after new data. A cap for
-    fast cameras, above the camera rate: at a 10 Hz camera a 10 Hz cap held every frame that came
-    early by the jitter of the pipeline back to the node's next timer tick (up to half a period;
-    measured in the demo: ~25 ms of ESDF content age at the median, frames skipped)."""
+    """The ESDF is rebuilt and published at most this often, and only after new data: a cap for
+    fast cameras, so above the camera rate. At a 10 Hz camera a 10 Hz cap held a frame that came a
+    little early (pipeline jitter) back to the node's next timer tick, up to half a period, and the
+    publications could lock onto the timer's phase: in the demo perception/frame → ESDF took 76 ms
+    at the median and 264 of 950 frames never reached an ESDF; with 30 Hz, 14 ms and 5."""
     esdf3d_key: str = "map/esdf3d"
     """Where the 3-D grid goes when ``output = both`` (relative to ``{prefix}/{robot}/``)."""
     risk_file: Path | None = None

@@ -2,11 +2,10 @@
 
 Subscribes ``{robot}/map/esdf``, ``{robot}/state`` and ``{robot}/cmd/ref`` (latest-value queues)
 and ``{robot}/config/risk``; publishes on every new reference, on every map taken (accepted or
-unusable; ``step_on_map``) and at ``rate_hz`` (a tick is skipped when such a step went out less than half a period
-before). The map,
-state and reference are decoded here rather than by the runtime so that a bad message is
-not only counted and logged but also makes the filter brake (``invalid_*``) until a good one
-arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
+unusable; ``step_on_map``) and at ``rate_hz`` (a tick is skipped when such a step went out less
+than half a period before). The map, state and reference are decoded here rather than by the
+runtime so that a bad message is not only counted and logged but also makes the filter brake
+(``invalid_*``) until a good one arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
 (polled every ``risk_poll_s``, see ``runtime.risk_file``); a bad configuration is logged,
 counted (``risk_errors``) and the old one kept.
 

@@ -7,8 +7,8 @@ stands in for ``/dev/input/eventN``: it writes ``struct input_event`` records in
 on the serial line (``t_serial``); both use ``time.perf_counter`` of this process. Each event
 moves the stick to a new position, so each command value identifies its event; the value
 alternates forward/backward, which keeps the emulated robot near its start. The filter gets a
-synthetic ESDF with obstacles 15 m away, stamped when sent (it passes the reference through unchanged) and the
-LIMO node's odometry as its state. The bench also listens on ``cmd/ref`` and ``cmd/safe`` to
+synthetic ESDF with obstacles 15 m away, stamped when sent (it passes the reference through
+unchanged), and the LIMO node's odometry as its state. The bench also listens on ``cmd/ref`` and ``cmd/safe`` to
 split the total into hops (those subscribers add a little load of their own).
 
 ``--filter relay`` replaces the safety filter by the relay node (cmd/ref → cmd/safe unchanged):
