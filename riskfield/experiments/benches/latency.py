@@ -275,6 +275,16 @@ def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, fil
             "hops": hops, "lost": lost, "target_p99_ms": TARGET_P99_MS, "target_met": ok, **stats}
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds of a process so far (Linux ``/proc/PID/stat`` fields 14 and 15, in
+    clock ticks; proc(5)); None when it cannot be read."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def compare_table(before: dict[str, Any], after: dict[str, Any]) -> Table:
     """Previous vs current scheduling, same invocation: medians / p99 (ms)."""
     def mp(s: dict[str, float] | None) -> str:
@@ -368,9 +378,17 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
                 console.print("[red]no ESDF reached the safety filter within 60 s[/red]")
                 return {"no_data": True, "target_met": False}
             time.sleep(warmup_s)
+            pids = {name: child.pids[-1] for name, child in stack.procs.items() if child.pids}
+            cpu0 = {name: cpu_seconds(pid) for name, pid in pids.items()}
+            own0 = time.process_time()
             t_from = time.time_ns()
             time.sleep(seconds)
             t_end = time.time_ns()
+            # CPU share of one core per process over the window: what the stack asks of the 2 cores
+            span = (t_end - t_from) / 1e9
+            cpu = {name: round(100 * (c1 - c0) / span, 1) for name, pid in pids.items()
+                   if (c0 := cpu0[name]) is not None and (c1 := cpu_seconds(pid)) is not None}
+            cpu["bench (router, subscribers)"] = round(100 * (time.process_time() - own0) / span, 1)
             time.sleep(0.5)  # what is in flight still arrives
         finally:
             stop.set()
@@ -389,10 +407,12 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
              for svc, d in extra.items()})
     console.print(latency_table(lat, f"camera → cmd/safe, {seconds:g} s, camera {camera_hz:g} Hz"
                                      + (f", {label}" if label else "")))
+    console.print("CPU, % of one core over the window: " + ", ".join(f"{k} {v:g}" for k, v in cpu.items())
+                  + f"; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     p99 = (lat["esdf_content_age_ms"] or {}).get("p99")
     ok = p99 is not None and p99 <= target
     console.print(f"ESDF content age at cmd/safe p99 {p99 if p99 is None else round(p99, 1)} ms; target ≤ camera "
                   f"period + {CONTENT_AGE_MARGIN_MS:g} ms = {target:g} ms: "
                   + ("[green]met[/green]" if ok else "[red]not met[/red]"))
     return {"seconds": seconds, "camera_hz": camera_hz, "extra_args": extra or {}, "target_content_age_p99_ms": target,
-            "target_met": ok, "load_average": list(os.getloadavg()), **lat}
+            "target_met": ok, "load_average": list(os.getloadavg()), "cpu_percent_of_one_core": cpu, **lat}
