@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 import threading
 import time
@@ -239,6 +240,7 @@ def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, fil
             esdf_thread.join(2.0)
             runner.stop()
             outputs = {label: child.output[-2000:] for label, child in runner.children.items()}
+            shutil.rmtree(tmp, ignore_errors=True)
             for s in subs:
                 s.undeclare()
     total, hop_ref, hop_filter, hop_limo = [], [], [], []
@@ -325,7 +327,7 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
     stamped: dict[str, list[tuple[int, int]]] = {k: [] for k in STAGES}  # (arrival, stamp), wall ns
     safe_ns: list[int] = []
     ages: list[tuple[int, float]] = []  # (arrival, SafetyStatus.esdf_age_ms)
-    extra: dict[str, dict[str, list[tuple[int, float]]]] = defaultdict(lambda: defaultdict(list))
+    node_extra: dict[str, dict[str, list[tuple[int, float]]]] = defaultdict(lambda: defaultdict(list))
     console.print(f"[bold]latency bench, camera path{' (' + label + ')' if label else ''}[/bold]: "
                   f"{', '.join(s for _, s, _ in camera_pipeline(cfg))}, robot id {robot}, camera {camera_hz:g} Hz")
     with Stack(robot) as stack:
@@ -356,7 +358,7 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
             msg = decode(sample.payload.to_bytes(), NodeStatus)
             with lock:
                 for k, v in msg.extra.items():
-                    extra[msg.service][k].append((t, v))
+                    node_extra[msg.service][k].append((t, v))
 
         subs = [stack.session.declare_subscriber(keys.key(rel), lambda smp, rel=rel: on_stamped(smp, rel))
                 for rel in STAGES]
@@ -395,6 +397,7 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
             driver.join(2.0)
             for sub in subs:
                 sub.undeclare()
+            shutil.rmtree(tmp, ignore_errors=True)
     with lock:
         def sec(ns: int) -> float:
             return (ns - t_from) / 1e9
@@ -404,7 +407,7 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
             [sec(t) for t in safe_ns if t_from <= t <= t_end],
             [a for t, a in ages if t_from <= t <= t_end and a >= 0],
             {svc: {k: [v for t, v in vals if t_from <= t <= t_end] for k, vals in d.items()}
-             for svc, d in extra.items()})
+             for svc, d in node_extra.items()})
     console.print(latency_table(lat, f"camera → cmd/safe, {seconds:g} s, camera {camera_hz:g} Hz"
                                      + (f", {label}" if label else "")))
     console.print("CPU, % of one core over the window: " + ", ".join(f"{k} {v:g}" for k, v in cpu.items())
