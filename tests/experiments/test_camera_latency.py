@@ -86,3 +86,17 @@ def test_latency_summary_pairs_commands_with_esdf_stamps_on_a_timeline() -> None
     assert lat["esdf_age_ms"]["median"] == pytest.approx(110.0)
     assert lat["work_ms"]["perception process"]["median"] == pytest.approx(26.0)
     assert lat["work_ms"]["simulator render"] is None  # no snapshots: no number, not zero
+
+
+def test_the_bench_runs_the_demos_camera_services_and_previous_adds_only_its_settings(tmp_path) -> None:
+    from riskfield.experiments.benches.latency import PREVIOUS
+    from riskfield.experiments.demo.run import DemoConfig, camera_pipeline
+
+    cfg = DemoConfig(out=tmp_path)
+    now, previous = camera_pipeline(cfg), camera_pipeline(cfg, PREVIOUS)
+    assert [s for _, s, _ in now] == ["simulator", "perception", "mapping", "safety-filter"]
+    for (label, service, args), (label_p, service_p, args_p) in zip(now, previous, strict=True):
+        assert (label, service) == (label_p, service_p)
+        assert args_p == args + PREVIOUS.get(label, [])
+    args_of = {label: args for label, _, args in previous}
+    assert "esdf_rate_hz=10" in args_of["mapping"] and "step_on_map=false" in args_of["safety-filter"]
