@@ -214,9 +214,9 @@ def pipeline_stages(stamped: dict[str, list[tuple[float, float]]],
 
     .. math::  \\ell_k(s) = t_k(s) - s, \\qquad h_k(s) = t_k(s) - t_{k-1}(s)
 
-    with :math:`t_k(s)` the first arrival at stage :math:`k` of a message stamped :math:`s`.
-    Stamps seen before the first stage's first one or after its last (start-up, shutdown) are not
-    counted as skipped."""
+    with :math:`t_k(s)` the first arrival at stage :math:`k` of a message stamped :math:`s`. A later
+    stage's stamps outside the first stage's range (start-up, shutdown) are left out of the times;
+    the last frames before a shutdown can count as skipped."""
     firsts = [first_arrivals(stamped.get(k, [])) for k in order]
     origin = firsts[0]
     lo, hi = (min(origin), max(origin)) if origin else (0.0, -1.0)
