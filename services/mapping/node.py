@@ -71,8 +71,14 @@ class MappingNode:
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_frame(self, frame: PerceptionFrame) -> None:
+        st = self.node.stats
+        if frame.header.stamp_ns > 0:  # where a frame's age goes (demo report, bench latency): sensor
+            # stamp → arrival here, and arrival → this handler (queueing and the decode)
+            arrival = self.node.arrival_ns or time.time_ns()
+            st["frame_arrival_age_ms"] = (arrival - frame.header.stamp_ns) / 1e6
+            st["frame_wait_ms"] = (time.time_ns() - arrival) / 1e6
         if frame.kind in (None, "tracking") and self.node.backlog(self._frame_key) > 0:
-            self.node.stats["superseded_frames"] = self.node.stats.get("superseded_frames", 0) + 1
+            st["superseded_frames"] = st.get("superseded_frames", 0) + 1
             return
         try:
             result = self.mapper.integrate_frame(frame)
@@ -81,7 +87,6 @@ class MappingNode:
             self.node.stats["rejected_frames"] = self.rejected
             self.node.ratelog(logging.WARNING, "frame", f"rejected a perception frame: {exc}")
             return
-        st = self.node.stats
         st["frames"] = self.mapper.frames
         st["integrate_ms"] = result.ms
         st["rays"] = result.rays
@@ -112,12 +117,15 @@ class MappingNode:
             return
         now = time.monotonic()
         if now - self._last_publish < self._period * 0.95:
+            self.node.stats["esdf_deferred"] = self.node.stats.get("esdf_deferred", 0) + 1
             return
         self._last_publish = now
         update = self.mapper.update_esdf()
         if update is None:
             return
         self.node.publish(self.node.keys.esdf, update.primary)
+        if self.mapper.stamp_ns > 0:
+            self.node.stats["esdf_content_age_ms"] = (time.time_ns() - self.mapper.stamp_ns) / 1e6
         if update.slice2d is not None and update.grid3d is not None:
             self.node.publish(self.esdf3d_key, update.grid3d)
         self.updates += 1

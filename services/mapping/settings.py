@@ -19,8 +19,12 @@ from .config import MapperConfig
 class MappingSettings(NodeSettings, MapperConfig):
     SERVICE: ClassVar[str] = "mapping"
 
-    esdf_rate_hz: Annotated[float, Field(gt=0, le=200)] = 10.0
-    """The ESDF is rebuilt and published at most this often, and only after new data."""
+    esdf_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
+    """The ESDF is rebuilt and published at most this often, and only after new data: a cap for
+    fast cameras, so above the camera rate. At a 10 Hz camera a 10 Hz cap held a frame that came a
+    little early (pipeline jitter) back to the node's next timer tick, up to half a period, and the
+    publications could lock onto the timer's phase: in the demo perception/frame → ESDF took 76 ms
+    at the median and 264 of 950 frames never reached an ESDF; with 30 Hz, 14 ms and 5."""
     esdf3d_key: str = "map/esdf3d"
     """Where the 3-D grid goes when ``output = both`` (relative to ``{prefix}/{robot}/``)."""
     risk_file: Path | None = None

@@ -209,6 +209,8 @@ class Perception:
                 raise ValueError(f"truth is {truth.points.shape[1]}x{truth.points.shape[0]}, "
                                  f"the image {image.width}x{image.height}")
             t0 = time.perf_counter()
+            if image.header.stamp_ns > 0:  # image stamp → processing starts: transport, pairing, decode
+                self.node.stats["start_age_ms"] = (time.time_ns() - image.header.stamp_ns) / 1e6
             frames = self.backend.process(image, truth, image.header.stamp_ns)  # type: ignore[arg-type]
             self.node.stats["process_ms"] = (time.perf_counter() - t0) * 1e3
         except (ValueError, OSError) as exc:

@@ -1,11 +1,11 @@
 """The ``safety-filter`` node: ESDF + state + reference in, ``cmd/safe`` + ``safety/status`` out.
 
 Subscribes ``{robot}/map/esdf``, ``{robot}/state`` and ``{robot}/cmd/ref`` (latest-value queues)
-and ``{robot}/config/risk``; publishes on every new reference and at ``rate_hz`` (a tick is
-skipped when a reference-triggered step went out less than half a period before). The map,
-state and reference are decoded here rather than by the runtime so that a bad message is
-not only counted and logged but also makes the filter brake (``invalid_*``) until a good one
-arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
+and ``{robot}/config/risk``; publishes on every new reference, on every map taken (accepted or
+unusable; ``step_on_map``) and at ``rate_hz`` (a tick is skipped when such a step went out less
+than half a period before). The map, state and reference are decoded here rather than by the
+runtime so that a bad message is not only counted and logged but also makes the filter brake
+(``invalid_*``) until a good one arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
 (polled every ``risk_poll_s``, see ``runtime.risk_file``); a bad configuration is logged,
 counted (``risk_errors``) and the old one kept.
 
@@ -102,6 +102,10 @@ class FilterNode:
         if reason is not None:
             self.node.stats["invalid_map"] += 1
             self.node.ratelog(logging.WARNING, "invalid_map", f"unusable ESDF ({reason}): braking")
+        # A new map acts at once, not at the next tick (up to a period later): an obstacle just
+        # seen bounds the command now, and camera → cmd/safe loses the filter's sampling delay.
+        if self.settings.step_on_map:
+            self._step()
 
     def _on_state(self, key: str, payload: bytes) -> None:
         msg = self._decode("state", payload, RobotState, self._small_limits)

@@ -30,6 +30,9 @@ class FilterSettings(NodeSettings, FilterConfig):
     risk_file: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
     risk_poll_s: Seconds = 1.0
     max_map_bytes: Annotated[int, Field(gt=0)] = 64 * 1024 * 1024
+    step_on_map: bool = Field(default=True, description=(
+        "step (and publish cmd/safe) as soon as a map is taken, not only on a reference or a tick; "
+        "false: the previous scheduling, kept for `riskfield bench latency --previous`"))
 
     def filter_config(self) -> FilterConfig:
         return FilterConfig.model_validate({k: getattr(self, k) for k in FilterConfig.model_fields})

@@ -316,3 +316,21 @@ def test_an_exception_in_a_step_brakes_and_one_that_ends_the_loop_brakes_last(ro
                 _last_word_is_a_brake(status, cmds, "shutdown")
     finally:
         proc.stop(signal.SIGKILL, timeout_s=5.0)
+
+
+def test_a_new_map_is_acted_on_at_once_not_at_the_next_tick(router_endpoint):
+    # A control rate of one step per 30 s: the first tick comes long after the waits below, and no
+    # reference is sent, so only the map's arrival can make the filter step and report it.
+    robot = "t_sf_step_on_map"
+    args = ["--robot", robot, "--set", "rate_hz=0.0333"]
+    with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
+        assert wait_alive(session, f"rf/{robot}/alive/safety-filter"), proc.output
+        status = Collector(session, f"rf/{robot}/safety/status", SafetyStatus)
+        put(session, f"rf/{robot}/state", state(x=0.1))
+        m = grid()
+        m.header.stamp_ns = time.time_ns()
+        put(session, f"rf/{robot}/map/esdf", m)
+        assert wait_until(lambda: any(s.esdf_age_ms >= 0 for s in status.items), 10.0), proc.output
+        st = next(s for s in status.items if s.esdf_age_ms >= 0)
+        assert st.fallback == "no_ref" and st.h == pytest.approx(0.2, abs=0.01)  # the map is in force
+        status.close()

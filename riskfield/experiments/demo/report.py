@@ -15,8 +15,15 @@ saved run: ``riskfield demo --report-only --out DIR``. The metrics are the exper
   its ``header.stamp_ns`` is the newest integrated frame's, the image's stamp) to the first
   ``cmd/safe`` received after that ESDF; ESDF content age = at each ``cmd/safe``, its receive time
   minus the stamp of the newest ESDF received before it (the age of what the map shows, where the
-  filter's own ``esdf_age_ms`` counts from the ESDF's arrival). Stamps and receive times are both
-  wall clock of this machine.
+  filter reports the same content age as ``SafetyStatus.esdf_age_ms``, by its own clock); ESDF
+  arrival age = at each ``cmd/safe``, its receive time minus the receive time of the newest ESDF
+  before it (how long the filter has held the map). Stamps and receive times are both wall clock
+  of this machine;
+- per stage (``pipeline_stages``): a camera frame's stamp travels unchanged through the image,
+  ``perception/frame`` and the ESDF built from it; the time from the stamp to the first arrival
+  of each, and how many camera frames never reached it (perception or mapping skipped them as
+  superseded or rate-limited), locate where the content age is spent. The nodes' own timings
+  (render, perception, integration, ESDF) come from their ``status/*`` snapshots.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from rich.console import Console
 from rich.table import Table
 
 from riskfield.protocol import DecodeError, EsdfGrid, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
-from riskfield.services.recorder.mcap_io import read_records
+from riskfield.services.recorder.mcap_io import iter_mcap, raw_key, read_records
 from riskfield.services.simulator.scene import Scene
 
 from ..navigation import polyline_distance
@@ -60,6 +67,11 @@ class Streams:
     esdf_stamp: list[float] = field(default_factory=list)  # header stamps, same time base as the ``_t``
     counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     node_status: dict[str, NodeStatus] = field(default_factory=dict)
+    # every status snapshot's extra numbers: service → name → values over the run
+    node_extra: dict[str, dict[str, list[float]]] = field(
+        default_factory=lambda: defaultdict(lambda: defaultdict(list)))
+    # (receive time, header stamp) of the stamped stages (``STAGES``), same time base as the ``_t``
+    stamped: dict[str, list[tuple[float, float]]] = field(default_factory=lambda: defaultdict(list))
     duration_s: float = 0.0
 
 
@@ -94,11 +106,38 @@ def load_streams(mcap_path: str | Path, root: str) -> Streams:
                 s.esdf_t.append(t)
                 s.esdf_stamp.append((decode(rec.payload, EsdfGrid).header.stamp_ns - first) / 1e9)
             elif rel.startswith("status/"):
-                s.node_status[rel.split("/", 1)[1]] = decode(rec.payload, NodeStatus)
+                ns = decode(rec.payload, NodeStatus)
+                s.node_status[rel.split("/", 1)[1]] = ns
+                for k, v in ns.extra.items():
+                    s.node_extra[ns.service][k].append(v)
         except DecodeError:
             s.counts["invalid:" + rel] += 1
     s.duration_s = (last - (first or last)) / 1e9
+    if first is not None:
+        _load_stamps(mcap_path, root, first, s)
     return s
+
+
+#: The keys a camera frame's stamp travels through, in order (the ESDF's is the newest frame's).
+STAGES = ("camera/image", "perception/frame", "map/esdf")
+
+
+def _load_stamps(mcap_path: str | Path, root: str, t0_ns: int, s: Streams) -> None:
+    """(receive time, header stamp) of the ``STAGES`` keys: the recorder writes the header stamp as
+    each message's MCAP ``publish_time``, raw or as a Foxglove view (``recorder.mcap_io``), so
+    images and pointmaps need no decoding here."""
+    seen_raw: set[str] = set()
+    for _schema, channel, msg in iter_mcap(mcap_path):
+        key = raw_key(channel)
+        if key is not None:
+            seen_raw.add(key)
+        elif channel.topic in seen_raw:
+            continue  # the view of a key also kept raw: counted once
+        else:
+            key = channel.topic
+        rel = key[len(root) + 1:] if key.startswith(root + "/") else key
+        if rel in STAGES and msg.publish_time != msg.log_time:  # equal: no stamp in the header
+            s.stamped[rel].append(((msg.log_time - t0_ns) / 1e9, (msg.publish_time - t0_ns) / 1e9))
 
 
 def _stats(x: list[float] | np.ndarray) -> dict[str, float] | None:
@@ -146,6 +185,99 @@ def content_age_ms(esdf_t: list[float], esdf_stamp: list[float], safe_t: list[fl
         if i >= 0:
             out.append((t - newest[i]) * 1e3)
     return out
+
+
+def arrival_age_ms(esdf_t: list[float], safe_t: list[float]) -> list[float]:
+    """At each ``cmd/safe``: its time minus the arrival of the newest ESDF received before it (ms)."""
+    arrived = np.asarray(esdf_t)
+    out = []
+    for t in safe_t:
+        i = int(np.searchsorted(arrived, t, side="right")) - 1
+        if i >= 0:
+            out.append((t - arrived[i]) * 1e3)
+    return out
+
+
+def first_arrivals(arrivals: list[tuple[float, float]]) -> dict[float, float]:
+    """Header stamp → the first receive time of a message carrying it (a re-publication is not news)."""
+    out: dict[float, float] = {}
+    for t, stamp in arrivals:
+        if stamp not in out or t < out[stamp]:
+            out[stamp] = t
+    return out
+
+
+def pipeline_stages(stamped: dict[str, list[tuple[float, float]]],
+                    order: tuple[str, ...] = STAGES) -> dict[str, dict[str, Any]]:
+    """Per stage of ``order``: the time from each camera stamp to its first arrival there (ms), the
+    hop from the previous stage (ms) and how many of the first stage's stamps never got there.
+
+    .. math::  \\ell_k(s) = t_k(s) - s, \\qquad h_k(s) = t_k(s) - t_{k-1}(s)
+
+    with :math:`t_k(s)` the first arrival at stage :math:`k` of a message stamped :math:`s`. A later
+    stage's stamps outside the first stage's range (start-up, shutdown) are left out of the times;
+    the last frames before a shutdown can count as skipped."""
+    firsts = [first_arrivals(stamped.get(k, [])) for k in order]
+    origin = firsts[0]
+    lo, hi = (min(origin), max(origin)) if origin else (0.0, -1.0)
+    out: dict[str, dict[str, Any]] = {}
+    for k, key in enumerate(order):
+        here = firsts[k]
+        since = [(t - s) * 1e3 for s, t in here.items() if lo <= s <= hi]
+        hop = [] if k == 0 else [(t - firsts[k - 1][s]) * 1e3 for s, t in here.items() if s in firsts[k - 1]]
+        out[key] = {"from_camera_ms": since, "hop_ms": hop, "n": len(since),
+                    "skipped": sum(1 for s in origin if s not in here)}
+    return out
+
+
+#: The nodes' own timing of each stage's work, from their status snapshots: label → (service, stat).
+STAGE_WORK = {"simulator render": ("simulator", "render_ms"),
+              "perception: stamp → processing starts": ("perception", "start_age_ms"),
+              "perception process": ("perception", "process_ms"),
+              "mapping: stamp → frame arrives": ("mapping", "frame_arrival_age_ms"),
+              "mapping: frame arrives → handled (queue, decode)": ("mapping", "frame_wait_ms"),
+              "mapping integrate": ("mapping", "integrate_ms"), "mapping ESDF update": ("mapping", "total_ms"),
+              "mapping: stamp → ESDF published": ("mapping", "esdf_content_age_ms")}
+
+
+def latency_summary(stamped: dict[str, list[tuple[float, float]]], safe_t: list[float],
+                    filter_age_ms: list[float] | None = None,
+                    node_extra: dict[str, dict[str, list[float]]] | None = None) -> dict[str, Any]:
+    """The end-to-end figures (camera → ``cmd/safe``, ESDF content and arrival age at ``cmd/safe``)
+    and the per-stage split, from (receive time, stamp) per ``STAGES`` key and ``cmd/safe`` receive
+    times (seconds, one clock); shared by the demo report and ``riskfield bench latency``."""
+    esdf = stamped.get("map/esdf", [])
+    esdf_t, esdf_s = [t for t, _ in esdf], [s for _, s in esdf]
+    stages = pipeline_stages(stamped)
+    extra = node_extra or {}
+    return {
+        "camera_to_cmd_safe_ms": _stats(camera_to_command_ms(esdf_t, esdf_s, safe_t)),
+        "esdf_content_age_ms": _stats(content_age_ms(esdf_t, esdf_s, safe_t)),
+        "esdf_arrival_age_ms": _stats(arrival_age_ms(esdf_t, safe_t)),
+        "esdf_age_ms": _stats(filter_age_ms or []),
+        "stages": {k: {"from_camera_ms": _stats(v["from_camera_ms"]), "hop_ms": _stats(v["hop_ms"]), "n": v["n"],
+                       "skipped": v["skipped"]} for k, v in stages.items()},
+        "work_ms": {label: _stats(extra.get(svc, {}).get(name, [])) for label, (svc, name) in STAGE_WORK.items()},
+    }
+
+
+def latency_table(lat: dict[str, Any], title: str = "Camera frame → safe command, per stage") -> Table:
+    """The table of ``latency_summary``: medians / p99 in ms."""
+    def mp(s: dict[str, float] | None) -> str:
+        return "–" if s is None else f"{s['median']:.1f} / {s['p99']:.1f}"
+
+    t = Table(title=title, caption="node: the nodes' own timings, sampled by their 1 Hz status snapshots")
+    for col in ("stage", "from camera stamp ms (p50 / p99)", "hop ms (p50 / p99)", "camera frames skipped"):
+        t.add_column(col)
+    for key, row in lat["stages"].items():
+        t.add_row(f"→ {key} arrives", mp(row["from_camera_ms"]), mp(row["hop_ms"]), str(row["skipped"]))
+    t.add_row("→ first cmd/safe after that ESDF", mp(lat["camera_to_cmd_safe_ms"]), "", "")
+    t.add_row("ESDF content age at cmd/safe (now − stamp)", mp(lat["esdf_content_age_ms"]), "", "")
+    t.add_row("ESDF content age, the filter's status", mp(lat["esdf_age_ms"]), "", "")
+    t.add_row("ESDF arrival age at cmd/safe", mp(lat["esdf_arrival_age_ms"]), "", "")
+    for label, s in lat["work_ms"].items():
+        t.add_row(f"node: {label}", "", mp(s), "")
+    return t
 
 
 def fmt(v: Any, unit: str = "", digits: int = 2) -> str:
@@ -231,12 +363,12 @@ def make_report(cfg: DemoConfig, console: Console) -> dict:
         "collisions": collisions(clear["all"]), "min_clearance_m": float(np.min(clear["all"])),
         "min_clearance_per_object_m": {n: float(np.min(v)) for n, v in clear.items()
                                        if n != "all" and np.isfinite(np.min(v))},
-        "rates_hz": rates, "esdf_age_ms": _stats(ages), "filter_step_us": _stats(solve),
+        "rates_hz": rates, "filter_step_us": _stats(solve),
         "command_latency_ms": _stats(latency), "fallbacks": fallbacks,
-        "camera_to_cmd_safe_ms": _stats(camera_to_command_ms(st.esdf_t, st.esdf_stamp, st.safe_t)),
-        "esdf_content_age_ms": _stats(content_age_ms(st.esdf_t, st.esdf_stamp, st.safe_t)),
         "robot_radius_m": cfg.robot_radius,
     })
+    # camera_to_cmd_safe_ms, esdf_content_age_ms, esdf_arrival_age_ms, esdf_age_ms, stages, work_ms
+    summary.update(latency_summary(st.stamped, st.safe_t, ages, st.node_extra))
     _print(summary, console)
     try:
         _plots(cfg, st, t, clear, ph)
@@ -266,8 +398,9 @@ def _print(summary: dict, console: Console) -> None:
     t3.add_row("minimum clearance over the run", f(summary["min_clearance_m"], " m"))
     for key in ("camera/image", "perception/frame", "map/esdf", "state", "cmd/ref", "cmd/safe"):
         t3.add_row(f"rate {key}", f(summary["rates_hz"].get(key), " Hz", 1))
-    for key, unit, label in (("esdf_age_ms", " ms", "ESDF arrival age at the filter"),
+    for key, unit, label in (("esdf_age_ms", " ms", "ESDF content age at the filter (its status)"),
                              ("esdf_content_age_ms", " ms", "ESDF content age (camera stamp) at cmd/safe"),
+                             ("esdf_arrival_age_ms", " ms", "ESDF arrival age at cmd/safe"),
                              ("camera_to_cmd_safe_ms", " ms", "camera frame → first cmd/safe using it"),
                              ("filter_step_us", " µs", "filter step (field + QP)"),
                              ("command_latency_ms", " ms", "cmd/ref → cmd/safe latency")):
@@ -278,6 +411,8 @@ def _print(summary: dict, console: Console) -> None:
     out.print(t1)
     out.print(t2)
     out.print(t3)
+    if "stages" in summary:
+        out.print(latency_table(summary))
 
 
 def _plots(cfg: DemoConfig, st: Streams, t: np.ndarray, clear: dict, ph: dict) -> None:

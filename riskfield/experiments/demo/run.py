@@ -40,6 +40,21 @@ class DemoConfig:
     phases: dict[str, float] = field(default_factory=dict)
 
 
+def camera_pipeline(c: DemoConfig, extra: dict[str, list[str]] | None = None) -> list[tuple[str, str, list[str]]]:
+    """(label, service, arguments) of the services from the camera to ``cmd/safe``, as the demo runs
+    them (``--robot`` aside), with ``extra`` arguments per label appended; ``riskfield bench latency``
+    times the same ones. The scenario is ``c.out / "scenario.yaml"``."""
+    rgbd = c.perception == "rgbd"  # the simulator's depth + odometry instead of degraded truth
+    depth = ["--set", "publish_depth=true", "--set", "publish_truth=false"] if rgbd else []
+    services = [
+        ("simulator", "simulator", ["--set", f"scenario={c.out / 'scenario.yaml'}", *depth]),
+        ("perception", "perception", ["--set", "geometry=rgbd"] if rgbd else []),
+        ("mapping", "mapping", []),
+        ("safety-filter", "safety-filter", ["--set", f"robot_radius={c.robot_radius}"]),
+    ]
+    return [(label, service, [*args, *(extra or {}).get(label, [])]) for label, service, args in services]
+
+
 class Demo:
     def __init__(self, cfg: DemoConfig, console: Console | None = None):
         self.cfg = cfg
@@ -59,12 +74,8 @@ class Demo:
                                console=self.console)
         runner.add("router", "router", common)
         runner.add("record", "record", [*common, "--set", f"out={out}"])
-        rgbd = c.perception == "rgbd"  # the simulator's depth + odometry instead of degraded truth
-        runner.add("simulator", "simulator", [*common, "--set", f"scenario={out / 'scenario.yaml'}",
-                   *(["--set", "publish_depth=true", "--set", "publish_truth=false"] if rgbd else [])])
-        runner.add("perception", "perception", [*common, *(["--set", "geometry=rgbd"] if rgbd else [])])
-        runner.add("mapping", "mapping", common)
-        runner.add("safety-filter", "safety-filter", [*common, "--set", f"robot_radius={c.robot_radius}"])
+        for label, service, args in camera_pipeline(c):
+            runner.add(label, service, [*common, *args])
         runner.add("navigator", "navigator", common)
         runner.add("operator", "operator", [*common, *operator_args(TELEOP_TARGETS, c.seed, c.teleop_push_s)])
         if c.live:
