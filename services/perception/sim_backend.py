@@ -40,6 +40,7 @@ from ..geometry.transforms import transform_points
 from .backend import Labeller, image_rgb
 from .degrade import DegradationConfig, Degrader, Observation
 from .fusion import Q_CONF, KeyframeFusion, scatter_to_frame
+from .kernels import HAVE_NUMBA
 
 
 @dataclass(frozen=True)
@@ -89,8 +90,11 @@ class Matches:
 class SimBackend:
     needs_truth = True
 
-    def __init__(self, config: SimBackendConfig | None = None, labeller: Labeller | None = None):
+    def __init__(self, config: SimBackendConfig | None = None, labeller: Labeller | None = None,
+                 compiled: bool = HAVE_NUMBA):
         self.config = config or SimBackendConfig()
+        #: match and fuse with the compiled kernels (``kernels``); False: the numpy reference
+        self.compiled = compiled
         self.degrader = Degrader(self.config.degradation, self.config.seed)
         self.labeller = labeller
         self.keyframe: _Keyframe | None = None
@@ -107,6 +111,8 @@ class SimBackend:
               C_t: np.ndarray) -> Matches:
         """Keyframe pixel → current pixel by reprojecting true keyframe points (see module doc)."""
         h, w = truth_valid.shape
+        if self.compiled:
+            return self._match_compiled(kf, truth_points, truth_valid, T_WC_true, C_t)
         pc = transform_points(_inv(T_WC_true), kf.world_true)
         z = pc[:, 2]
         front = kf.valid & (z > 1e-6)
@@ -122,6 +128,22 @@ class SimBackend:
         Qk = np.where(valid, np.sqrt(kf.C0 * C_t.reshape(-1)[idx]), 0.0)
         overlap = float(valid.sum()) / max(1, int(kf.valid.sum()))
         return Matches(idx, valid, Qk, overlap)
+
+    def _match_compiled(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray,
+                        T_WC_true: np.ndarray, C_t: np.ndarray) -> Matches:
+        from .kernels import match_kernel
+
+        h, w = truth_valid.shape
+        n = kf.world_true.shape[0]
+        idx, valid, Qk = np.empty(n, np.int64), np.empty(n, bool), np.empty(n, np.float64)
+        cam = self._camera
+        n_valid = match_kernel(np.ascontiguousarray(_inv(T_WC_true)), kf.world_true, kf.valid, kf.C0,
+                               np.ascontiguousarray(truth_points).reshape(-1, 3),
+                               np.ascontiguousarray(truth_valid).reshape(-1),
+                               np.ascontiguousarray(C_t, np.float32).reshape(-1), h, w, float(cam.fx), float(cam.fy),
+                               float(cam.cx), float(cam.cy), float(self.config.depth_tol_abs),
+                               float(self.config.depth_tol_rel), idx, valid, Qk)
+        return Matches(idx, valid, Qk, float(n_valid) / max(1, int(kf.valid.sum())))
 
     def _intrinsics(self, points: np.ndarray, valid: np.ndarray) -> None:
         # The truth carries no K: recover it from the pointmap (x/z is affine in u, y/z in v).
@@ -188,6 +210,20 @@ class SimBackend:
 
     def _fuse(self, kf: _Keyframe, m: Matches, obs: Observation, T_WC_true: np.ndarray) -> None:
         T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate
+        if self.compiled:
+            from .kernels import fuse_kernel
+
+            f = kf.fusion
+            trusted = np.empty(f.C.shape, bool)
+            X, C, labels, weights = (np.empty_like(a) for a in (f.X, f.C, f.labels, f.weights))
+            fuse_kernel(np.ascontiguousarray(T_KC), np.ascontiguousarray(obs.points, np.float32).reshape(-1, 3),
+                        np.ascontiguousarray(obs.confidence, np.float32).reshape(-1),
+                        np.ascontiguousarray(obs.labels, np.uint16).reshape(-1), m.idx_f2k, m.valid_match_k, m.Qk,
+                        float(self.config.Q_conf), f.X, f.C, f.labels, f.weights, X, C, labels, weights, trusted)
+            f.X, f.C, f.labels, f.weights = X, C, labels, weights
+            f.updates += 1
+            self.last_matches = m
+            return
         X_in_k = transform_points(T_KC, obs.points.reshape(-1, 3)[m.idx_f2k], np.float32)
         kf.fusion.fuse(X_in_k, obs.confidence.reshape(-1)[m.idx_f2k], obs.labels, m.idx_f2k, m.valid_match_k,
                        m.Qk, self.config.Q_conf)
