@@ -29,6 +29,8 @@ import numpy as np
 
 from riskfield.protocol import ade20k
 
+from .kernels import HAVE_NUMBA
+
 _I = ade20k.INDEX
 #: Plausible confusions of a segmentation network: class → classes it is mistaken for.
 CONFUSIONS: dict[int, tuple[int, ...]] = {
@@ -143,8 +145,10 @@ class Observation:
 
 
 class Degrader:
-    def __init__(self, config: DegradationConfig | None = None, seed: int = 0):
+    def __init__(self, config: DegradationConfig | None = None, seed: int = 0, compiled: bool = HAVE_NUMBA):
         self.config = config or DegradationConfig()
+        #: per-pixel arithmetic in compiled kernels (``kernels``), bit-identical; False: numpy
+        self.compiled = compiled
         self.rng = np.random.default_rng(seed)
         self.drift = np.eye(4)
 
@@ -152,6 +156,8 @@ class Degrader:
         cfg = self.config
         valid = valid & (points[..., 2] > 0)
         z = np.where(valid, points[..., 2], 0.0).astype(np.float64)
+        if self.compiled:
+            return self._observe_compiled(points, labels, T_WC, valid, z)
         normals, n_ok = normals_from_pointmap(points, valid)
         cos = cos_incidence(points, normals, n_ok)
         sigma = cfg.sigma(z) / np.maximum(cos, 0.2)
@@ -161,6 +167,22 @@ class Degrader:
         noisy = (points * scale[..., None]).astype(np.float32)
         noisy[~valid] = 0.0
         conf = np.where(valid, 1.0 + cfg.c_gain * cos * np.exp(-z / cfg.z_scale), 0.0).astype(np.float32)
+        return Observation(noisy, conf, self.degrade_labels(labels, valid), self._drifted(T_WC), valid)
+
+    def _observe_compiled(self, points: np.ndarray, labels: np.ndarray, T_WC: np.ndarray, valid: np.ndarray,
+                          z: np.ndarray) -> Observation:
+        from .kernels import depth_noise_kernel, incidence_kernel
+
+        cfg = self.config
+        p = np.ascontiguousarray(points, np.float32)
+        valid = np.ascontiguousarray(valid)
+        cos = np.empty(valid.shape, np.float32)
+        incidence_kernel(p, valid, cos)
+        normal = self.rng.standard_normal(z.shape)  # the same draws, in the same order, as the numpy path
+        e = np.exp(-z / cfg.z_scale)
+        noisy, conf = np.empty(p.shape, np.float32), np.empty(valid.shape, np.float32)
+        depth_noise_kernel(p, valid, z, cos, normal, e, float(cfg.noise_a), float(cfg.noise_b), float(cfg.c_gain),
+                           noisy, conf)
         return Observation(noisy, conf, self.degrade_labels(labels, valid), self._drifted(T_WC), valid)
 
     def degrade_labels(self, labels: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
@@ -176,7 +198,10 @@ class Degrader:
             du = rng.integers(-r, r + 1, uu.size)
             out[vv, uu] = labels[np.clip(vv + dv, 0, h - 1), np.clip(uu + du, 0, w - 1)]
         if cfg.p_confuse > 0:
-            for lab in np.unique(labels):
+            # the classes present, ascending: a bincount of the uint16 labels is a few times faster
+            # than np.unique's hash-and-sort and gives the same sequence
+            present = np.flatnonzero(np.bincount(labels.ravel())) if labels.dtype.kind == "u" else np.unique(labels)
+            for lab in present:
                 lab = int(lab)
                 if lab in STRUCTURE or lab >= ade20k.NUM_CLASSES or rng.random() >= cfg.p_confuse:
                     continue

@@ -92,3 +92,62 @@ if HAVE_NUMBA:
                     labels_out[k] = labels_frame[i]
                     wk = -wk
                 weights_out[k] = np.float32(wk)
+
+    @njit(cache=True, nogil=True)
+    def incidence_kernel(points: np.ndarray, valid: np.ndarray, cos: np.ndarray) -> None:
+        """|cos| of the viewing ray to the surface normal per pixel, the normal from neighbouring
+        points (``degrade.normals_from_pointmap`` then ``cos_incidence``, in float32 like them)."""
+        h, w = valid.shape
+        one, tiny = np.float32(1.0), np.float32(1e-12)
+        for v in range(h):
+            vm, vp = max(v - 1, 0), min(v + 1, h - 1)
+            for u in range(w):
+                um, up = max(u - 1, 0), min(u + 1, w - 1)
+                p0, p1, p2 = points[v, u, 0], points[v, u, 1], points[v, u, 2]
+                dx0 = points[v, up, 0] - points[v, um, 0]
+                dx1 = points[v, up, 1] - points[v, um, 1]
+                dx2 = points[v, up, 2] - points[v, um, 2]
+                dy0 = points[vp, u, 0] - points[vm, u, 0]
+                dy1 = points[vp, u, 1] - points[vm, u, 1]
+                dy2 = points[vp, u, 2] - points[vm, u, 2]
+                ok = valid[v, u] and valid[v, up] and valid[v, um] and valid[vp, u] and valid[vm, u]
+                n0 = dx1 * dy2 - dx2 * dy1
+                n1 = dx2 * dy0 - dx0 * dy2
+                n2 = dx0 * dy1 - dx1 * dy0
+                norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+                ok = ok and norm > tiny
+                if not ok:
+                    cos[v, u] = one
+                    continue
+                facing = n0 * p0 + n1 * p1 + n2 * p2
+                d = -norm if facing > 0 else norm
+                n0, n1, n2 = n0 / d, n1 / d, n2 / d
+                r = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+                dot = n0 * p0 + n1 * p1 + n2 * p2
+                c = abs(dot) / (r if r > 0 else one)
+                cos[v, u] = min(max(c, np.float32(0.0)), one)
+
+    @njit(cache=True, nogil=True)
+    def depth_noise_kernel(points: np.ndarray, valid: np.ndarray, z: np.ndarray, cos: np.ndarray,
+                           normal: np.ndarray, e: np.ndarray, a: float, b: float, c_gain: float,
+                           noisy: np.ndarray, conf: np.ndarray) -> None:
+        """Range noise along each pixel's ray and the confidence (``Degrader.observe``): ``normal``
+        is the standard normal draw, ``e = exp(−z / z_scale)`` (numpy's exp, for identical bits)."""
+        h, w = valid.shape
+        cmin, g = np.float32(0.2), np.float32(c_gain)
+        for v in range(h):
+            for u in range(w):
+                if not valid[v, u]:
+                    noisy[v, u, 0] = 0.0
+                    noisy[v, u, 1] = 0.0
+                    noisy[v, u, 2] = 0.0
+                    conf[v, u] = 0.0
+                    continue
+                zz = z[v, u]
+                c = cos[v, u]
+                sigma = (a + b * zz * zz) / np.float64(max(c, cmin))
+                noise = normal[v, u] * sigma
+                s = max((zz + noise) / (zz if zz > 0 else 1.0), 0.05)
+                for j in range(3):
+                    noisy[v, u, j] = np.float32(np.float64(points[v, u, j]) * s)
+                conf[v, u] = np.float32(1.0 + np.float64(g * c) * e[v, u])

@@ -95,7 +95,7 @@ class SimBackend:
         self.config = config or SimBackendConfig()
         #: match and fuse with the compiled kernels (``kernels``); False: the numpy reference
         self.compiled = compiled
-        self.degrader = Degrader(self.config.degradation, self.config.seed)
+        self.degrader = Degrader(self.config.degradation, self.config.seed, compiled)
         self.labeller = labeller
         self.keyframe: _Keyframe | None = None
         self.n_keyframes = 0
