@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from riskfield.protocol import ade20k
 
 from ..geometry.camera import PinholeCamera
+from .kernels import HAVE_NUMBA
 from .scene import NO_LABEL, Snapshot
 
 #: Body (x forward, y left, z up) ← camera (x right, y down, z forward), looking straight ahead.
@@ -107,6 +108,8 @@ class Renderer:
     camera: PinholeCamera = field(default_factory=PinholeCamera)
     ambient: float = 0.25
     max_depth: float = 50.0
+    #: shade in one compiled pass (``kernels.shade_kernel``, the same bytes); False: numpy
+    compiled: bool = HAVE_NUMBA
 
     def __post_init__(self) -> None:
         self._rays = self.camera.rays()
@@ -117,6 +120,8 @@ class Renderer:
         T_WC = np.asarray(T_WC, np.float64)
         R = T_WC[:3, :3].astype(np.float32)
         dirs = _rotate(R, self._rays)
+        if self.compiled and not snapshot.empty:
+            return self._render_compiled(snapshot, T_WC, dirs)
         hits = snapshot.cast(T_WC[:3, 3].astype(np.float32), dirs)
         ok = hits.t <= self.max_depth  # inf (no hit) fails this too
         depth = np.where(ok, hits.t, np.float32(0.0))
@@ -139,3 +144,19 @@ class Renderer:
             object=np.where(ok, hits.object, -1).astype(np.int32),
             T_WC=T_WC,
         )
+
+    def _render_compiled(self, snapshot: Snapshot, T_WC: np.ndarray, dirs: np.ndarray) -> Render:
+        from .kernels import shade_kernel
+
+        out = snapshot.cast_raw(T_WC[:3, 3].astype(np.float32), dirs)
+        h, w = self._rays.shape[:2]
+        n = h * w
+        depth, labels, obj = np.empty(n, np.float32), np.empty(n, np.uint16), np.empty(n, np.int32)
+        points, normals, rgb = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8)
+        shade_kernel(out["t_hit"], out["geometry_ids"], out["primitive_ids"], out["primitive_normals"],
+                     self._rays.reshape(-1, 3), dirs.reshape(-1, 3), self._inv_len.reshape(-1), snapshot.offsets,
+                     snapshot.object_index, snapshot.triangle_labels, float(self.max_depth), int(NO_LABEL), _LUT,
+                     255.0 * self.ambient, 255.0 * (1.0 - self.ambient), depth, points, labels, normals, rgb, obj)
+        return Render(rgb=rgb.reshape(h, w, 3), depth=depth.reshape(h, w), points=points.reshape(h, w, 3),
+                      labels=labels.reshape(h, w), normals=normals.reshape(h, w, 3), object=obj.reshape(h, w),
+                      T_WC=T_WC)

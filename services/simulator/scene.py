@@ -190,25 +190,31 @@ class Snapshot:
         self.n_triangles = n
         self.empty = not obj_index
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
-        """First hits of rays ``origins + t·directions`` (both ``(..., 3)``, broadcastable)."""
+    def cast_raw(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
+        """open3d's ``cast_rays`` output (``t_hit``, ``geometry_ids``, ``primitive_ids``,
+        ``primitive_normals``, …) as flat numpy arrays, one entry per ray; a non-empty scene only."""
         origins = np.asarray(origins, np.float32)
         directions = np.asarray(directions, np.float32)
         shape = np.broadcast_shapes(origins.shape, directions.shape)[:-1]
         rays = np.empty((*shape, 6), np.float32)
         rays[..., :3] = origins
         rays[..., 3:] = directions
-        rays = rays.reshape(-1, 6)
+        out = self.raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+        return {k: v.numpy() for k, v in out.items()}
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """First hits of rays ``origins + t·directions`` (both ``(..., 3)``, broadcastable)."""
+        shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))[:-1]
         if self.empty:
             return Hits(np.full(shape, np.inf, np.float32), np.zeros((*shape, 3), np.float32),
                         np.full(shape, NO_LABEL, np.uint16), np.full(shape, -1, np.int32))
-        out = self.raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
-        t_hit = out["t_hit"].numpy()
+        out = self.cast_raw(origins, directions)
+        t_hit = out["t_hit"]
         hit = np.isfinite(t_hit)
         # Misses carry INVALID_ID: route them to the sentinel entries at the end of the tables.
-        gid = np.where(hit, out["geometry_ids"].numpy(), len(self.object_index) - 1)
-        flat = np.where(hit, self.offsets[gid] + out["primitive_ids"].numpy(), self.n_triangles)
-        normal = out["primitive_normals"].numpy()
+        gid = np.where(hit, out["geometry_ids"], len(self.object_index) - 1)
+        flat = np.where(hit, self.offsets[gid] + out["primitive_ids"], self.n_triangles)
+        normal = out["primitive_normals"]
         normal[~hit] = 0.0
         return Hits(t_hit.reshape(shape), normal.reshape(*shape, 3), self.triangle_labels[flat].reshape(shape),
                     self.object_index[gid].reshape(shape))
