@@ -231,6 +231,8 @@ def setup(node: Node, s: PerceptionSettings) -> Perception:
         backend = build_backend(s)
     except MissingBackend as exc:
         raise ServiceUnavailable(f"perception backend unavailable: {exc}") from exc
+    if isinstance(backend, SimBackend):
+        backend.warm_up()  # compile before the first frame, not on it
     p = Perception(node, s, backend)
     node.subscribe(node.keys.camera_image, Image, p.on_image, queue="latest")
     if backend.needs_truth:

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from riskfield.protocol import Image, PerceptionFrame
+from riskfield.protocol import Image, PerceptionFrame, decode, encode
 from riskfield.protocol.messages import Header
 
 from ..geometry.camera import PinholeCamera
@@ -105,6 +105,21 @@ class SimBackend:
         self.kept: dict[int, _Keyframe] = {}  # publish = "updates": keyframes a correction re-poses
         self.since_update = 0
         self.corrections = 0
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels before the first camera frame: a
+        throwaway backend of the same configuration fuses two frames of a plane, decoded from the
+        wire like the node's (read-only arrays are a kernel signature of their own)."""
+        if not self.compiled:
+            return
+        h, w = 12, 16
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        points = np.stack([(u - w / 2) / w, (v - h / 2) / w, np.ones((h, w))], axis=-1) * 2.0
+        truth = PerceptionFrame(T_WC=np.eye(4), points=points.astype(np.float32), keyframe_id=0,
+                                confidence=np.ones((h, w), np.float32), labels=np.zeros((h, w), np.uint16))
+        scratch = SimBackend(self.config, compiled=True)
+        for i in range(2):
+            scratch.process(None, decode(encode(truth), PerceptionFrame), i + 1)
 
     # -- the steps ------------------------------------------------------------------------------
     def match(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray, T_WC_true: np.ndarray,

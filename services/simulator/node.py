@@ -72,6 +72,8 @@ class Simulator:
         self._t0 = self._last
         self.frames = 0
         self.spawn_invalid = 0
+        if s.camera_hz > 0:
+            self.world.render()  # compiles the renderer's kernel before the first camera frame
         node.log.info("scenario %s: %d objects, robot %s, camera %dx%d", scenario.name,
                       len(self.world.scene.objects), scenario.robot.type, self.world.camera.width,
                       self.world.camera.height)

@@ -110,8 +110,10 @@ def test_simulator_publishes_depth_stamped_like_the_image(router_endpoint):
         truths = Collector(s, f"rf/{robot}/sim/truth", PerceptionFrame)
         depths.wait(3, 20)
         truths.wait(3, 20)
-        d = depths.items[-2]
-        truth = next(t for t in truths.items if t.header.stamp_ns == d.header.stamp_ns)
+        # the newest depth whose truth arrived too (the truth collector subscribed a little later)
+        truth_stamps = {t.header.stamp_ns: t for t in truths.items}
+        d = next(d for d in reversed(depths.items) if d.header.stamp_ns in truth_stamps)
+        truth = truth_stamps[d.header.stamp_ns]
         assert d.depth.shape == (96, 128) and d.header.frame_id == "camera"
         np.testing.assert_allclose(d.depth, truth.points[..., 2])  # depth = the pointmap's z
         # the intrinsics back-project the depth onto the true pointmap
