@@ -22,11 +22,12 @@ ROOM = {"room": {"size": [6.0, 5.0]}, "camera": {"width": 160, "height": 120},
                      "speed": 0.5}]}
 
 
-@pytest.mark.parametrize("max_depth", [50.0, 3.0])
+@pytest.mark.parametrize("max_depth", [50.0, 2.0])
 def test_compiled_render_is_identical_to_numpy(max_depth: float) -> None:
     world = World(load_scenario(ROOM))
     ref = Renderer(world.camera, max_depth=max_depth, compiled=False)
     fast = Renderer(world.camera, max_depth=max_depth, compiled=True)
+    cut = False
     for i in range(8):
         world.command(np.array([0.2, 0.0, 0.0]), np.array([0.0, 0.0, 0.9]))
         world.advance(0.25)
@@ -36,6 +37,6 @@ def test_compiled_render_is_identical_to_numpy(max_depth: float) -> None:
             x, y = getattr(a, name), getattr(b, name)
             assert x.dtype == y.dtype and x.shape == y.shape, name
             np.testing.assert_array_equal(x, y, err_msg=f"frame {i}: {name}")
-        if max_depth < 50:
-            assert (~a.valid).any() and a.valid.any()  # the cut-off is exercised
+        cut |= bool((~a.valid).any() and a.valid.any())
+    assert cut or max_depth == 50.0  # the cut-off is exercised
     assert len(np.unique(a.object)) >= 3
