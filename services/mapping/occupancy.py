@@ -124,8 +124,13 @@ def _solid_at(f: int, state: np.ndarray, filled: np.ndarray, g: np.ndarray) -> b
 
 @njit(cache=True, nogil=True)
 def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.ndarray, lut: np.ndarray, min_w: float,
-           band: float, fill_steps: int, unknown_group: int, groups: np.ndarray, support_steps: int = 0) -> None:
-    """Fill ``groups`` (all zero on entry) with the solid semantic occupancy; see the module docstring."""
+           band: float, fill_steps: int, unknown_group: int, groups: np.ndarray, support_steps: int = 0,
+           sparse: bool = True) -> None:
+    """Fill ``groups`` (all zero on entry) with the solid semantic occupancy; see the module docstring.
+
+    ``sparse``: the support pass visits only the (i, j) columns holding an observed obstacle voxel
+    and the final pass only the voxels the wavefront reached (when ``unknown_group`` is 0) — the
+    only ones either pass can change; ``False`` scans the whole volume (the reference, same result)."""
     nx, ny, nz = tsdf.shape
     n = nx * ny * nz
     t = tsdf.reshape(n)
@@ -239,8 +244,18 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
             # voxels that the never-observed voxels under it use up (the shadow fill's voxels pass
             # without re-arming: a guess does not extend a guess), anything observed that is not
             # an obstacle (free space, the floor) disarms it.
+            # Only a column with an observed obstacle voxel arms the budget; those voxels are in
+            # the wavefront's queue (state 3 is set nowhere else before this pass).
+            column = np.ones(nx * ny, np.bool_) if not sparse else np.zeros(nx * ny, np.bool_)
+            if sparse:
+                for m in range(tail):
+                    f = queue[m]
+                    if g[f] != _FREE and g[f] != 0:
+                        column[f // nz] = True
             for i in range(nx):
                 for j in range(ny):
+                    if not column[i * ny + j]:
+                        continue
                     run = 0
                     grp = 0
                     base = (i * ny + j) * nz
@@ -291,6 +306,13 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
                 state[cand[m]] = 2
         for m in range(n_filled):
             state[cand[m]] = 3
+    if sparse and unknown_group <= 0:
+        # The free mark is only ever set by the wavefront (fills and pinholes copy obstacle groups).
+        for m in range(tail):
+            f = queue[m]
+            if g[f] == _FREE:
+                g[f] = 0
+        return
     for f in range(n):
         if g[f] == _FREE:
             g[f] = 0
@@ -300,7 +322,7 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
 
 def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group: np.ndarray, min_weight: float,
                        surface_band: float, unknown_group: int = 0, interior: str = "solid",
-                       fill_steps: int = 0, support_steps: int = 0) -> np.ndarray:
+                       fill_steps: int = 0, support_steps: int = 0, sparse: bool = True) -> np.ndarray:
     """Per-voxel obstacle group (uint8, 1-based risk group id, 0 = not an obstacle).
 
     ``interior``: ``"solid"`` (observed negative-TSDF voxels join the obstacle of their nearest
@@ -308,14 +330,15 @@ def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group:
     also fills never-observed voxels up to that many voxel steps behind an obstacle's observed
     interior, and ``support_steps`` > 0 (with ``fill_steps`` > 0) never-observed voxels up to that
     many voxels straight below an observed obstacle voxel. ``unknown_group`` > 0 marks the remaining
-    never-observed voxels as obstacles of that group.
+    never-observed voxels as obstacles of that group. ``sparse=False``: the whole-volume scans
+    (the reference of the default's skipped work; the same result).
     """
     if interior == "solid":
         groups = np.zeros(tsdf.tsdf.shape, dtype=np.uint8)
         lut = np.ascontiguousarray(label_to_group, dtype=np.uint8)
         _solid(np.ascontiguousarray(tsdf.tsdf), np.ascontiguousarray(tsdf.weight), np.ascontiguousarray(tsdf.view),
                np.ascontiguousarray(semantic.label), lut, float(max(min_weight, 1e-12)), float(surface_band),
-               int(fill_steps), int(unknown_group), groups, int(support_steps))
+               int(fill_steps), int(unknown_group), groups, int(support_steps), bool(sparse))
         return groups
     if interior != "shell":
         raise ValueError(f"interior {interior!r} is neither 'solid' nor 'shell'")

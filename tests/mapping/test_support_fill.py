@@ -73,3 +73,27 @@ def test_the_policy_and_depth_come_from_the_config(policy: str, steps: int) -> N
     c = MapperConfig(unobserved_below_obstacle=policy)
     assert c.support_steps == steps
     assert MapperConfig(unobserved_behind_surface="free").support_steps == 0  # needs the solid fill
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_sparse_scans_equal_the_whole_volume_scans(seed: int) -> None:
+    """``sparse`` (the default) skips columns without an observed obstacle and voxels the wavefront
+    never reached; on random layers (blobs of labelled surface, interior, never-observed space,
+    grazing and steep viewing directions) it gives the whole-volume result."""
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(n) for n in rng.integers(4, 18, 3))
+    tsdf, sem = TsdfLayer(shape, 0.15), SemanticLayer(shape)
+    observed = rng.random(shape) < 0.6
+    tsdf.weight[observed] = rng.uniform(0.0, 10.0, int(observed.sum()))
+    tsdf.tsdf[...] = rng.choice([-0.1, 0.0, 0.01, 0.15], size=shape).astype(np.float32)
+    tsdf.view[...] = rng.integers(-127, 128, (*shape, 3)).astype(np.int8)
+    labelled = rng.random(shape) < 0.3
+    sem.label[labelled] = rng.choice([BED, FLOOR, ade20k.index("wall"), ade20k.index("person")],
+                                     int(labelled.sum()))
+    lut = RiskConfig().label_to_group()
+    for unknown_group in (0, 2):
+        for fill, support in ((0, 0), (3, 0), (3, 4), (10, 20)):
+            args = (tsdf, sem, lut, 0.5, 0.75 * V, unknown_group, "solid", fill, support)
+            full = semantic_occupancy(*args, sparse=False)
+            np.testing.assert_array_equal(semantic_occupancy(*args), full)
+    assert full.any()
