@@ -119,9 +119,9 @@ class Renderer:
         """Cast one ray per pixel from the camera pose ``T_WC`` (4x4 camera → world)."""
         T_WC = np.asarray(T_WC, np.float64)
         R = T_WC[:3, :3].astype(np.float32)
-        dirs = _rotate(R, self._rays)
         if self.compiled and not snapshot.empty:
-            return self._render_compiled(snapshot, T_WC, dirs)
+            return self._render_compiled(snapshot, T_WC, R)
+        dirs = _rotate(R, self._rays)
         hits = snapshot.cast(T_WC[:3, 3].astype(np.float32), dirs)
         ok = hits.t <= self.max_depth  # inf (no hit) fails this too
         depth = np.where(ok, hits.t, np.float32(0.0))
@@ -145,16 +145,19 @@ class Renderer:
             T_WC=T_WC,
         )
 
-    def _render_compiled(self, snapshot: Snapshot, T_WC: np.ndarray, dirs: np.ndarray) -> Render:
-        from .kernels import shade_kernel
+    def _render_compiled(self, snapshot: Snapshot, T_WC: np.ndarray, R: np.ndarray) -> Render:
+        from .kernels import pack_rays_kernel, shade_kernel
 
-        out = snapshot.cast_raw(T_WC[:3, 3].astype(np.float32), dirs)
         h, w = self._rays.shape[:2]
         n = h * w
+        rays = np.empty((n, 6), np.float32)
+        pack_rays_kernel(R, T_WC[:3, 3].astype(np.float32), self._rays.reshape(-1, 3), rays)
+        out = snapshot.cast_packed(rays)
+        dirs = rays[:, 3:]
         depth, labels, obj = np.empty(n, np.float32), np.empty(n, np.uint16), np.empty(n, np.int32)
         points, normals, rgb = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8)
         shade_kernel(out["t_hit"], out["geometry_ids"], out["primitive_ids"], out["primitive_normals"],
-                     self._rays.reshape(-1, 3), dirs.reshape(-1, 3), self._inv_len.reshape(-1), snapshot.offsets,
+                     self._rays.reshape(-1, 3), dirs, self._inv_len.reshape(-1), snapshot.offsets,
                      snapshot.object_index, snapshot.triangle_labels, float(self.max_depth), int(NO_LABEL), _LUT,
                      255.0 * self.ambient, 255.0 * (1.0 - self.ambient), depth, points, labels, normals, rgb, obj)
         return Render(rgb=rgb.reshape(h, w, 3), depth=depth.reshape(h, w), points=points.reshape(h, w, 3),

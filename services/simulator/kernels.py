@@ -59,3 +59,13 @@ if HAVE_NUMBA:
             shade = a0 + a1 * min(w_head * lambert + w_sky * sky, one)
             for c in range(3):
                 rgb[k, c] = np.uint8(lut[lab, c] * shade + half)
+
+    @njit(cache=True, nogil=True)
+    def pack_rays_kernel(R: np.ndarray, origin: np.ndarray, rays_cam: np.ndarray, out: np.ndarray) -> None:
+        """open3d's (N, 6) ray rows: the camera origin and each camera-frame ray rotated into the
+        world by ``R`` (float32, ``camera._rotate``'s sums in its order)."""
+        for k in range(rays_cam.shape[0]):
+            v0, v1, v2 = rays_cam[k, 0], rays_cam[k, 1], rays_cam[k, 2]
+            out[k, 0], out[k, 1], out[k, 2] = origin[0], origin[1], origin[2]
+            for i in range(3):
+                out[k, 3 + i] = R[i, 0] * v0 + R[i, 1] * v1 + R[i, 2] * v2

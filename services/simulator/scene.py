@@ -199,7 +199,12 @@ class Snapshot:
         rays = np.empty((*shape, 6), np.float32)
         rays[..., :3] = origins
         rays[..., 3:] = directions
-        out = self.raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+        return self.cast_packed(rays.reshape(-1, 6))
+
+    def cast_packed(self, rays: np.ndarray) -> dict[str, np.ndarray]:
+        """``cast_raw`` of rays already packed as open3d wants them: (N, 6) float32 rows of origin
+        and direction, C-contiguous (open3d wraps the buffer without a copy)."""
+        out = self.raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
         return {k: v.numpy() for k, v in out.items()}
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
