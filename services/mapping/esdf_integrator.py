@@ -58,6 +58,7 @@ import numpy as np
 from scipy import ndimage
 
 from .config import MapperConfig
+from .esdf_wave import WaveEsdf
 
 
 def _bbox(mask: np.ndarray, pad: int) -> tuple[slice, ...] | None:
@@ -87,6 +88,7 @@ class EsdfIntegrator:
 
     def __init__(self, config: MapperConfig):
         self.config = config
+        self._wave: WaveEsdf | None = None  # the wavefront maps, made by the first ``update``
 
     # -- the two public forms ---------------------------------------------------------------
     def compute(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,6 +109,16 @@ class EsdfIntegrator:
         groups[:] = 0
         groups[0, 0, 0], groups[-1, -1, -1] = 1, 2
         self._field3d(groups, margins)
+        if self.config.esdf_incremental == "wave":  # compile the wave kernels (a scratch instance)
+            wave = WaveEsdf(self.config.voxel_size, self.config.max_distance)
+            wave.update(groups, margins)
+            groups[3:6, 3:6, 3:6] = 1
+            wave.update(groups, margins)
+
+    def _wave_esdf(self) -> WaveEsdf:
+        if self._wave is None:
+            self._wave = WaveEsdf(self.config.voxel_size, self.config.max_distance)
+        return self._wave
 
     def compute_reference(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``compute`` by the numpy path (``esdf_kernel = "numpy"``): the cross-check of the compiled one."""
@@ -116,6 +128,9 @@ class EsdfIntegrator:
                previous: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         """The 3-D field after an edit, recomputing only where it can have changed.
 
+        With ``esdf_incremental = "wave"`` (exact inflation, the default) the wavefront maps of
+        ``esdf_wave`` do it: they keep the last group map they saw, so ``previous_groups`` and
+        ``previous`` are not read; the cost follows the voxels whose value changes. Else (``box``):
         ``previous`` = (distance, risk_group) was computed by ``compute`` (or ``update``) from
         ``previous_groups`` with the same margins and configuration. The voxels whose group changed
         (occupancy or labels) have a bounding box; a voxel farther than the reach
@@ -126,6 +141,14 @@ class EsdfIntegrator:
         same base group is used, and the sub-box EDTs see every voxel that matters. Returns
         (distance, risk_group, voxels recomputed).
         """
+        c = self.config
+        if c.esdf_incremental == "wave" and c.inflation == "exact" and groups.ndim == 3:
+            return self._wave_esdf().update(groups, margins)
+        return self.update_box(groups, margins, previous_groups, previous)
+
+    def update_box(self, groups: np.ndarray, margins: np.ndarray, previous_groups: np.ndarray,
+                   previous: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
+        """``update`` by a recompute of the changed voxels' box grown by the reach (see ``update``)."""
         changed = groups != previous_groups
         box = _bbox(changed, 0)
         if box is None:

@@ -1,0 +1,464 @@
+"""Incremental 3-D semantic ESDF by wavefronts (``esdf_incremental = "wave"``): the cost follows the
+voxels whose value changes, not the clip radius.
+
+**What is kept.** One nearest-site map per risk group g (sites: the voxels of group g) and one for
+the free space (sites: the unoccupied voxels, the inside depth). Per voxel x and map m: the site
+s_m(x) (flat index, −1 when none within the map's reach) and |x − s_m(x)|² in voxels². As in
+FIESTA (Han et al., IROS 2019, ``ESDFMap::updateESDF``), every site keeps a doubly-linked list of
+the voxels it is nearest to, so a removed site finds its whole cell without a search.
+
+**An edit** (the voxels whose group changed since the last call) runs, per map:
+
+1. *raise*: every voxel in the cell of a removed site loses its site; the voxels around the cleared
+   region that keep theirs are queued to offer them again;
+2. *insert*: each new site is its own site;
+3. *lower*: a FIFO wave from the voxels of 1–2: a neighbour n takes site s when |n − s|² is
+   smaller than its own and within the reach; a voxel is re-queued at most once at a time.
+
+The reach of group g is e_g < max_distance + v/2 + m_g (beyond, its term is clipped), of the free
+map max_distance + v/2 (deeper insides are clipped to −max_distance).
+
+**Values** (recomputed only on voxels whose group or any site changed), the same function the full
+recompute (``EsdfIntegrator.compute``, the oracle) evaluates, with e_g = v·|x − s_g(x)|:
+
+    T_g(x) = −(depth(x) − v/2) − m_g   x in group g,   depth = v·|x − s_free(x)|
+    T_g(x) =  e_g(x) − v/2 − m_g        otherwise,
+    d(x)   = min_g T_g(x),  risk_group = argmin (ties: lower id, but the base group yields)
+
+then clipped as there (d ≥ max_distance → max_distance, group 0). The base group is the oracle's
+(the largest group among those of the smallest margin); when it changes every value is redone.
+
+Nearest-site propagation over 26 neighbours is the classic vector-propagation EDT; its digital
+exceptions (a voxel whose nearest site is nobody's neighbour's) are what the property test against
+the oracle is for (``tests/mapping/test_esdf_wave.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _unlink(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, m: int, x: int) -> None:
+    s = site[m, x]
+    if s < 0:
+        return
+    p = prv[m, x]
+    n = nxt[m, x]
+    if p >= 0:
+        nxt[m, p] = n
+    else:
+        head[m, s] = n
+    if n >= 0:
+        prv[m, n] = p
+    site[m, x] = -1
+    nxt[m, x] = -1
+    prv[m, x] = -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _link(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, m: int, x: int, s: int) -> None:
+    site[m, x] = s
+    prv[m, x] = -1
+    h = head[m, s]
+    nxt[m, x] = h
+    if h >= 0:
+        prv[m, h] = x
+    head[m, s] = x
+
+
+@njit(cache=True, nogil=True)
+def reset(state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray, prv: np.ndarray,
+          head: np.ndarray, counts: np.ndarray, dist: np.ndarray, grp: np.ndarray, dmax: np.float32) -> None:
+    """The empty map: all voxels free (each its own free site), no obstacle sites, d = max_distance."""
+    n = state.shape[0]
+    for x in range(n):
+        state[x] = 0
+        dist[x] = dmax
+        grp[x] = 0
+        site[0, x] = x
+        key[0, x] = 0.0
+        nxt[0, x] = -1
+        prv[0, x] = -1
+        head[0, x] = x
+        site[1, x] = -1
+        key[1, x] = np.inf
+        nxt[1, x] = -1
+        prv[1, x] = -1
+        head[1, x] = -1
+    counts[:] = 0
+    counts[0] = n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _push(queue: np.ndarray, inq: np.ndarray, qt: int, y: int) -> int:
+    if inq[y] == 0:
+        inq[y] = 1
+        queue[qt] = y
+        qt += 1
+        if qt == queue.shape[0]:
+            qt = 0
+    return qt
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _mark(dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, y: int) -> int:
+    if dirty[y] == 0:
+        dirty[y] = 1
+        dirty_list[n_dirty] = y
+        n_dirty += 1
+    return n_dirty
+
+
+@njit(cache=True, nogil=True)
+def _climb(site: np.ndarray, state: np.ndarray, weight: np.ndarray, root: np.ndarray, m: int, x: int, s: int,
+           cur: float, nx: int, ny: int, nz: int) -> int:
+    """Walk from site s over adjacent sites of map m while one is nearer (by key) to voxel x: the
+    nearest site a 26-neighbour wave can miss sits next to the one it found."""
+    plane = ny * nz
+    xi = x // plane
+    rr = x - xi * plane
+    xj = rr // nz
+    xk = rr - xj * nz
+    bs = s
+    while True:
+        si = bs // plane
+        sr = bs - si * plane
+        sj = sr // nz
+        sk = sr - sj * nz
+        nb = -1
+        for ii in range(max(si - 1, 0), min(si + 2, nx)):
+            for jj in range(max(sj - 1, 0), min(sj + 2, ny)):
+                for kk in range(max(sk - 1, 0), min(sk + 2, nz)):
+                    c = (ii * ny + jj) * nz + kk
+                    g = state[c]
+                    if (g == 0) != (m == 0):
+                        continue
+                    e = (xi - ii) ** 2 + (xj - jj) ** 2 + (xk - kk) ** 2
+                    if e >= root.shape[0]:
+                        continue
+                    k = root[e] - (0.0 if m == 0 else weight[g])
+                    if k < cur:
+                        cur = k
+                        nb = c
+        if nb < 0:
+            return bs
+        bs = nb
+
+
+@njit(cache=True, nogil=True)
+def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray,
+                prv: np.ndarray, head: np.ndarray, weight: np.ndarray, lim: float, voxel: float, nx: int, ny: int,
+                nz: int, counts: np.ndarray, changed: np.ndarray, old: np.ndarray, buf: np.ndarray,
+                queue: np.ndarray, inq: np.ndarray, dirty: np.ndarray, dirty_list: np.ndarray,
+                stats: np.ndarray, root: np.ndarray, repairs: int, rim: bool) -> tuple[int, int]:
+    """Bring the maps from the group map ``state`` to ``new`` (flat, uint8; ids ≥ ``weight.size`` are
+    free, as in the oracle) and list the voxels whose value may have changed in ``dirty_list``.
+    Map 0: free sites, key v·|x − s|; map 1: obstacle sites, key v·|x − s| − m_{g(s)} (``weight``).
+    ``root[e]`` = v·√e for every squared voxel distance e within the reach (no sqrt in the wave).
+    Returns (voxels whose group changed, voxels listed). ``dirty`` is all zero on entry and on return."""
+    n = state.shape[0]
+    n_groups = weight.shape[0]
+    plane = ny * nz
+    n_ch = 0
+    n_dirty = 0
+    for x in range(n):
+        g = new[x]
+        if g >= n_groups:
+            g = 0
+        if g != state[x]:
+            changed[n_ch] = x
+            old[n_ch] = state[x]
+            counts[state[x]] -= 1
+            counts[g] += 1
+            state[x] = g
+            n_ch += 1
+            n_dirty = _mark(dirty, dirty_list, n_dirty, x)
+    if n_ch == 0:
+        return 0, 0
+    for m in range(2):
+        qh = 0
+        qt = 0
+        # 1. raise: the cells of the removed sites lose their site; their rim offers its sites again
+        nr = 0
+        for c in range(n_ch):
+            r = changed[c]
+            if (old[c] == 0) != (m == 0):
+                continue
+            x = head[m, r]
+            while x >= 0:
+                nn = nxt[m, x]
+                site[m, x] = -1
+                key[m, x] = np.inf
+                nxt[m, x] = -1
+                prv[m, x] = -1
+                buf[nr] = x
+                nr += 1
+                n_dirty = _mark(dirty, dirty_list, n_dirty, x)
+                x = nn
+            head[m, r] = -1
+        for t in range(nr):
+            x = buf[t]
+            g = state[x]
+            if m == 1 and g != 0:  # a site beaten at home by the removed one is its own again
+                _link(site, nxt, prv, head, m, x, x)
+                key[m, x] = -weight[g]
+                qt = _push(queue, inq, qt, x)
+            xi = x // plane
+            rr = x - xi * plane
+            xj = rr // nz
+            xk = rr - xj * nz
+            if rim:
+                for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
+                    for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
+                        for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
+                            y = (ii * ny + jj) * nz + kk
+                            if site[m, y] >= 0:
+                                qt = _push(queue, inq, qt, y)
+                continue
+            best = key[m, x]  # inf, or its own key when x is a site (re-linked above)
+            bs = -1
+            for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
+                for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
+                    for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
+                        y = (ii * ny + jj) * nz + kk
+                        c = site[m, y]
+                        if c < 0:
+                            continue
+                        ci = c // plane
+                        cr = c - ci * plane
+                        cj = cr // nz
+                        ck = cr - cj * nz
+                        e = (xi - ci) ** 2 + (xj - cj) ** 2 + (xk - ck) ** 2
+                        if e >= root.shape[0]:
+                            continue
+                        k = root[e] - (0.0 if m == 0 else weight[state[c]])
+                        if k < best:
+                            best = k
+                            bs = c
+            if bs >= 0 and best <= lim:
+                _unlink(site, nxt, prv, head, m, x)
+                _link(site, nxt, prv, head, m, x, bs)
+                key[m, x] = best
+                qt = _push(queue, inq, qt, x)
+        # 2. insert: a new site is its own, unless another one already beats it there (then its
+        # cell is empty: cells are star-shaped about their site)
+        for c in range(n_ch):
+            a = changed[c]
+            g = state[a]
+            if (g == 0) != (m == 0):
+                continue
+            own = 0.0 if m == 0 else -weight[g]
+            if own < key[m, a] or site[m, a] < 0:
+                _unlink(site, nxt, prv, head, m, a)
+                _link(site, nxt, prv, head, m, a, a)
+                key[m, a] = own
+                qt = _push(queue, inq, qt, a)
+        # 3. lower: the FIFO wave; then 4. repair, and again while the repair moved a site
+        d0 = n_dirty
+        for _ in range(repairs + 1):
+            while qh != qt:
+                x = queue[qh]
+                qh += 1
+                if qh == queue.shape[0]:
+                    qh = 0
+                inq[x] = 0
+                stats[0] += 1
+                s = site[m, x]
+                if s < 0:
+                    continue
+                w = 0.0 if m == 0 else weight[state[s]]
+                xi = x // plane
+                rr = x - xi * plane
+                xj = rr // nz
+                xk = rr - xj * nz
+                si = s // plane
+                sr = s - si * plane
+                sj = sr // nz
+                sk = sr - sj * nz
+                for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
+                    ei = (ii - si) ** 2
+                    for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
+                        eij = ei + (jj - sj) ** 2
+                        for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
+                            y = (ii * ny + jj) * nz + kk
+                            if site[m, y] == s or (m == 0 and state[y] == 0):
+                                continue  # already there; a free voxel is its own free site
+                            e = eij + (kk - sk) ** 2
+                            if e >= root.shape[0]:
+                                continue  # beyond the reach
+                            k = root[e] - w
+                            if k >= key[m, y] or k > lim:
+                                continue
+                            _unlink(site, nxt, prv, head, m, y)
+                            _link(site, nxt, prv, head, m, y, s)
+                            key[m, y] = k
+                            stats[1] += 1
+                            n_dirty = _mark(dirty, dirty_list, n_dirty, y)
+                            qt = _push(queue, inq, qt, y)
+            if _ == repairs:
+                break
+            moved = 0
+            for t in range(d0, n_dirty):
+                x = dirty_list[t]
+                if m == 0 and state[x] == 0:
+                    continue
+                s = site[m, x]
+                if s < 0:
+                    continue
+                cur = key[m, x]
+                bs = _climb(site, state, weight, root, m, x, s, cur, nx, ny, nz)
+                if bs != s:
+                    xi = x // plane
+                    rr = x - xi * plane
+                    xj = rr // nz
+                    xk = rr - xj * nz
+                    si = bs // plane
+                    sr = bs - si * plane
+                    sj = sr // nz
+                    sk = sr - sj * nz
+                    _unlink(site, nxt, prv, head, m, x)
+                    _link(site, nxt, prv, head, m, x, bs)
+                    key[m, x] = root[(xi - si) ** 2 + (xj - sj) ** 2 + (xk - sk) ** 2] - (
+                        0.0 if m == 0 else weight[state[bs]])
+                    qt = _push(queue, inq, qt, x)
+                    moved += 1
+            stats[2] += moved
+            if moved == 0:
+                break
+    for t in range(n_dirty):
+        dirty[dirty_list[t]] = 0
+    return n_ch, n_dirty
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def values(state: np.ndarray, site: np.ndarray, voxels: np.ndarray, n_vox: int, ny: int, nz: int,
+           dist: np.ndarray, grp: np.ndarray, off: np.ndarray, margins: np.ndarray, base: int, voxel: float,
+           half: np.float32, dmax: np.float32) -> None:
+    """d and risk_group on ``voxels[:n_vox]`` (all voxels when ``n_vox`` < 0) from the maps (see the
+    module docstring), in the oracle's float32 steps: ``off[g]`` = float32(v/2 + m_g) as the oracle
+    forms it, ``margins`` float32. Ties between a group's own (inside) term and the nearest other
+    group's go as in the oracle: to the lower id, but the base group yields."""
+    n = state.shape[0] if n_vox < 0 else n_vox
+    plane = ny * nz
+    for t in range(n):
+        x = t if n_vox < 0 else voxels[t]
+        g0 = state[x]
+        best = np.float32(np.inf)
+        bl = 0
+        xi = x // plane
+        rr = x - xi * plane
+        xj = rr // nz
+        xk = rr - xj * nz
+        if g0 != 0:
+            s = site[0, x]
+            if s < 0:
+                best = np.float32(-np.inf)
+            else:
+                si = s // plane
+                sr = s - si * plane
+                sj = sr // nz
+                sk = sr - sj * nz
+                depth = np.float32(np.sqrt(np.float64((xi - si) ** 2 + (xj - sj) ** 2 + (xk - sk) ** 2)) * voxel)
+                best = -(depth - half) - margins[g0]
+            bl = g0
+        s = site[1, x]
+        if s >= 0 and state[s] != g0:
+            h = state[s]
+            si = s // plane
+            sr = s - si * plane
+            sj = sr // nz
+            sk = sr - sj * nz
+            e = np.float32(np.sqrt(np.float64((xi - si) ** 2 + (xj - sj) ** 2 + (xk - sk) ** 2)) * voxel)
+            tv = e - off[h]
+            if tv < best or (tv == best and h != base and (bl == base or h < bl)):
+                best = tv
+                bl = h
+        if best >= dmax:
+            dist[x] = dmax
+            grp[x] = 0
+        else:
+            dist[x] = max(best, -dmax)
+            grp[x] = bl
+
+
+class WaveEsdf:
+    """The maps and the field between calls (see the module docstring); ``update`` returns the field
+    of any group map, from scratch when the shape, margins or configuration differ from the last call."""
+
+    def __init__(self, voxel_size: float, max_distance: float, repairs: int = 0):
+        self.repairs = repairs
+        self.rim = False
+        self.voxel_size = float(voxel_size)
+        self.max_distance = float(max_distance)
+        self._key: tuple | None = None
+
+    def _allocate(self, shape: tuple[int, int, int], margins: np.ndarray) -> None:
+        n = int(np.prod(shape))
+        v, dmax = self.voxel_size, self.max_distance
+        self.shape = shape
+        self.margins = np.asarray(margins, dtype=np.float64).copy()
+        self.state = np.zeros(n, np.uint8)
+        self.site = np.empty((2, n), np.int32)
+        self.key = np.empty((2, n), np.float64)
+        self.nxt = np.empty((2, n), np.int32)
+        self.prv = np.empty((2, n), np.int32)
+        self.head = np.empty((2, n), np.int32)
+        self.counts = np.zeros(self.margins.shape[0], np.int64)
+        self.dist = np.empty(n, np.float32)
+        self.grp = np.empty(n, np.uint8)
+        self.changed = np.empty(n, np.int32)
+        self.old = np.empty(n, np.uint8)
+        self.buf = np.empty(n, np.int32)
+        self.queue = np.empty(n + 1, np.int32)  # a voxel is queued at most once at a time
+        self.inq = np.zeros(n, np.uint8)
+        self.dirty = np.zeros(n, np.uint8)
+        self.dirty_list = np.empty(n, np.int32)
+        self.stats = np.zeros(3, np.int64)  # queue pops, site moves, repairs (cumulative)
+        # Keys beyond max_distance + v/2 are clipped anyway; one voxel of slack for the rounding.
+        self.lim = dmax + 1.5 * v
+        reach = int(np.ceil((self.lim + float(np.max(self.margins))) / v)) + 1
+        self.root = np.sqrt(np.arange(reach * reach + 1, dtype=np.float64)) * v
+        self.weight = self.margins.copy()
+        self.weight[0] = 0.0
+        self.off = np.array([0.0] + [np.float32(0.5 * v + float(m)) for m in self.margins[1:]], np.float32)
+        self.margins32 = self.margins.astype(np.float32)
+        self.base = -1
+        reset(self.state, self.site, self.key, self.nxt, self.prv, self.head, self.counts, self.dist, self.grp,
+              np.float32(dmax))
+
+    def update(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """(distance f4, risk_group u1, voxels whose value was recomputed) of ``groups``."""
+        shape = tuple(int(a) for a in groups.shape)
+        key = (shape, tuple(float(m) for m in margins), self.voxel_size, self.max_distance)
+        if key != self._key:
+            self._allocate(shape, np.asarray(margins))  # type: ignore[arg-type]
+            self._key = key
+        flat = np.ascontiguousarray(groups, dtype=np.uint8).reshape(-1)
+        nx, ny, nz = shape
+        _, n_dirty = wave_update(self.state, flat, self.site, self.key, self.nxt, self.prv, self.head, self.weight,
+                                 self.lim, self.voxel_size, nx, ny, nz, self.counts, self.changed, self.old,
+                                 self.buf, self.queue, self.inq, self.dirty, self.dirty_list,
+                                 self.stats, self.root, self.repairs, self.rim)
+        base = self._base()
+        if base != self.base:  # the tie rule changed: every value
+            n_dirty = -1
+            self.base = base
+        if n_dirty != 0:
+            half, dmax = np.float32(0.5 * self.voxel_size), np.float32(self.max_distance)
+            off = self.off.copy()
+            if base > 0:  # the oracle's union term: float32(v/2) + float32(m_min)
+                off[base] = half + self.margins32[base]
+            values(self.state, self.site, self.dirty_list, n_dirty, ny, nz, self.dist, self.grp, off,
+                   self.margins32, base, self.voxel_size, half, dmax)
+        n = self.state.size if n_dirty < 0 else n_dirty
+        return self.dist.reshape(shape).copy(), self.grp.reshape(shape).copy(), n
+
+    def _base(self) -> int:
+        """The oracle's base group: the largest of the smallest margin among the groups present."""
+        present = [g for g in range(1, self.counts.shape[0]) if self.counts[g] > 0]
+        if not present:
+            return 0
+        m_min = min(float(self.margins[g]) for g in present)
+        return max((g for g in present if float(self.margins[g]) == m_min), key=lambda g: (int(self.counts[g]), -g))
