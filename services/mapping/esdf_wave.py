@@ -1,36 +1,41 @@
 """Incremental 3-D semantic ESDF by wavefronts (``esdf_incremental = "wave"``): the cost follows the
-voxels whose value changes, not the clip radius.
+voxels whose value changes, not the clip radius (the box update's recompute region).
 
-**What is kept.** One nearest-site map per risk group g (sites: the voxels of group g) and one for
-the free space (sites: the unoccupied voxels, the inside depth). Per voxel x and map m: the site
-s_m(x) (flat index, −1 when none within the map's reach) and |x − s_m(x)|² in voxels². As in
-FIESTA (Han et al., IROS 2019, ``ESDFMap::updateESDF``), every site keeps a doubly-linked list of
-the voxels it is nearest to, so a removed site finds its whole cell without a search.
+**What is kept.** Two nearest-site maps over the grid, FIESTA-style (Han et al., IROS 2019,
+``ESDFMap::updateESDF``: each site keeps a doubly-linked list of the voxels it is nearest to, so a
+removed site finds its whole cell without a search):
+
+- map 1, the obstacles, *weighted by the margins*: the site of x minimises the key
+  v·|x − c| − m_{g(c)} over the occupied voxels c (an additively weighted, Apollonius diagram; its
+  cells are star-shaped about their site, since |·| is a metric, so a wave from the site reaches
+  them). One map serves every risk group: the inflated distance is min_c (key) − v/2 outside;
+- map 0, the free space: the site of an occupied x is its nearest unoccupied voxel (the inside depth).
 
 **An edit** (the voxels whose group changed since the last call) runs, per map:
 
-1. *raise*: every voxel in the cell of a removed site loses its site; the voxels around the cleared
-   region that keep theirs are queued to offer them again;
-2. *insert*: each new site is its own site;
-3. *lower*: a FIFO wave from the voxels of 1–2: a neighbour n takes site s when |n − s|² is
-   smaller than its own and within the reach; a voxel is re-queued at most once at a time.
+1. *raise*: the cells of the removed sites lose their site; each of their voxels takes the best
+   site its 26 neighbours hold (a site voxel first its own again);
+2. *insert*: a new site is its own, unless another site already beats it at home (its cell is then
+   empty: star-shaped cells contain their site);
+3. *lower*: a FIFO wave from the voxels of 1–2; a neighbour takes the site when its key drops and
+   stays within max_distance + v/2 (+ one voxel of slack; beyond, the value is clipped).
 
-The reach of group g is e_g < max_distance + v/2 + m_g (beyond, its term is clipped), of the free
-map max_distance + v/2 (deeper insides are clipped to −max_distance).
+**Values** (only where a group or a site changed) in the oracle's float32 steps
+(``EsdfIntegrator.compute``), with s₀, s₁ the two sites of x:
 
-**Values** (recomputed only on voxels whose group or any site changed), the same function the full
-recompute (``EsdfIntegrator.compute``, the oracle) evaluates, with e_g = v·|x − s_g(x)|:
+    free x:          d = v·|x − s₁| − v/2 − m_{g(s₁)},                     group g(s₁)
+    x in group g:    d = min( −(v·|x − s₀| − v/2) − m_g,  the map-1 term when g(s₁) ≠ g )
 
-    T_g(x) = −(depth(x) − v/2) − m_g   x in group g,   depth = v·|x − s_free(x)|
-    T_g(x) =  e_g(x) − v/2 − m_g        otherwise,
-    d(x)   = min_g T_g(x),  risk_group = argmin (ties: lower id, but the base group yields)
+(the map-1 site of an occupied x is x itself unless another group's inflated term beats its own
+at home), clipped as there. Ties go as in the oracle (lower id; the base group, the largest of
+the smallest margin, yields). Where two groups' terms tie exactly, float32 rounding decides in
+each path, so the group may differ there (the distance does not).
 
-then clipped as there (d ≥ max_distance → max_distance, group 0). The base group is the oracle's
-(the largest group among those of the smallest margin); when it changes every value is redone.
-
-Nearest-site propagation over 26 neighbours is the classic vector-propagation EDT; its digital
-exceptions (a voxel whose nearest site is nobody's neighbour's) are what the property test against
-the oracle is for (``tests/mapping/test_esdf_wave.py``).
+**Exactness.** Nearest-site propagation over 26 neighbours is the classic vector-propagation
+EDT: exact on the property test's random solid edits, but on a TSDF's ragged surfaces a voxel far
+from the obstacles (0.5 m and more) whose nearest site is held by none of its neighbours (a
+digital Voronoi island) keeps the second nearest: a few voxels of a million, off by ≤ 2 mm
+(``riskfield bench mapping`` prints it). Hence opt-in, the box update the default.
 """
 
 from __future__ import annotations
@@ -437,6 +442,13 @@ class WaveEsdf:
             self._key = key
         flat = np.ascontiguousarray(groups, dtype=np.uint8).reshape(-1)
         nx, ny, nz = shape
+        occupied = self.state.size - int(self.counts[0])
+        if occupied > 0 and np.count_nonzero(self.state != flat) > occupied // 2:
+            # Most of the map moved (a volume shift, a new scene): a rebuild from the empty map
+            # only inserts, where the edit would first raise every cell; about half the work.
+            reset(self.state, self.site, self.key, self.nxt, self.prv, self.head, self.counts, self.dist,
+                  self.grp, np.float32(self.max_distance))
+            self.base = -1
         _, n_dirty = wave_update(self.state, flat, self.site, self.key, self.nxt, self.prv, self.head, self.weight,
                                  self.lim, self.voxel_size, nx, ny, nz, self.counts, self.changed, self.old,
                                  self.buf, self.queue, self.inq, self.dirty, self.dirty_list,

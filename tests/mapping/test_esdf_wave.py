@@ -121,6 +121,11 @@ def test_new_shape_or_margins_start_over() -> None:
     for margins in (np.array([0.0, 0.1, 0.0]), np.array([0.0, 0.1, 0.2])):
         d, g, _ = wave.update(groups, margins)
         assert_same_field(d, g, *oracle.compute(groups, margins), groups, margins, cfg)
+    shifted = np.roll(groups, (3, -2, 1), axis=(0, 1, 2))  # most of the map moves: rebuilt from empty
+    shifted[0, 0, 0:4] = 1
+    d, g, n = wave.update(shifted, margins)
+    assert n == shifted.size  # every value redone
+    assert_same_field(d, g, *oracle.compute(shifted, margins), shifted, margins, cfg)
     small = groups[:12, :12, :12].copy()
     d, g, _ = wave.update(small, margins)
     assert d.shape == small.shape
