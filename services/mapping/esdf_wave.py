@@ -96,6 +96,18 @@ def reset(state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray,
     counts[0] = n
 
 
+@njit(cache=True, nogil=True)
+def count_changes(state: np.ndarray, new: np.ndarray, n_groups: int) -> int:
+    """Voxels whose group differs (ids ≥ ``n_groups`` count as free, as in ``wave_update``)."""
+    n = 0
+    for x in range(state.shape[0]):
+        g = new[x]
+        if g >= n_groups:
+            g = 0
+        n += g != state[x]
+    return n
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _push(queue: np.ndarray, inq: np.ndarray, qt: int, y: int) -> int:
     if inq[y] == 0:
@@ -443,7 +455,7 @@ class WaveEsdf:
         flat = np.ascontiguousarray(groups, dtype=np.uint8).reshape(-1)
         nx, ny, nz = shape
         occupied = self.state.size - int(self.counts[0])
-        if occupied > 0 and np.count_nonzero(self.state != flat) > occupied // 2:
+        if occupied > 0 and count_changes(self.state, flat, self.margins.shape[0]) > occupied // 2:
             # Most of the map moved (a volume shift, a new scene): a rebuild from the empty map
             # only inserts, where the edit would first raise every cell; about half the work.
             reset(self.state, self.site, self.key, self.nxt, self.prv, self.head, self.counts, self.dist,
