@@ -41,6 +41,11 @@ for the benchmark's comparison.
 Finally d is clipped to [−max_distance, max_distance]; where d = max_distance no obstacle is
 within range and the risk group is 0.
 
+**Incremental 3-D updates** (``update``): ``esdf_incremental = "box"`` (default) recomputes the box
+the changed voxels can reach, exactly; ``"wave"`` moves only the voxels whose value changes, by
+nearest-site wavefronts over a margin-weighted obstacle map and a free-space map (``esdf_wave``),
+equal to this module's field up to rare digital misses of 26-neighbour propagation (see there).
+
 **2-D slice for ground robots.** The slice at (x, y) is the minimum over the height band
 [z_lo, z_hi] of the 3-D signed distance to the obstacles *inside* the band (floor and
 ceiling obstacles outside the band are excluded). Because for such an obstacle the minimum
@@ -114,6 +119,11 @@ class EsdfIntegrator:
             wave.update(groups, margins)
             groups[3:6, 3:6, 3:6] = 1
             wave.update(groups, margins)
+
+    def shift(self, delta: np.ndarray) -> None:
+        """The volume moved by ``delta`` voxels (``Volume.shift_to``): the wave's maps move with it."""
+        if self._wave is not None:
+            self._wave.shift(delta)
 
     def _wave_esdf(self) -> WaveEsdf:
         if self._wave is None:

@@ -129,47 +129,107 @@ def _mark(dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, y: int) -> in
 
 
 @njit(cache=True, nogil=True)
-def _climb(site: np.ndarray, state: np.ndarray, weight: np.ndarray, root: np.ndarray, m: int, x: int, s: int,
-           cur: float, nx: int, ny: int, nz: int) -> int:
-    """Walk from site s over adjacent sites of map m while one is nearer (by key) to voxel x: the
-    nearest site a 26-neighbour wave can miss sits next to the one it found."""
+def _refill(m: int, buf: np.ndarray, nr: int, state: np.ndarray, site: np.ndarray, key: np.ndarray,
+            nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, weight: np.ndarray, root: np.ndarray, lim: float,
+            nx: int, ny: int, nz: int, queue: np.ndarray, inq: np.ndarray, qt: int) -> int:
+    """Voxels ``buf[:nr]`` of map m that lost their site: each takes the best site its 26 neighbours
+    hold (a site voxel is first its own again) and is queued for the lower wave. Returns the tail."""
     plane = ny * nz
-    xi = x // plane
-    rr = x - xi * plane
-    xj = rr // nz
-    xk = rr - xj * nz
-    bs = s
-    while True:
-        si = bs // plane
-        sr = bs - si * plane
-        sj = sr // nz
-        sk = sr - sj * nz
-        nb = -1
-        for ii in range(max(si - 1, 0), min(si + 2, nx)):
-            for jj in range(max(sj - 1, 0), min(sj + 2, ny)):
-                for kk in range(max(sk - 1, 0), min(sk + 2, nz)):
-                    c = (ii * ny + jj) * nz + kk
-                    g = state[c]
-                    if (g == 0) != (m == 0):
+    for t in range(nr):
+        x = buf[t]
+        g = state[x]
+        if (g == 0) == (m == 0) and site[m, x] < 0:  # a site beaten at home by a lost one is its own again
+            _link(site, nxt, prv, head, m, x, x)
+            key[m, x] = 0.0 if m == 0 else -weight[g]
+            qt = _push(queue, inq, qt, x)
+        xi = x // plane
+        rr = x - xi * plane
+        xj = rr // nz
+        xk = rr - xj * nz
+        best = key[m, x]  # inf, or its own key
+        bs = -1
+        for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
+            for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
+                for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
+                    c = site[m, (ii * ny + jj) * nz + kk]
+                    if c < 0:
                         continue
-                    e = (xi - ii) ** 2 + (xj - jj) ** 2 + (xk - kk) ** 2
+                    ci = c // plane
+                    cr = c - ci * plane
+                    cj = cr // nz
+                    ck = cr - cj * nz
+                    e = (xi - ci) ** 2 + (xj - cj) ** 2 + (xk - ck) ** 2
                     if e >= root.shape[0]:
                         continue
-                    k = root[e] - (0.0 if m == 0 else weight[g])
-                    if k < cur:
-                        cur = k
-                        nb = c
-        if nb < 0:
-            return bs
-        bs = nb
+                    k = root[e] - (0.0 if m == 0 else weight[state[c]])
+                    if k < best:
+                        best = k
+                        bs = c
+        if bs >= 0 and best <= lim:
+            _unlink(site, nxt, prv, head, m, x)
+            _link(site, nxt, prv, head, m, x, bs)
+            key[m, x] = best
+            qt = _push(queue, inq, qt, x)
+    return qt
+
+
+@njit(cache=True, nogil=True)
+def _lower(m: int, state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray, prv: np.ndarray,
+           head: np.ndarray, weight: np.ndarray, root: np.ndarray, lim: float, nx: int, ny: int, nz: int,
+           queue: np.ndarray, inq: np.ndarray, qt: int, dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int,
+           stats: np.ndarray) -> int:
+    """The FIFO wave of map m from the queued voxels (head at 0): a neighbour takes the popped voxel's
+    site when its key drops and stays within ``lim``. Returns the number of voxels listed dirty."""
+    plane = ny * nz
+    qh = 0
+    while qh != qt:
+        x = queue[qh]
+        qh += 1
+        if qh == queue.shape[0]:
+            qh = 0
+        inq[x] = 0
+        stats[0] += 1
+        s = site[m, x]
+        if s < 0:
+            continue
+        w = 0.0 if m == 0 else weight[state[s]]
+        xi = x // plane
+        rr = x - xi * plane
+        xj = rr // nz
+        xk = rr - xj * nz
+        si = s // plane
+        sr = s - si * plane
+        sj = sr // nz
+        sk = sr - sj * nz
+        for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
+            ei = (ii - si) ** 2
+            for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
+                eij = ei + (jj - sj) ** 2
+                for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
+                    y = (ii * ny + jj) * nz + kk
+                    if site[m, y] == s or (m == 0 and state[y] == 0):
+                        continue  # already there; a free voxel is its own free site
+                    e = eij + (kk - sk) ** 2
+                    if e >= root.shape[0]:
+                        continue  # beyond the reach
+                    k = root[e] - w
+                    if k >= key[m, y] or k > lim:
+                        continue
+                    _unlink(site, nxt, prv, head, m, y)
+                    _link(site, nxt, prv, head, m, y, s)
+                    key[m, y] = k
+                    stats[1] += 1
+                    n_dirty = _mark(dirty, dirty_list, n_dirty, y)
+                    qt = _push(queue, inq, qt, y)
+    return n_dirty
 
 
 @njit(cache=True, nogil=True)
 def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray,
-                prv: np.ndarray, head: np.ndarray, weight: np.ndarray, lim: float, voxel: float, nx: int, ny: int,
-                nz: int, counts: np.ndarray, changed: np.ndarray, old: np.ndarray, buf: np.ndarray,
-                queue: np.ndarray, inq: np.ndarray, dirty: np.ndarray, dirty_list: np.ndarray,
-                stats: np.ndarray, root: np.ndarray, repairs: int, rim: bool) -> tuple[int, int]:
+                prv: np.ndarray, head: np.ndarray, weight: np.ndarray, lim: float, nx: int, ny: int, nz: int,
+                counts: np.ndarray, changed: np.ndarray, old: np.ndarray, buf: np.ndarray, queue: np.ndarray,
+                inq: np.ndarray, dirty: np.ndarray, dirty_list: np.ndarray, stats: np.ndarray,
+                root: np.ndarray) -> tuple[int, int]:
     """Bring the maps from the group map ``state`` to ``new`` (flat, uint8; ids ≥ ``weight.size`` are
     free, as in the oracle) and list the voxels whose value may have changed in ``dirty_list``.
     Map 0: free sites, key v·|x − s|; map 1: obstacle sites, key v·|x − s| − m_{g(s)} (``weight``).
@@ -177,7 +237,6 @@ def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.nd
     Returns (voxels whose group changed, voxels listed). ``dirty`` is all zero on entry and on return."""
     n = state.shape[0]
     n_groups = weight.shape[0]
-    plane = ny * nz
     n_ch = 0
     n_dirty = 0
     for x in range(n):
@@ -195,9 +254,7 @@ def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.nd
     if n_ch == 0:
         return 0, 0
     for m in range(2):
-        qh = 0
-        qt = 0
-        # 1. raise: the cells of the removed sites lose their site; their rim offers its sites again
+        # 1. raise: the cells of the removed sites lose their site
         nr = 0
         for c in range(n_ch):
             r = changed[c]
@@ -215,50 +272,7 @@ def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.nd
                 n_dirty = _mark(dirty, dirty_list, n_dirty, x)
                 x = nn
             head[m, r] = -1
-        for t in range(nr):
-            x = buf[t]
-            g = state[x]
-            if m == 1 and g != 0:  # a site beaten at home by the removed one is its own again
-                _link(site, nxt, prv, head, m, x, x)
-                key[m, x] = -weight[g]
-                qt = _push(queue, inq, qt, x)
-            xi = x // plane
-            rr = x - xi * plane
-            xj = rr // nz
-            xk = rr - xj * nz
-            if rim:
-                for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
-                    for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
-                        for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
-                            y = (ii * ny + jj) * nz + kk
-                            if site[m, y] >= 0:
-                                qt = _push(queue, inq, qt, y)
-                continue
-            best = key[m, x]  # inf, or its own key when x is a site (re-linked above)
-            bs = -1
-            for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
-                for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
-                    for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
-                        y = (ii * ny + jj) * nz + kk
-                        c = site[m, y]
-                        if c < 0:
-                            continue
-                        ci = c // plane
-                        cr = c - ci * plane
-                        cj = cr // nz
-                        ck = cr - cj * nz
-                        e = (xi - ci) ** 2 + (xj - cj) ** 2 + (xk - ck) ** 2
-                        if e >= root.shape[0]:
-                            continue
-                        k = root[e] - (0.0 if m == 0 else weight[state[c]])
-                        if k < best:
-                            best = k
-                            bs = c
-            if bs >= 0 and best <= lim:
-                _unlink(site, nxt, prv, head, m, x)
-                _link(site, nxt, prv, head, m, x, bs)
-                key[m, x] = best
-                qt = _push(queue, inq, qt, x)
+        qt = _refill(m, buf, nr, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, 0)
         # 2. insert: a new site is its own, unless another one already beats it there (then its
         # cell is empty: cells are star-shaped about their site)
         for c in range(n_ch):
@@ -272,81 +286,95 @@ def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.nd
                 _link(site, nxt, prv, head, m, a, a)
                 key[m, a] = own
                 qt = _push(queue, inq, qt, a)
-        # 3. lower: the FIFO wave; then 4. repair, and again while the repair moved a site
-        d0 = n_dirty
-        for _ in range(repairs + 1):
-            while qh != qt:
-                x = queue[qh]
-                qh += 1
-                if qh == queue.shape[0]:
-                    qh = 0
-                inq[x] = 0
-                stats[0] += 1
-                s = site[m, x]
-                if s < 0:
-                    continue
-                w = 0.0 if m == 0 else weight[state[s]]
-                xi = x // plane
-                rr = x - xi * plane
-                xj = rr // nz
-                xk = rr - xj * nz
-                si = s // plane
-                sr = s - si * plane
-                sj = sr // nz
-                sk = sr - sj * nz
-                for ii in range(max(xi - 1, 0), min(xi + 2, nx)):
-                    ei = (ii - si) ** 2
-                    for jj in range(max(xj - 1, 0), min(xj + 2, ny)):
-                        eij = ei + (jj - sj) ** 2
-                        for kk in range(max(xk - 1, 0), min(xk + 2, nz)):
-                            y = (ii * ny + jj) * nz + kk
-                            if site[m, y] == s or (m == 0 and state[y] == 0):
-                                continue  # already there; a free voxel is its own free site
-                            e = eij + (kk - sk) ** 2
-                            if e >= root.shape[0]:
-                                continue  # beyond the reach
-                            k = root[e] - w
-                            if k >= key[m, y] or k > lim:
-                                continue
-                            _unlink(site, nxt, prv, head, m, y)
-                            _link(site, nxt, prv, head, m, y, s)
-                            key[m, y] = k
-                            stats[1] += 1
-                            n_dirty = _mark(dirty, dirty_list, n_dirty, y)
-                            qt = _push(queue, inq, qt, y)
-            if _ == repairs:
-                break
-            moved = 0
-            for t in range(d0, n_dirty):
-                x = dirty_list[t]
-                if m == 0 and state[x] == 0:
-                    continue
-                s = site[m, x]
-                if s < 0:
-                    continue
-                cur = key[m, x]
-                bs = _climb(site, state, weight, root, m, x, s, cur, nx, ny, nz)
-                if bs != s:
-                    xi = x // plane
-                    rr = x - xi * plane
-                    xj = rr // nz
-                    xk = rr - xj * nz
-                    si = bs // plane
-                    sr = bs - si * plane
-                    sj = sr // nz
-                    sk = sr - sj * nz
-                    _unlink(site, nxt, prv, head, m, x)
-                    _link(site, nxt, prv, head, m, x, bs)
-                    key[m, x] = root[(xi - si) ** 2 + (xj - sj) ** 2 + (xk - sk) ** 2] - (
-                        0.0 if m == 0 else weight[state[bs]])
-                    qt = _push(queue, inq, qt, x)
-                    moved += 1
-            stats[2] += moved
-            if moved == 0:
-                break
+        # 3. lower
+        n_dirty = _lower(m, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, qt,
+                         dirty, dirty_list, n_dirty, stats)
     for t in range(n_dirty):
         dirty[dirty_list[t]] = 0
     return n_ch, n_dirty
+
+
+@njit(cache=True, nogil=True)
+def shift_maps(di: int, dj: int, dk: int, state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray,
+               prv: np.ndarray, head: np.ndarray, weight: np.ndarray, root: np.ndarray, lim: float, nx: int,
+               ny: int, nz: int, counts: np.ndarray, buf: np.ndarray, queue: np.ndarray, inq: np.ndarray,
+               dirty: np.ndarray, dirty_list: np.ndarray, stats: np.ndarray) -> None:
+    """Move the maps with the volume: new[i] = old[i + δ] (``volume.shift_array``). Voxels entering
+    the grid are free with no obstacle site; sites left behind are lost, and the voxels that had
+    them, with the entering ones, are refilled by the wave (as after a removal)."""
+    n = state.shape[0]
+    old_state = state.copy()
+    old_site = site.copy()
+    old_key = key.copy()
+    counts[:] = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                x = (i * ny + j) * nz + k
+                a, b, c = i + di, j + dj, k + dk
+                inside = 0 <= a < nx and 0 <= b < ny and 0 <= c < nz
+                src = (a * ny + b) * nz + c
+                state[x] = old_state[src] if inside else 0
+                counts[state[x]] += 1
+                for m in range(2):
+                    site[m, x] = -1
+                    key[m, x] = np.inf
+                    if not inside:
+                        continue
+                    s = old_site[m, src]
+                    if s < 0:
+                        continue
+                    si = s // (ny * nz) - di
+                    sr = s % (ny * nz)
+                    sj = sr // nz - dj
+                    sk = sr % nz - dk
+                    if 0 <= si < nx and 0 <= sj < ny and 0 <= sk < nz:
+                        site[m, x] = (si * ny + sj) * nz + sk
+                        key[m, x] = old_key[m, src]
+                if state[x] == 0:  # a free voxel is its own free site
+                    site[0, x] = x
+                    key[0, x] = 0.0
+    for m in range(2):
+        for x in range(n):
+            nxt[m, x] = -1
+            prv[m, x] = -1
+            head[m, x] = -1
+        nr = 0
+        for x in range(n):
+            s = site[m, x]
+            if s >= 0:
+                _link(site, nxt, prv, head, m, x, s)
+            elif m == 0 and state[x] == 0:
+                pass
+            else:
+                buf[nr] = x
+                nr += 1
+        # Only the lost and entering voxels need the refill: the others kept a site that was theirs.
+        keep = 0
+        for t in range(nr):
+            x = buf[t]
+            i = x // (ny * nz)
+            r = x % (ny * nz)
+            j = r // nz
+            k = r % nz
+            a, b, c = i + di, j + dj, k + dk
+            if not (0 <= a < nx and 0 <= b < ny and 0 <= c < nz) or old_site[m, (a * ny + b) * nz + c] >= 0:
+                buf[keep] = x
+                keep += 1
+        qt = _refill(m, buf, keep, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, 0)
+        if m == 0:  # the entering voxels are new free sites: their wave reaches the insides they border
+            for x in range(n):
+                i = x // (ny * nz)
+                r = x % (ny * nz)
+                j = r // nz
+                k = r % nz
+                a, b, c = i + di, j + dj, k + dk
+                if not (0 <= a < nx and 0 <= b < ny and 0 <= c < nz):
+                    qt = _push(queue, inq, qt, x)
+        _lower(m, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, qt, dirty, dirty_list,
+               0, stats)
+        for x in range(n):
+            dirty[x] = 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -404,9 +432,7 @@ class WaveEsdf:
     """The maps and the field between calls (see the module docstring); ``update`` returns the field
     of any group map, from scratch when the shape, margins or configuration differ from the last call."""
 
-    def __init__(self, voxel_size: float, max_distance: float, repairs: int = 0):
-        self.repairs = repairs
-        self.rim = False
+    def __init__(self, voxel_size: float, max_distance: float):
         self.voxel_size = float(voxel_size)
         self.max_distance = float(max_distance)
         self._key: tuple | None = None
@@ -432,7 +458,7 @@ class WaveEsdf:
         self.inq = np.zeros(n, np.uint8)
         self.dirty = np.zeros(n, np.uint8)
         self.dirty_list = np.empty(n, np.int32)
-        self.stats = np.zeros(3, np.int64)  # queue pops, site moves, repairs (cumulative)
+        self.stats = np.zeros(2, np.int64)  # queue pops, site moves (cumulative)
         # Keys beyond max_distance + v/2 are clipped anyway; one voxel of slack for the rounding.
         self.lim = dmax + 1.5 * v
         reach = int(np.ceil((self.lim + float(np.max(self.margins))) / v)) + 1
@@ -462,9 +488,8 @@ class WaveEsdf:
                   self.grp, np.float32(self.max_distance))
             self.base = -1
         _, n_dirty = wave_update(self.state, flat, self.site, self.key, self.nxt, self.prv, self.head, self.weight,
-                                 self.lim, self.voxel_size, nx, ny, nz, self.counts, self.changed, self.old,
-                                 self.buf, self.queue, self.inq, self.dirty, self.dirty_list,
-                                 self.stats, self.root, self.repairs, self.rim)
+                                 self.lim, nx, ny, nz, self.counts, self.changed, self.old, self.buf, self.queue,
+                                 self.inq, self.dirty, self.dirty_list, self.stats, self.root)
         base = self._base()
         if base != self.base:  # the tie rule changed: every value
             n_dirty = -1
@@ -478,6 +503,23 @@ class WaveEsdf:
                    self.margins32, base, self.voxel_size, half, dmax)
         n = self.state.size if n_dirty < 0 else n_dirty
         return self.dist.reshape(shape).copy(), self.grp.reshape(shape).copy(), n
+
+    def shift(self, delta: np.ndarray) -> None:
+        """The volume moved by ``delta`` voxels (new[i] = old[i + δ]): move the maps with it, so the
+        next ``update`` sees only the new data, not a whole map displaced. All values are redone then."""
+        if self._key is None:
+            return
+        d = [int(x) for x in delta]
+        if not any(d):
+            return
+        if any(abs(x) >= n for x, n in zip(d, self.shape, strict=True)):
+            self._key = None  # nothing overlaps: start over
+            return
+        nx, ny, nz = self.shape
+        shift_maps(d[0], d[1], d[2], self.state, self.site, self.key, self.nxt, self.prv, self.head, self.weight,
+                   self.root, self.lim, nx, ny, nz, self.counts, self.buf, self.queue, self.inq, self.dirty,
+                   self.dirty_list, self.stats)
+        self.base = -1  # every value at the next update
 
     def _base(self) -> int:
         """The oracle's base group: the largest of the smallest margin among the groups present."""

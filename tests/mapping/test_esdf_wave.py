@@ -15,6 +15,7 @@ from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
 from riskfield.services.mapping.esdf_wave import WaveEsdf
 from riskfield.services.mapping.mapper import Mapper
+from riskfield.services.mapping.volume import shift_array
 
 SHAPE = (36, 32, 28)
 
@@ -132,6 +133,28 @@ def test_new_shape_or_margins_start_over() -> None:
     assert_same_field(d, g, *oracle.compute(small, margins), small, margins, cfg)
 
 
+@settings(max_examples=15, deadline=None)
+@given(start=st.lists(edit, min_size=1, max_size=6), after=st.lists(edit, min_size=0, max_size=2),
+       delta=st.tuples(st.integers(-6, 6), st.integers(-6, 6), st.integers(-6, 6)))
+def test_wave_follows_a_volume_shift(start: list, after: list, delta: tuple) -> None:
+    """The maps move with the volume (``volume.shift_array``), sites left behind are lost, entering
+    voxels are free; then an edit: the field is the full recompute's."""
+    cfg = MapperConfig(max_distance=0.35, threads=1)
+    oracle, wave = EsdfIntegrator(cfg), WaveEsdf(cfg.voxel_size, cfg.max_distance)
+    m = np.array([0.0, 0.15, 0.05, 0.0, 0.3])
+    groups = np.zeros(SHAPE, np.uint8)
+    for e in start:
+        apply(groups, e)
+    wave.update(groups, m)
+    shift_array(groups, np.array(delta), 0)
+    wave.shift(np.array(delta))
+    for e in after:
+        apply(groups, e)
+    d, g, n = wave.update(groups, m)
+    assert n == groups.size or not any(delta)
+    assert_same_field(d, g, *oracle.compute(groups, m), groups, m, cfg)
+
+
 def test_mapper_sweep_wave_against_full_recompute(room: list) -> None:
     """Through the mapper (solid interiors, the fill, labels changing) over a camera sweep: the wave's
     field is the full recompute's. Nearest-site propagation over 26 neighbours can miss the nearest
@@ -141,12 +164,10 @@ def test_mapper_sweep_wave_against_full_recompute(room: list) -> None:
     K = (cam.fx, cam.fy, cam.cx, cam.cy)
     mappers = [Mapper(MapperConfig(output="3d", half_extent=(1.5, 1.5, 1.0), max_distance=0.8,
                                    esdf_incremental=u), RiskConfig()) for u in ("wave", "box")]
-    for m in mappers:
-        m.set_robot_position(np.zeros(3))
-    scene = [*room, Plane((0, 1, 0), -1.2, room[0].label)]
+    scene = [*room, Plane((0, 1, 0), -1.2, room[0].label)]  # no robot position: the volume follows the camera
     misses = 0
     for a in np.linspace(-0.8, 0.8, 5):
-        T = look_at(np.array([0.0, 0.3 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
+        T = look_at(np.array([0.0, 0.6 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
         pts, conf, lab = render(scene, T, cam)
         outs = []
         for m in mappers:
@@ -163,4 +184,4 @@ def test_mapper_sweep_wave_against_full_recompute(room: list) -> None:
         assert_same_field(d, g, outs[1].distance, outs[1].risk_group, mappers[0].occupancy(), mappers[0].margins,
                           mappers[0].config)
     assert misses <= 10
-    assert (outs[0].distance < 0).any()
+    assert (outs[0].distance < 0).any() and mappers[0].shifts > 0
