@@ -119,6 +119,7 @@ class EsdfIntegrator:
             wave.update(groups, margins)
             groups[3:6, 3:6, 3:6] = 1
             wave.update(groups, margins)
+            wave.shift(np.array([1, 0, -1]))
 
     def shift(self, delta: np.ndarray) -> None:
         """The volume moved by ``delta`` voxels (``Volume.shift_to``): the wave's maps move with it."""

@@ -31,11 +31,17 @@ at home), clipped as there. Ties go as in the oracle (lower id; the base group, 
 the smallest margin, yields). Where two groups' terms tie exactly, float32 rounding decides in
 each path, so the group may differ there (the distance does not).
 
+**A volume shift** (``shift``, from ``Mapper``): the maps move with the grid (``shift_maps``);
+sites left behind are lost and the voxels that had them, with the entering slab, are refilled
+as after a removal. A diff of more than half the occupied voxels rebuilds from the empty map.
+
 **Exactness.** Nearest-site propagation over 26 neighbours is the classic vector-propagation
 EDT: exact on the property test's random solid edits, but on a TSDF's ragged surfaces a voxel far
 from the obstacles (0.5 m and more) whose nearest site is held by none of its neighbours (a
-digital Voronoi island) keeps the second nearest: a few voxels of a million, off by ≤ 2 mm
-(``riskfield bench mapping`` prints it). Hence opt-in, the box update the default.
+digital Voronoi island) keeps the second nearest: on the bench sweep up to 22 voxels of a million
+per frame, off by at most 2.75 mm (``riskfield bench mapping`` prints it). Hence opt-in, the box
+update the default. Cost: while a sweep keeps revealing new surfaces, about the box update's;
+over a built map (a camera revisiting a room) 5–9× less.
 """
 
 from __future__ import annotations
