@@ -152,6 +152,10 @@ class EsdfParams(BaseModel):
     esdf_update: Literal["incremental", "full"] = "incremental"
     """3-D grid: ``incremental`` recomputes only the box the changed voxels can reach (max_distance
     + the largest margin), ``full`` the whole grid every time (the same result)."""
+    esdf_incremental: Literal["box", "wave"] = "box"
+    """How ``incremental`` works: ``box`` recomputes the changed voxels' box grown by the reach (exact);
+    ``wave`` keeps nearest-site maps and moves only the voxels whose value changes (``esdf_wave``;
+    26-neighbour propagation: rare digital misses of a few mm far from obstacles, see there)."""
     esdf_kernel: Literal["numba", "numpy"] = "numba"
     """3-D exact field: ``numba`` compiled passes around the EDTs (``esdf_kernels``), ``numpy`` the
     array-operation path (the cross-check; the same result)."""

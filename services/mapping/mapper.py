@@ -124,6 +124,7 @@ class Mapper:
             return False
         self.tsdf.shift(delta)
         self.semantic.shift(delta)
+        self.esdf_integrator.shift(delta)
         self.shifts += 1
         self._last3d = None
         self.dirty = True

@@ -30,6 +30,7 @@ import numpy as np
 from riskfield.protocol import DistanceQuery, DistanceReply, Header, Limits, PerceptionFrame, RiskConfig, RobotState
 
 from ..runtime.node import Node
+from ..runtime.rate import TokenBucket
 from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
 from .mapper import FrameRejected, Mapper
@@ -52,7 +53,8 @@ class MappingNode:
         self.rejected = 0
         self.updates = 0
         self._period = 1.0 / settings.esdf_rate_hz
-        self._last_publish = -float("inf")
+        # An average-rate cap that lets a frame that comes a little early through (see rate.py).
+        self._bucket = TokenBucket(settings.esdf_rate_hz, burst=2.0)
         k = node.keys
         frame_limits = Limits(max_array_bytes=12 * settings.max_pixels)
         # fifo, not latest: under the keyframe protocol (keyframes.py) a dropped new/updated keyframe
@@ -112,14 +114,12 @@ class MappingNode:
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_esdf(self) -> None:
-        """Rebuild and publish if there is new data and the last publication is 1/esdf_rate_hz old."""
+        """Rebuild and publish if there is new data and the rate cap (``esdf_rate_hz`` on average) allows."""
         if not self.mapper.dirty or self.mapper.frames == 0:
             return
-        now = time.monotonic()
-        if now - self._last_publish < self._period * 0.95:
+        if not self._bucket.allow(time.monotonic()):
             self.node.stats["esdf_deferred"] = self.node.stats.get("esdf_deferred", 0) + 1
             return
-        self._last_publish = now
         update = self.mapper.update_esdf()
         if update is None:
             return

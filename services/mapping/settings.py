@@ -20,11 +20,12 @@ class MappingSettings(NodeSettings, MapperConfig):
     SERVICE: ClassVar[str] = "mapping"
 
     esdf_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
-    """The ESDF is rebuilt and published at most this often, and only after new data: a cap for
-    fast cameras, so above the camera rate. At a 10 Hz camera a 10 Hz cap held a frame that came a
-    little early (pipeline jitter) back to the node's next timer tick, up to half a period, and the
-    publications could lock onto the timer's phase: in the demo perception/frame → ESDF took 76 ms
-    at the median and 264 of 950 frames never reached an ESDF; with 30 Hz, 14 ms and 5."""
+    """The ESDF is rebuilt and published at most this often on average (a token bucket, so a frame
+    that comes a little early still goes at once; runtime/rate.py), and only after new data. Under
+    the earlier "one per 1/rate since the last" cap, a 10 Hz camera with the then-default 10 Hz held
+    early frames back to the node's next timer tick and the publications locked onto the timer's
+    phase: in the demo perception/frame → ESDF took 76 ms at the median and 264 of 950 frames
+    never reached an ESDF (with a 30 Hz cap, 14 ms and 5)."""
     esdf3d_key: str = "map/esdf3d"
     """Where the 3-D grid goes when ``output = both`` (relative to ``{prefix}/{robot}/``)."""
     risk_file: Path | None = None

@@ -13,7 +13,9 @@ intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel
 full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
 incremental (``EsdfIntegrator.update``) against the full recompute, and the compiled passes around the
 EDTs (``esdf_kernel = "numba"``) against the previous numpy glue, full and incremental; how many frames
-changed no occupancy (then the update is a copy); and the 2-D slice.
+changed no occupancy (then the update is a copy); and the 2-D slice. The wavefront update
+(``esdf_incremental = "wave"``, opt-in) is timed beside the box update, with its largest deviation
+from the full recompute over the sweep; ``--node-wave`` also runs the 3-D node with it.
 
 ``--node-seconds`` > 0 also runs the mapping node and the safety filter (50 Hz) as their own
 processes over a loopback Zenoh router (mapping ``output = 3d``, ``esdf_rate_hz = 60``), feeds the
@@ -113,6 +115,11 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
     m.warm_up()
     esdf = m.esdf_integrator
     old = EsdfIntegrator(MapperConfig(threads=threads, esdf_kernel="numpy"))
+    wave = EsdfIntegrator(MapperConfig(threads=threads, esdf_incremental="wave"))
+    wave.warm_up()
+    wave_ms: list[float] = []
+    wave_err: list[float] = []  # max |d_wave − d_full| per frame
+    wave_miss: list[int] = []  # voxels off by more than 1e-5 m per frame
     full = {"previous": [], "now": []}
     inc = {"previous": [], "now": []}
     walls = {"previous": [], "now": []}
@@ -134,23 +141,49 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
             inc["previous"].extend(_time(lambda g=groups, p=prev: old.update(g, m.margins, p[0], p[1]), 1)[0])
             w_inc = _time(lambda g=groups, p=prev: esdf.update(g, m.margins, p[0], p[1]), 1)[0]
             inc["now"].extend(w_inc)
+            wave_ms.extend(_time(lambda g=groups, p=prev: wave.update(g, m.margins, p[0], p[1]), 1)[0])
+            err = np.abs(wave.update(groups, m.margins, groups, field)[0] - field[0])  # no change: a copy
+            wave_err.append(float(err.max()))
+            wave_miss.append(int((err > 1e-5).sum()))
             walls["previous"].extend(w_old)
             walls["now"].extend(w_inc)
             unchanged += int(np.array_equal(groups, prev[0]))
             k_lo, k_hi, _ = m.band_indices()
             slice_ms.extend(_time(lambda g=groups, a=k_lo, b=k_hi: esdf.compute_slice(g, a, b, m.margins), 1)[0])
+        else:
+            wave.update(groups, m.margins, groups, field)  # builds the wave's maps (not timed)
+        prev = (groups, field)
+    # The same sweep again over the map it built: the steady state of a camera revisiting a room
+    # (each frame still flips surface voxels), box against wave, and the wave's deviation.
+    again = {"previous": [], "now": []}
+    for (pts, conf, lab), T in zip(rendered, poses, strict=True):
+        m.integrate(pts, conf, lab, T, intrinsics=K)
+        groups = m.occupancy()
+        assert prev is not None
+        again["previous"].extend(_time(lambda g=groups, p=prev: esdf.update(g, m.margins, p[0], p[1]), 1)[0])
+        again["now"].extend(_time(lambda g=groups, p=prev: wave.update(g, m.margins, p[0], p[1]), 1)[0])
+        field = esdf.compute(groups, m.margins)
+        err = np.abs(wave.update(groups, m.margins, groups, field)[0] - field[0])
+        wave_err.append(float(err.max()))
+        wave_miss.append(int((err > 1e-5).sum()))
         prev = (groups, field)
     out["ESDF 3-D full recompute (numpy glue → compiled passes)"] = _ratio(full)
     out["ESDF 3-D incremental after a frame (numpy glue → compiled passes)"] = _ratio(inc)
     out["ESDF 3-D after a frame (previous full → incremental now)"] = _ratio(walls)
     out["ESDF 3-D after a frame (previous full → incremental now)"]["frames_without_change"] = unchanged
+    out["ESDF 3-D incremental after a frame (box → wave, opt-in)"] = _ratio({"previous": inc["now"], "now": wave_ms})
+    out["ESDF 3-D incremental after a frame (box → wave, opt-in)"].update(
+        max_error_m=max(wave_err, default=0.0), voxels_off_per_frame_max=max(wave_miss, default=0),
+        frames_with_voxels_off=sum(1 for n in wave_miss if n > 0))
+    out["ESDF 3-D incremental, second sweep over the built map (box → wave)"] = _ratio(again)
     out["ESDF 2-D slice (unchanged)"] = _ratio({"previous": slice_ms, "now": slice_ms})
     out["occupancy (unchanged)"] = _ratio({"previous": occ_ms, "now": occ_ms})
     return out
 
 
 def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamera, seconds: float,
-                   rate_hz: float, output: str = "3d", with_filter: bool = False) -> dict[str, float]:
+                   rate_hz: float, output: str = "3d", with_filter: bool = False,
+                   mapping_set: tuple[str, ...] = ()) -> dict[str, float]:
     """The mapping node in its own process, fed pointmaps at ``rate_hz``: ESDF rate and latency;
     ``with_filter``: also the safety filter, and camera → ``cmd/safe`` latency and ESDF content age."""
     from riskfield.experiments.demo.report import camera_to_command_ms, content_age_ms
@@ -162,7 +195,8 @@ def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamer
     safe_ns: list[int] = []
     stop = threading.Event()
     with Stack(f"bench_{uuid.uuid4().hex[:6]}") as stack:
-        stack.start("mapping", "mapping", ["--set", f"output={output}", "--set", "esdf_rate_hz=60"])
+        extra = [a for kv in mapping_set for a in ("--set", kv)]
+        stack.start("mapping", "mapping", ["--set", f"output={output}", "--set", "esdf_rate_hz=60", *extra])
         if with_filter:
             stack.start("filter", "safety-filter", FAST_FILTER)
 
@@ -246,6 +280,7 @@ def main(
     threads: Annotated[int, typer.Option(help="Threads of the EDT.")] = 2,
     node_seconds: Annotated[float, typer.Option(help="Feed the mapping node over Zenoh this long (0: skip).")] = 6.0,
     node_rate: Annotated[float, typer.Option(help="Pointmaps per second fed to the node.")] = 30.0,
+    node_wave: Annotated[bool, typer.Option(help="Also run the 3-D node with esdf_incremental=wave.")] = True,
 ) -> None:
     """TSDF, ESDF (exact vs. paper dilation, 3-D vs. 2-D slice) and query timings: medians, p99, CPU."""
     console = Console()
@@ -258,9 +293,12 @@ def main(
     results: dict[str, dict[str, float]] = {}
     load0 = os.getloadavg()
     comparison = compare(rendered, poses, camera, threads)
-    node = node_e2e = None
+    node = node_e2e = node_w = None
     if node_seconds > 0:
         node = node_rate_test(rendered, poses, camera, node_seconds, node_rate)
+        if node_wave:
+            node_w = node_rate_test(rendered, poses, camera, node_seconds, node_rate,
+                                    mapping_set=("esdf_incremental=wave",))
         node_e2e = node_rate_test(rendered, poses, camera, node_seconds, node_rate, output="2d", with_filter=True)
 
     mapper = Mapper(MapperConfig(output="both", **base), RiskConfig())
@@ -329,6 +367,10 @@ def main(
         ctable.add_row(name, f"{r['previous_ms']:.2f}", f"{r['now_ms']:.2f}", f"{r['ratio']:.2f}×")
     console.print(ctable)
     still = comparison["ESDF 3-D after a frame (previous full → incremental now)"]
+    wv = comparison["ESDF 3-D incremental after a frame (box → wave, opt-in)"]
+    console.print(f"wave vs full recompute over both sweeps: max |Δd| {wv['max_error_m'] * 1e3:.3f} mm; voxels off by "
+                  f"> 1e-5 m: at most {wv['voxels_off_per_frame_max']} per frame, in {wv['frames_with_voxels_off']} of "
+                  f"{len(rendered) * 2 - 1} frames")
     console.print(f"frames that changed no occupancy or label (the update is a copy): "
                   f"{still['frames_without_change']} of {still['n']}")
     if node is not None and node_e2e is not None:
@@ -336,6 +378,10 @@ def main(
                       f"published at {node['esdf_hz']:.1f} Hz; camera stamp → ESDF arrival p50 "
                       f"{node['latency_p50_ms']:.1f} ms, p99 {node['latency_p99_ms']:.1f} ms "
                       f"({node['esdfs']} ESDFs of {node['frames']} frames)")
+        if node_w is not None:
+            console.print(f"the same with esdf_incremental=wave: 3-D ESDF published at {node_w['esdf_hz']:.1f} Hz; "
+                          f"camera stamp → ESDF arrival p50 {node_w['latency_p50_ms']:.1f} ms, p99 "
+                          f"{node_w['latency_p99_ms']:.1f} ms ({node_w['esdfs']} ESDFs of {node_w['frames']} frames)")
         e = node_e2e
         console.print(f"with the safety filter (2-D slice, 50 Hz): slice at {e['esdf_hz']:.1f} Hz; camera → first "
                       f"cmd/safe using it p50 {e['camera_to_cmd_safe_p50_ms']:.1f} ms, p99 "
@@ -362,6 +408,7 @@ def main(
         "comparison": comparison,
         "node": node,
         "node_with_filter": node_e2e,
+        "node_wave": node_w,
         "dilation_margin_error_m": {"max": float(margin_error.max()), "mean": float(margin_error.mean())},
         "occupied_voxels": int((groups > 0).sum()),
     }

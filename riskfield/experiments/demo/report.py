@@ -188,14 +188,9 @@ def content_age_ms(esdf_t: list[float], esdf_stamp: list[float], safe_t: list[fl
 
 
 def arrival_age_ms(esdf_t: list[float], safe_t: list[float]) -> list[float]:
-    """At each ``cmd/safe``: its time minus the arrival of the newest ESDF received before it (ms)."""
-    arrived = np.asarray(esdf_t)
-    out = []
-    for t in safe_t:
-        i = int(np.searchsorted(arrived, t, side="right")) - 1
-        if i >= 0:
-            out.append((t - arrived[i]) * 1e3)
-    return out
+    """At each ``cmd/safe``: its time minus the arrival of the newest ESDF received before it (ms):
+    the content age with every ESDF stamped by its arrival."""
+    return content_age_ms(esdf_t, esdf_t, safe_t)
 
 
 def first_arrivals(arrivals: list[tuple[float, float]]) -> dict[float, float]:
