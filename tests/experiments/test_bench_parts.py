@@ -8,9 +8,12 @@ import json
 import numpy as np
 import pytest
 
+from riskfield.experiments.benches.filter import _cases, paced_steps_us, scene, variant
 from riskfield.experiments.sampling import sample_pairs, targets_from_boxes
 from riskfield.experiments.tables import table2, table3, write_json
 from riskfield.protocol import RiskConfig, ade20k
+from riskfield.services.fields import to_esdf
+from riskfield.services.safety_filter.filter import SafetyFilter
 
 
 def boxes():
@@ -97,3 +100,14 @@ def test_scannetpp_loader(tmp_path):
     assert ade20k_label("mystery thing") == ade20k.index("box")
     with pytest.raises(FileNotFoundError):
         load_scene(tmp_path)
+
+
+def test_paced_filter_steps_are_timed_one_by_one() -> None:
+    """``riskfield bench filter``'s paced table: every step and every wake-up probe is timed."""
+    grid = to_esdf(scene(True), [-1.0, -1.0, 0.0], [3.0, 2.0, 0.0], 0.05, planar=True)
+    filt = SafetyFilter(variant("unicycle", "after", "auto"))
+    cases = _cases(filt, grid, True, 5, np.random.default_rng(1))
+    r = paced_steps_us(filt, grid, cases, 0.001)
+    assert set(r) == {"step_p50", "step_p99", "wake_p50", "wake_p99", "wake_back_to_back_p50"}
+    assert all(np.isfinite(v) and v > 0 for v in r.values())
+    assert r["step_p99"] >= r["step_p50"] and r["wake_p99"] >= r["wake_p50"]
