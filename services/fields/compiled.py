@@ -23,14 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-try:
-    import numba
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - exercised on installs without numba
-    numba = None
-    HAVE_NUMBA = False
-
+from ..runtime.jit import HAVE_NUMBA, numba
 from . import spline as field_spline
 from .grid import EsdfField
 from .grid import axis_weights as trilinear_weights

@@ -11,13 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-try:
-    from numba import njit
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - the sim extra installs numba
-    HAVE_NUMBA = False
-
+from ..runtime.jit import HAVE_NUMBA, njit
 
 if HAVE_NUMBA:
 

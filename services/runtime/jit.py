@@ -1,0 +1,26 @@
+"""numba where it is installed: the one optional import behind the compiled kernels.
+
+The filter's compiled step (``fields.compiled``, ``safety_filter.compiled``) and the simulated
+camera path's kernels (``perception.kernels``, ``simulator.kernels``) run compiled when numba is
+there and fall back to their numpy reference paths (same results, tested) when an install left
+it out (``pip install ".[robot]"`` on a platform without a numba wheel). Mapping needs numba and
+imports it directly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+numba: Any
+njit: Any
+try:
+    import numba
+    from numba import njit
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - exercised on installs without numba
+    numba = None
+    njit = None
+    HAVE_NUMBA = False
+
+__all__ = ["HAVE_NUMBA", "njit", "numba"]
