@@ -18,7 +18,7 @@ from collections import OrderedDict
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator
 
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, ade20k
 
@@ -79,18 +79,12 @@ class PerceptionSettings(NodeSettings):
     rgbd_label: str = Field("wall", description="the ADE20K class of every pixel when labels are not from a network")
     rgbd_max_depth: float = Field(6.0, gt=0)
 
-    @field_validator("geometry")
+    @field_validator("geometry", "labels")
     @classmethod
-    def _geometry(cls, v: str) -> str:
-        if v not in GEOMETRIES:
-            raise ValueError(f"unknown geometry backend {v!r}; known: {', '.join(GEOMETRIES)}")
-        return v
-
-    @field_validator("labels")
-    @classmethod
-    def _labels(cls, v: str) -> str:
-        if v not in LABELS:
-            raise ValueError(f"unknown labels backend {v!r}; known: {', '.join(LABELS)}")
+    def _backend(cls, v: str, info: ValidationInfo) -> str:
+        known = GEOMETRIES if info.field_name == "geometry" else LABELS
+        if v not in known:
+            raise ValueError(f"unknown {info.field_name} backend {v!r}; known: {', '.join(known)}")
         return v
 
     @field_validator("rgbd_label")
