@@ -2,7 +2,7 @@
 
 **Distance convention.** An occupied voxel is the cube it covers; the obstacle set of a
 risk group g is the union of its cubes, O_g. From the Euclidean distance transform between
-voxel centres (the ``edt`` package, multi-threaded) the signed distance to O_g is
+voxel centres (``distance_transform``: exact, compiled, multi-threaded) the signed distance to O_g is
 
     s_g(x) =  e_g(x) − v/2        outside O_g, e_g = distance to the nearest centre in O_g,
     s_g(x) = −(e_f(x) − v/2)      inside,      e_f = distance to the nearest unoccupied centre,
@@ -62,6 +62,7 @@ import edt
 import numpy as np
 from scipy import ndimage
 
+from . import distance_transform
 from .config import MapperConfig
 from .esdf_wave import WaveEsdf
 
@@ -94,6 +95,7 @@ class EsdfIntegrator:
     def __init__(self, config: MapperConfig):
         self.config = config
         self._wave: WaveEsdf | None = None  # the wavefront maps, made by the first ``update``
+        self._depth_pad = 1  # voxels: the deep voxels' box pad (``_deep_depth``), learnt per call
 
     # -- the two public forms ---------------------------------------------------------------
     def compute(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -103,6 +105,7 @@ class EsdfIntegrator:
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the 3-D passes before serving: on a small grid whose
         group boxes are parts of it (strided views) and one where a box is all of it."""
+        distance_transform.edt(np.eye(3, dtype=bool)[:, :, None], 1.0, self.config.threads)
         if self.config.esdf_kernel != "numba":
             return
         margins = np.array([0.0, 0.1, 0.0])
@@ -219,19 +222,9 @@ class EsdfIntegrator:
         m_min = min(float(margins[g]) for g in present)
         size = local if counts is None else counts
         base = max((g for g in present if float(margins[g]) == m_min), key=lambda g: (int(size[g]), -g))
-        e: np.ndarray | None = None
-        if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _inside)
-            pad = math.ceil((dmax + v) / v) + 1
-            dbox = tuple(slice(max(int(lo[n_groups + 1, a]) - pad, 0), min(int(hi[n_groups + 1, a]) + pad + 1, n))
-                         for a, n in enumerate(groups.shape))
-            if math.prod(s.stop - s.start for s in dbox) > groups.size // 2:
-                e = self._edt(union.view(np.uint8) + np.uint8(1))
-            else:
-                d = depth[dbox]
-                deep = d < 0
-                d[deep] = self._edt(union[dbox].view(np.uint8))[deep]
-        if e is None:
-            e = self._edt((~union).view(np.uint8))
+        if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _deep_depth)
+            self._deep_depth(union, depth, lo[n_groups + 1], hi[n_groups + 1])
+        e = self._edt(union)
         half = np.float32(0.5 * v)
         dist = k.base_term(groups, depth, e, base, half, np.float32(m_min))
         grp = np.full(groups.shape, base, dtype=np.uint8)
@@ -247,22 +240,63 @@ class EsdfIntegrator:
                                    np.float32(v))
             box = tuple(slice(int(a), int(b)) for a, b in zip(blo, bhi, strict=True))
             sub = groups[box]
-            s = self._edt((sub != g).view(np.uint8))
+            s = self._edt(sub == g)
             k.combine(sub, depth[box], s, dist[box], grp[box], g, base, half, np.float32(m_g),
                       np.float32(0.5 * v + m_g))
         k.clip(dist, grp, np.float32(dmax))
         return dist, grp
+
+    def _deep_depth(self, union: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Fill the depth of the deep voxels (marked −1 in ``depth``, bounding box [lo, hi]) in place:
+        the distance to the nearest free voxel, from a transform over their box grown by a pad p.
+
+        The box grown by p holds every voxel within p of a deep voxel, so a depth ≤ p found in it is
+        the depth; only if some deep voxel finds none that close is the box grown to the clip depth
+        (past which the depth is clipped anyway: inf). p is the deepest depth of the last call plus
+        one voxel: obstacles change little between frames, so the first box is nearly always
+        enough, and it is far smaller than the clip's (the bench room's solid furniture is at most
+        11 voxels deep; the clip is 42). The result does not depend on p, only the cost does."""
+        c = self.config
+        v = c.voxel_size
+        clip_pad = math.ceil((c.max_distance + v) / v) + 1
+        pad = min(self._depth_pad, clip_pad)
+        while True:
+            box = tuple(slice(max(int(lo[a]) - pad, 0), min(int(hi[a]) + pad + 1, n))
+                        for a, n in enumerate(union.shape))
+            d = depth[box]
+            deep = d < 0
+            found = self._edt(~union[box])[deep]
+            deepest = float(found.max())
+            if pad >= clip_pad or deepest <= np.float32(pad) * np.float32(v):
+                d[deep] = found
+                break
+            pad = clip_pad
+        self._depth_pad = min(math.ceil(deepest / v - 1e-6) + 1, clip_pad) if math.isfinite(deepest) else clip_pad
 
     @staticmethod
     def _masks(groups: np.ndarray, n_groups: int) -> dict[int, np.ndarray]:
         counts = np.bincount(groups.ravel(), minlength=n_groups + 1)
         return {g: groups == g for g in range(1, min(len(counts), n_groups + 1)) if counts[g] > 0}
 
-    def _edt(self, free: np.ndarray) -> np.ndarray:
-        """Distance (m) from every voxel to the nearest zero of ``free`` (uint8 0/1)."""
-        v = self.config.voxel_size
-        return edt.edt(np.ascontiguousarray(free), anisotropy=(v,) * free.ndim, black_border=False,
-                       parallel=self.config.threads)
+    def _edt(self, sites: np.ndarray) -> np.ndarray:
+        """Distance (m, float32) from every voxel to the nearest True voxel of ``sites`` (0 there)."""
+        c = self.config
+        if c.esdf_edt == "compiled":
+            return distance_transform.edt(sites, c.voxel_size, c.threads)
+        free = np.ascontiguousarray(~np.asarray(sites, dtype=bool)).view(np.uint8)
+        return edt.edt(free, anisotropy=(c.voxel_size,) * free.ndim, black_border=False, parallel=c.threads)
+
+    def _edt_two_sided(self, union: np.ndarray) -> np.ndarray:
+        """Distance from each voxel to the nearest voxel on the other side of ``union`` (occupied ↔
+        free). The compiled path sums two transforms (each is 0 on its own sites, so one of the two
+        terms is 0 everywhere); the ``edt`` package does it as one multi-label transform."""
+        c = self.config
+        if c.esdf_edt == "compiled":
+            e = self._edt(union)
+            e += self._edt(~union)
+            return e
+        labels = np.ascontiguousarray(union).view(np.uint8) + np.uint8(1)
+        return edt.edt(labels, anisotropy=(c.voxel_size,) * union.ndim, black_border=False, parallel=c.threads)
 
     def _field(self, masks: dict[int, np.ndarray], margins: np.ndarray, shape: tuple[int, ...],
                counts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -284,7 +318,7 @@ class EsdfIntegrator:
         size = (lambda g: int(masks[g].sum())) if counts is None else (lambda g: int(counts[g]))
         base = max((g for g in masks if float(margins[g]) == m_min), key=lambda g: (size(g), -g))
         if dist is None:
-            dist = self._edt((~union).view(np.uint8))
+            dist = self._edt(union)
         e_union = dist.copy()
         dist -= np.float32(0.5 * v + m_min)
         dist[union] = -(depth[union] - np.float32(0.5 * v)) - np.float32(m_min)
@@ -298,7 +332,7 @@ class EsdfIntegrator:
             if box is None:
                 continue
             sub = mask[box]
-            s = self._edt((~sub).view(np.uint8))
+            s = self._edt(sub)
             s -= np.float32(0.5 * v + m_g)
             s[sub] = -(depth[box][sub] - np.float32(0.5 * v)) - np.float32(m_g)
             cur, cur_g = dist[box], grp[box]
@@ -382,11 +416,11 @@ class EsdfIntegrator:
         dbox = _bbox(deep_full, math.ceil((c.max_distance + c.voxel_size) / c.voxel_size) + 1)
         assert dbox is not None
         if math.prod(s.stop - s.start for s in dbox) > union.size // 2:
-            both = self._edt(union.view(np.uint8) + np.uint8(1))
+            both = self._edt_two_sided(union)
             depth[deep_full] = both[deep_full]
             both[union] = 0.0
             return depth, both
-        e = self._edt(union[dbox].view(np.uint8))
+        e = self._edt(~union[dbox])
         d = depth[dbox]
         d[deep_full[dbox]] = e[deep_full[dbox]]
         return depth, None

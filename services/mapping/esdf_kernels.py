@@ -1,6 +1,6 @@
 """Compiled passes of the exact signed ESDF (``EsdfIntegrator``, ``esdf_kernel = "numba"``).
 
-The EDTs stay in the ``edt`` package; these kernels replace the numpy glue around them (per-group
+The EDTs are ``distance_transform``'s; these kernels replace the numpy glue around them (per-group
 masks over the whole grid, boolean fancy indexing, the shifted-array face tests), which cost about a
 third of a 3-D update. Each is one pass over the grid or a box, in the same float32 arithmetic as the
 numpy path (``EsdfIntegrator._field``), so both give the same field; the tests hold them equal.

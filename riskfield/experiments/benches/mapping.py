@@ -11,8 +11,9 @@ A second table (issue 16) sets the current kernels beside the previous implement
 in the same run on the same frames: TSDF + semantic integration of a frame, projective (the frame's
 intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel semantic rays, at
 full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
-incremental (``EsdfIntegrator.update``) against the full recompute, and the compiled passes around the
-EDTs (``esdf_kernel = "numba"``) against the previous numpy glue, full and incremental; how many frames
+incremental (``EsdfIntegrator.update``) against the full recompute, and the compiled passes and EDT
+(``esdf_kernel = "numba"``, ``esdf_edt = "compiled"``) against the previous numpy glue around the ``edt``
+package, full and incremental, and the compiled EDT against the ``edt`` package alone; how many frames
 changed no occupancy (then the update is a copy); and the 2-D slice. The wavefront update
 (``esdf_incremental = "wave"``, opt-in) is timed beside the box update, with its largest deviation
 from the full recompute over the sweep; ``--node-wave`` also runs the 3-D node with it.
@@ -107,20 +108,23 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
                     p, c, la, t, intrinsics=kk), 1)[0])
         label = "full resolution" if stride == 1 else "pixel stride 2"
         out[f"tsdf+semantic, {label}"] = _ratio(walls)
-    # The 3-D ESDF after each frame (projective map, full resolution): the previous numpy glue
-    # (``esdf_kernel = "numpy"``) against the compiled passes, full recompute and incremental, and
+    # The 3-D ESDF after each frame (projective map, full resolution): the previous numpy glue around
+    # the ``edt`` package against the compiled passes and EDT, full recompute and incremental, and
     # the previous default (full recompute) against the incremental update now.
     m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d"), RiskConfig())
     m.set_robot_position(np.zeros(3))
     m.warm_up()
     esdf = m.esdf_integrator
-    old = EsdfIntegrator(MapperConfig(threads=threads, esdf_kernel="numpy"))
+    old = EsdfIntegrator(MapperConfig(threads=threads, esdf_kernel="numpy", esdf_edt="edt"))
+    with_edt = EsdfIntegrator(MapperConfig(threads=threads, esdf_edt="edt"))  # compiled glue, edt package
+    with_edt.warm_up()
     wave = EsdfIntegrator(MapperConfig(threads=threads, esdf_incremental="wave"))
     wave.warm_up()
     wave_ms: list[float] = []
     wave_err: list[float] = []  # max |d_wave − d_full| per frame
     wave_miss: list[int] = []  # voxels off by more than 1e-5 m per frame
     full = {"previous": [], "now": []}
+    edt_full = {"previous": [], "now": []}
     inc = {"previous": [], "now": []}
     walls = {"previous": [], "now": []}
     slice_ms: list[float] = []
@@ -138,6 +142,8 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
         if prev is not None:
             full["previous"].extend(w_old)
             full["now"].extend(w_new)
+            edt_full["previous"].extend(_time(lambda g=groups: with_edt.compute(g, m.margins), 1)[0])
+            edt_full["now"].extend(w_new)
             inc["previous"].extend(_time(lambda g=groups, p=prev: old.update(g, m.margins, p[0], p[1]), 1)[0])
             w_inc = _time(lambda g=groups, p=prev: esdf.update(g, m.margins, p[0], p[1]), 1)[0]
             inc["now"].extend(w_inc)
@@ -167,8 +173,9 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
         wave_err.append(float(err.max()))
         wave_miss.append(int((err > 1e-5).sum()))
         prev = (groups, field)
-    out["ESDF 3-D full recompute (numpy glue → compiled passes)"] = _ratio(full)
-    out["ESDF 3-D incremental after a frame (numpy glue → compiled passes)"] = _ratio(inc)
+    out["ESDF 3-D full recompute (numpy glue + edt package → compiled passes + compiled EDT)"] = _ratio(full)
+    out["ESDF 3-D full recompute (edt package → compiled EDT, both with compiled passes)"] = _ratio(edt_full)
+    out["ESDF 3-D incremental after a frame (numpy glue + edt package → compiled)"] = _ratio(inc)
     out["ESDF 3-D after a frame (previous full → incremental now)"] = _ratio(walls)
     out["ESDF 3-D after a frame (previous full → incremental now)"]["frames_without_change"] = unchanged
     out["ESDF 3-D incremental after a frame (box → wave, opt-in)"] = _ratio({"previous": inc["now"], "now": wave_ms})
