@@ -21,9 +21,10 @@ distance is +inf.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numba import njit, prange
+
+from ..runtime import jit
 
 _INF = 1 << 30  # "no site on this line yet": larger than any squared distance in a grid of < 2^14 voxels a side
 
@@ -69,8 +70,9 @@ def _envelope(f: np.ndarray, n: int, o: np.ndarray, v: np.ndarray, z: np.ndarray
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _edt(sites: np.ndarray, voxel: np.float32) -> np.ndarray:
-    nx, ny, nz = sites.shape
+def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32) -> np.ndarray:
+    """The sites are the voxels where (labels == label) == equal."""
+    nx, ny, nz = labels.shape
     g = np.empty((nx, ny, nz), np.int32)
     out = np.empty((nx, ny, nz), np.float32)
     m = max(nx, max(ny, nz))
@@ -84,14 +86,14 @@ def _edt(sites: np.ndarray, voxel: np.float32) -> np.ndarray:
         for j in range(ny):
             d = _INF
             for k in range(nz):
-                if sites[i, j, k]:
+                if (labels[i, j, k] == label) == equal:
                     d = 0
                 elif d < _INF:
                     d += 1
                 g[i, j, k] = d
             d = _INF
             for k in range(nz - 1, -1, -1):
-                if sites[i, j, k]:
+                if g[i, j, k] == 0:
                     d = 0
                 elif d < _INF:
                     d += 1
@@ -128,15 +130,17 @@ def edt(sites: np.ndarray, voxel: float, threads: int = 1) -> np.ndarray:
     """Distance (m, float32) from every voxel of a 2-D or 3-D grid to the nearest True voxel of
     ``sites`` (0 on the sites, +inf when there are none), on ``threads`` cores (this call only)."""
     s = np.ascontiguousarray(sites, dtype=np.bool_)
-    shape = s.shape
-    if s.ndim == 2:
-        s = s[:, :, None]
-    if s.ndim != 3:
-        raise ValueError(f"edt: a 2-D or 3-D grid, got shape {shape}")
-    before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    try:
-        out = _edt(s.view(np.uint8), np.float32(voxel))
-    finally:
-        numba.set_num_threads(before)
+    return edt_of_label(s.view(np.uint8), 1, True, voxel, threads)
+
+
+def edt_of_label(labels: np.ndarray, label: int, equal: bool, voxel: float, threads: int = 1) -> np.ndarray:
+    """``edt`` of the sites (labels == label) == equal of a uint8 label grid, which may be a strided
+    view (a box of the group map): no mask array is made for it."""
+    shape = labels.shape
+    if labels.ndim == 2:
+        labels = labels[:, :, None]
+    if labels.ndim != 3 or labels.dtype != np.uint8:
+        raise ValueError(f"edt: a 2-D or 3-D uint8 grid, got shape {shape} {labels.dtype}")
+    with jit.threads(threads):
+        out = _edt(labels, int(label), bool(equal), np.float32(voxel))
     return out.reshape(shape)

@@ -62,6 +62,7 @@ import edt
 import numpy as np
 from scipy import ndimage
 
+from ..runtime.jit import threads
 from . import distance_transform
 from .config import MapperConfig
 from .esdf_wave import WaveEsdf
@@ -163,11 +164,18 @@ class EsdfIntegrator:
     def update_box(self, groups: np.ndarray, margins: np.ndarray, previous_groups: np.ndarray,
                    previous: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         """``update`` by a recompute of the changed voxels' box grown by the reach (see ``update``)."""
-        changed = groups != previous_groups
-        box = _bbox(changed, 0)
+        c = self.config
+        if c.esdf_kernel == "numba" and groups.ndim == 3 and groups.shape == previous_groups.shape:
+            from . import esdf_kernels as k
+
+            with threads(c.threads):
+                lo, hi = k.diff_box(np.ascontiguousarray(groups, dtype=np.uint8),
+                                    np.ascontiguousarray(previous_groups, dtype=np.uint8))
+            box = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True)) if hi[0] > lo[0] else None
+        else:
+            box = _bbox(groups != previous_groups, 0)
         if box is None:
             return previous[0].copy(), previous[1].copy(), 0
-        c = self.config
         n_groups = margins.shape[0] - 1
         reach = math.ceil((c.max_distance + float(np.max(margins[1:], initial=0.0)) + c.voxel_size) / c.voxel_size) + 1
         if c.inflation == "dilate":
@@ -206,8 +214,15 @@ class EsdfIntegrator:
         n_groups = margins.shape[0] - 1
         if c.esdf_kernel != "numba" or c.inflation != "exact" or groups.ndim != 3:
             return self._field(self._masks(groups, n_groups), margins, shape=groups.shape, counts=counts)
+        with threads(c.threads):  # the passes' parallel loops, as the EDTs'
+            return self._field3d_compiled(groups, margins, counts)
+
+    def _field3d_compiled(self, groups: np.ndarray, margins: np.ndarray,
+                          counts: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         from . import esdf_kernels as k
 
+        c = self.config
+        n_groups = margins.shape[0] - 1
         v, dmax = c.voxel_size, c.max_distance
         groups = np.ascontiguousarray(groups, dtype=np.uint8)
         if not groups.flags.writeable:  # one compiled signature (numba types read-only arrays apart)
@@ -218,13 +233,12 @@ class EsdfIntegrator:
         present = [g for g in range(1, n_groups + 1) if local[g] > 0]
         if not present:
             return np.full(groups.shape, dmax, dtype=np.float32), np.zeros(groups.shape, dtype=np.uint8)
-        union = groups != 0
         m_min = min(float(margins[g]) for g in present)
         size = local if counts is None else counts
         base = max((g for g in present if float(margins[g]) == m_min), key=lambda g: (int(size[g]), -g))
         if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _deep_depth)
-            self._deep_depth(union, depth, lo[n_groups + 1], hi[n_groups + 1])
-        e = self._edt(union)
+            self._deep_depth(groups, depth, lo[n_groups + 1], hi[n_groups + 1])
+        e = self._edt_of_label(groups, 0, equal=False)  # to the nearest occupied voxel
         half = np.float32(0.5 * v)
         dist = k.base_term(groups, depth, e, base, half, np.float32(m_min))
         grp = np.full(groups.shape, base, dtype=np.uint8)
@@ -240,13 +254,13 @@ class EsdfIntegrator:
                                    np.float32(v))
             box = tuple(slice(int(a), int(b)) for a, b in zip(blo, bhi, strict=True))
             sub = groups[box]
-            s = self._edt(sub == g)
+            s = self._edt_of_label(sub, g, equal=True)
             k.combine(sub, depth[box], s, dist[box], grp[box], g, base, half, np.float32(m_g),
                       np.float32(0.5 * v + m_g))
         k.clip(dist, grp, np.float32(dmax))
         return dist, grp
 
-    def _deep_depth(self, union: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+    def _deep_depth(self, groups: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
         """Fill the depth of the deep voxels (marked −1 in ``depth``, bounding box [lo, hi]) in place:
         the distance to the nearest free voxel, from a transform over their box grown by a pad p.
 
@@ -262,10 +276,10 @@ class EsdfIntegrator:
         pad = min(self._depth_pad, clip_pad)
         while True:
             box = tuple(slice(max(int(lo[a]) - pad, 0), min(int(hi[a]) + pad + 1, n))
-                        for a, n in enumerate(union.shape))
+                        for a, n in enumerate(groups.shape))
             d = depth[box]
             deep = d < 0
-            found = self._edt(~union[box])[deep]
+            found = self._edt_of_label(groups[box], 0, equal=True)[deep]  # to the nearest free voxel
             deepest = float(found.max())
             if pad >= clip_pad or deepest <= np.float32(pad) * np.float32(v):
                 d[deep] = found
@@ -285,6 +299,13 @@ class EsdfIntegrator:
             return distance_transform.edt(sites, c.voxel_size, c.threads)
         free = np.ascontiguousarray(~np.asarray(sites, dtype=bool)).view(np.uint8)
         return edt.edt(free, anisotropy=(c.voxel_size,) * free.ndim, black_border=False, parallel=c.threads)
+
+    def _edt_of_label(self, labels: np.ndarray, label: int, equal: bool) -> np.ndarray:
+        """``_edt`` of the sites (labels == label) == equal of a uint8 group map or a box of it."""
+        c = self.config
+        if c.esdf_edt == "compiled":
+            return distance_transform.edt_of_label(labels, label, equal, c.voxel_size, c.threads)
+        return self._edt((labels == label) == equal)
 
     def _edt_two_sided(self, union: np.ndarray) -> np.ndarray:
         """Distance from each voxel to the nearest voxel on the other side of ``union`` (occupied ↔

@@ -41,10 +41,10 @@ default: see its note in ``config.py``).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numba import njit, prange
 
+from ..runtime.jit import threads
 from .config import MapperConfig
 from .layers import SemanticLayer, TsdfLayer
 from .pointmap import FrameRejected
@@ -219,12 +219,8 @@ class ProjectiveIntegrator:
         T = np.asarray(T_WC, dtype=np.float64)
         pts = np.asarray(points, dtype=np.float32)
         conf = np.asarray(confidence, dtype=np.float32)
-        threads = numba.get_num_threads()
-        numba.set_num_threads(min(c.integration_threads, numba.config.NUMBA_NUM_THREADS))  # this thread only
-        try:
+        with threads(c.integration_threads):
             return self._integrate(volume, tsdf, semantic, pts, conf, labels, T, K)
-        finally:
-            numba.set_num_threads(threads)
 
     def _integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer | None, pts: np.ndarray,
                    conf: np.ndarray, labels: np.ndarray | None, T: np.ndarray, K: np.ndarray) -> tuple[int, int]:

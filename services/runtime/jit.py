@@ -9,6 +9,8 @@ imports it directly.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 numba: Any
@@ -23,4 +25,20 @@ except ImportError:  # pragma: no cover - exercised on installs without numba
     njit = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "njit", "numba"]
+__all__ = ["HAVE_NUMBA", "njit", "numba", "threads"]
+
+
+@contextmanager
+def threads(n: int) -> Iterator[None]:
+    """Run the compiled parallel loops (``prange``) called inside on ``n`` threads, capped at numba's
+    pool; numba keeps the count per calling thread, so other threads' kernels are not affected.
+    Without numba: nothing to set."""
+    if numba is None:
+        yield
+        return
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)

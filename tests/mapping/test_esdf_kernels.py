@@ -53,3 +53,24 @@ def test_compiled_path_sees_deep_interiors_in_a_sub_box() -> None:
     np.testing.assert_allclose(d, d_ref, atol=1e-5, rtol=0)
     np.testing.assert_array_equal(g, g_ref)
     assert d[46, 46, 11] < -0.2  # six voxels deep: −(0.3 − 0.025) − 0.15, clipped to −0.3
+
+
+@settings(max_examples=40, deadline=None)
+@given(shape=st.tuples(st.integers(1, 12), st.integers(1, 12), st.integers(1, 12)), flips=st.integers(0, 5),
+       seed=st.integers(0, 2**16))
+def test_diff_box_is_the_bounding_box_of_the_changed_voxels(shape: tuple, flips: int, seed: int) -> None:
+    """The incremental update's changed box (one parallel pass) against the mask-and-reduce one."""
+    from riskfield.services.mapping import esdf_kernels as k
+
+    rng = np.random.default_rng(seed)
+    a = rng.integers(0, 3, size=shape).astype(np.uint8)
+    b = a.copy()
+    idx = rng.integers(0, a.size, size=flips)
+    b.flat[idx] = (b.flat[idx] + 1) % 3
+    lo, hi = k.diff_box(a, b)
+    changed = np.argwhere(a != b)
+    if changed.size == 0:
+        assert (hi <= lo).all()
+    else:
+        np.testing.assert_array_equal(lo, changed.min(axis=0))
+        np.testing.assert_array_equal(hi, changed.max(axis=0) + 1)
