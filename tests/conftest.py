@@ -18,20 +18,30 @@ settings.register_profile("explore", deadline=None, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "riskfield"))
 
 
-def _warm_compiled_filter() -> None:
-    """A safety-filter node compiles the filter's numba kernel in its setup when numba's on-disk
-    cache is cold (~20 s here, on a fresh checkout): fill the cache once, before a test starts one."""
+@pytest.fixture(scope="session", autouse=True)
+def _warm_compiled_kernels() -> None:
+    """Nodes compile their numba kernels in their setup when numba's on-disk cache is cold (a fresh
+    checkout, as in CI): the filter's ~20 s, mapping's ~24 s here. Several nodes of a stack test
+    compiling at once on two cores could outlast the test's readiness wait, so the cache is filled
+    once, in this process, before the first test."""
     try:
         from riskfield.services.safety_filter.filter import SafetyFilter
     except ImportError:  # an install without the robot extra
+        pass
+    else:
+        SafetyFilter()
+    try:
+        from riskfield.services.mapping.mapper import Mapper
+        from riskfield.services.mapping.settings import MappingSettings
+    except ImportError:  # an install without the mapping extra
         return
-    SafetyFilter()
+    for output in ("2d", "3d"):
+        Mapper(MappingSettings(output=output).mapper_config(), None).warm_up()
 
 
 @pytest.fixture(scope="session")
 def router() -> Iterator[ZenohRouter]:
     """One in-process Python router for the whole test session (tests use distinct robot ids)."""
-    _warm_compiled_filter()
     with ZenohRouter() as r:
         yield r
 

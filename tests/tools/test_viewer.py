@@ -173,8 +173,10 @@ def test_viewer_node_saves_a_recording_rerun_loads_back(router_endpoint, tmp_pat
     statuses = ["no_ref"] * 20 + [None] * 5 + ["no_ref"] * 5
     try:
         with client_session(router_endpoint) as c:
-            put(c, "rf/t_view/state", _state())
-            assert wait_until(lambda: view.drawn["state"] >= 1, 10)
+            # Repeated until drawn: the first put may reach the router before the viewer's
+            # subscription does (Zenoh matches asynchronously); a repeated state changes nothing.
+            assert wait_until(lambda: (put(c, "rf/t_view/state", _state()), view.drawn["state"] >= 1)[1], 10,
+                              period_s=0.1)
             put(c, "rf/t_view/map/esdf", grid)
             put(c, "rf/t_view/perception/frame", _frame())
             rgb = np.zeros((24, 32, 3), np.uint8)
