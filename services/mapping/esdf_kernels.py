@@ -113,6 +113,18 @@ def base_term(groups: np.ndarray, depth: np.ndarray, e: np.ndarray, base: int, h
     return dist
 
 
+@njit(cache=True, nogil=True)
+def _merge_boxes(plo: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The box [lo, hi) holding the per-plane inclusive boxes (plo[n], phi[n]) of a parallel pass."""
+    lo = np.array([1 << 40, 1 << 40, 1 << 40], dtype=np.int64)
+    hi = np.array([-1, -1, -1], dtype=np.int64)
+    for n in range(plo.shape[0]):
+        for a in range(3):
+            lo[a] = min(lo[a], plo[n, a])
+            hi[a] = max(hi[a], phi[n, a])
+    return lo, hi + 1
+
+
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def reach_box(e_union: np.ndarray, tlo: np.ndarray, thi: np.ndarray, llo: np.ndarray, lhi: np.ndarray,
               slack: np.float32, far: np.float32, voxel: np.float32) -> tuple[np.ndarray, np.ndarray]:
@@ -142,13 +154,7 @@ def reach_box(e_union: np.ndarray, tlo: np.ndarray, thi: np.ndarray, llo: np.nda
                     hi2 = max(hi2, k)
         plo[ii, 0], plo[ii, 1], plo[ii, 2] = lo0, lo1, lo2
         phi[ii, 0], phi[ii, 1], phi[ii, 2] = hi0, hi1, hi2
-    lo = np.array([1 << 40, 1 << 40, 1 << 40], dtype=np.int64)
-    hi = np.array([-1, -1, -1], dtype=np.int64)
-    for ii in range(n):
-        for a in range(3):
-            lo[a] = min(lo[a], plo[ii, a])
-            hi[a] = max(hi[a], phi[ii, a])
-    return lo, hi + 1
+    return _merge_boxes(plo, phi)
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -204,10 +210,4 @@ def diff_box(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                     hi2 = max(hi2, k)
         plo[i, 0], plo[i, 1], plo[i, 2] = (i if hi1 >= 0 else 1 << 40), lo1, lo2
         phi[i, 0], phi[i, 1], phi[i, 2] = (i if hi1 >= 0 else -1), hi1, hi2
-    lo = np.array([1 << 40, 1 << 40, 1 << 40], dtype=np.int64)
-    hi = np.array([-1, -1, -1], dtype=np.int64)
-    for i in range(nx):
-        for d in range(3):
-            lo[d] = min(lo[d], plo[i, d])
-            hi[d] = max(hi[d], phi[i, d])
-    return lo, hi + 1
+    return _merge_boxes(plo, phi)

@@ -1,5 +1,5 @@
-"""The compiled distance transform under the ESDF (``distance_transform``) against the ``edt`` package,
-and the ESDF built on it against the ESDF built on ``edt`` (``esdf_edt``)."""
+"""The compiled distance transform under the ESDF (``distance_transform``) against the ``edt`` package.
+The ESDF built on it against the ESDF built on ``edt`` (``esdf_edt``): ``test_esdf_kernels``."""
 
 from __future__ import annotations
 
@@ -50,50 +50,6 @@ def test_no_site_is_infinite_and_a_bad_grid_is_refused() -> None:
     assert np.isposinf(edt(np.zeros((5, 6, 7), bool), 0.05)).all()
     with pytest.raises(ValueError, match="2-D or 3-D"):
         edt(np.zeros(5, bool), 0.05)
-
-
-block = st.tuples(st.integers(-3, 30), st.integers(-3, 26), st.integers(-3, 22),
-                  st.integers(1, 14), st.integers(1, 14), st.integers(1, 14), st.integers(1, 3))
-
-
-@settings(max_examples=30, deadline=None)
-@given(blocks=st.lists(block, min_size=1, max_size=6), noise=st.floats(0.0, 0.02),
-       margins=st.tuples(st.sampled_from([0.0, 0.05, 0.15]), st.sampled_from([0.0, 0.05]), st.just(0.0)),
-       dmax=st.sampled_from([0.3, 1.0, 2.0]), seed=st.integers(0, 2**16))
-def test_esdf_on_it_equals_the_esdf_on_the_edt_package(blocks: list, noise: float, margins: tuple, dmax: float,
-                                                      seed: int) -> None:
-    """Solid blocks (deep interiors whose depth comes from the learnt box pad) and speckle: the field
-    is the one the ``edt`` package gives, in distance everywhere; the risk group wherever the two
-    best terms are not a float32 tie."""
-    shape = (30, 26, 22)
-    groups = np.zeros(shape, np.uint8)
-    for i, j, k, a, b, c, g in blocks:
-        groups[max(i, 0):max(i + a, 0), max(j, 0):max(j + b, 0), max(k, 0):max(k + c, 0)] = g
-    rng = np.random.default_rng(seed)
-    speckle = rng.random(shape) < noise
-    groups[speckle] = rng.integers(1, 4, size=int(speckle.sum()))
-    m = np.array([0.0, *margins])
-    ours = EsdfIntegrator(MapperConfig(max_distance=dmax))
-    theirs = EsdfIntegrator(MapperConfig(max_distance=dmax, esdf_edt="edt"))
-    d, g = ours.compute(groups, m)
-    d_ref, g_ref = theirs.compute(groups, m)
-    np.testing.assert_allclose(d, d_ref, atol=1e-5, rtol=0)
-    # Where the risk groups differ, the two groups' terms tie (equal margins, equidistant groups)
-    # and float32 rounding picked differently: each group's term there, from the reference EDT.
-    v = 0.05
-    occupied = groups != 0
-    depth = reference(~occupied, v)
-    term = {0: np.full(shape, np.float32(dmax))}
-    for h in range(1, 4):
-        t = reference(groups == h, v) - np.float32(v / 2) - np.float32(m[h]) if (groups == h).any() \
-            else np.full(shape, np.inf, np.float32)
-        own = groups == h
-        t[own] = -(depth[own] - np.float32(v / 2)) - np.float32(m[h])
-        term[h] = np.minimum(t, dmax)
-    differ = np.flatnonzero(g != g_ref)
-    ours_t = np.array([term[int(a)].flat[x] for a, x in zip(g.flat[differ], differ, strict=True)])
-    ref_t = np.array([term[int(a)].flat[x] for a, x in zip(g_ref.flat[differ], differ, strict=True)])
-    np.testing.assert_allclose(ours_t, ref_t, atol=1e-5, rtol=0)
 
 
 def test_deep_voxels_deeper_than_the_learnt_pad_grow_the_box() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import edt as edt_package
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -15,21 +16,26 @@ block = st.tuples(
 )
 
 
-@settings(max_examples=40, deadline=None)
-@given(blocks=st.lists(block, min_size=0, max_size=8), noise=st.floats(0.0, 0.03),
-       margins=st.tuples(st.sampled_from([0.0, 0.05, 0.12, 0.15]), st.sampled_from([0.0, 0.05, 0.15]),
-                         st.sampled_from([0.0, 0.05])),
-       dmax=st.sampled_from([0.2, 0.5, 1.0, 2.0]), seed=st.integers(0, 2**16))
-def test_compiled_equals_numpy_path(blocks: list, noise: float, margins: tuple, dmax: float, seed: int) -> None:
+def group_map(shape: tuple[int, int, int], blocks: list, noise: float, seed: int) -> np.ndarray:
     """Solid blocks (deep interiors, at the border, touching each other) and scattered single voxels
-    (exposed-only shells): the same distances and risk groups, bit for bit up to 1e-5 m."""
-    shape = (32, 28, 24)
+    (exposed-only shells) of random groups."""
     groups = np.zeros(shape, np.uint8)
     for i, j, k, a, b, c, g in blocks:
         groups[max(i, 0):max(i + a, 0), max(j, 0):max(j + b, 0), max(k, 0):max(k + c, 0)] = g
     rng = np.random.default_rng(seed)
     speckle = rng.random(shape) < noise
     groups[speckle] = rng.integers(1, 4, size=int(speckle.sum()))
+    return groups
+
+
+@settings(max_examples=40, deadline=None)
+@given(blocks=st.lists(block, min_size=0, max_size=8), noise=st.floats(0.0, 0.03),
+       margins=st.tuples(st.sampled_from([0.0, 0.05, 0.12, 0.15]), st.sampled_from([0.0, 0.05, 0.15]),
+                         st.sampled_from([0.0, 0.05])),
+       dmax=st.sampled_from([0.2, 0.5, 1.0, 2.0]), seed=st.integers(0, 2**16))
+def test_compiled_equals_numpy_path(blocks: list, noise: float, margins: tuple, dmax: float, seed: int) -> None:
+    """The same distances and risk groups, bit for bit up to 1e-5 m."""
+    groups = group_map((32, 28, 24), blocks, noise, seed)
     m = np.array([0.0, *margins])
     fast = EsdfIntegrator(MapperConfig(max_distance=dmax, esdf_kernel="numba", threads=1))
     slow = EsdfIntegrator(MapperConfig(max_distance=dmax, esdf_kernel="numpy", threads=1))
@@ -39,6 +45,40 @@ def test_compiled_equals_numpy_path(blocks: list, noise: float, margins: tuple, 
     np.testing.assert_allclose(d, d_ref, atol=1e-5, rtol=0)
     np.testing.assert_array_equal(g, g_ref)
     assert np.isfinite(d).all() and np.abs(d).max() <= dmax
+
+
+@settings(max_examples=30, deadline=None)
+@given(blocks=st.lists(block, min_size=1, max_size=6), noise=st.floats(0.0, 0.02),
+       margins=st.tuples(st.sampled_from([0.0, 0.05, 0.15]), st.sampled_from([0.0, 0.05]), st.just(0.0)),
+       dmax=st.sampled_from([0.3, 1.0, 2.0]), seed=st.integers(0, 2**16))
+def test_compiled_edt_equals_the_edt_package_under_the_field(blocks: list, noise: float, margins: tuple,
+                                                             dmax: float, seed: int) -> None:
+    """The field on the compiled EDT (``esdf_edt = "compiled"``, deep interiors from the learnt box
+    pad) is the one on the ``edt`` package: in distance everywhere; in risk group wherever the two
+    best terms are not a float32 tie."""
+    shape = (30, 26, 22)
+    groups = group_map(shape, blocks, noise, seed)
+    groups[groups > 3] = 0  # unknown ids are free in the field: the terms below see them so
+    m = np.array([0.0, *margins])
+    d, g = EsdfIntegrator(MapperConfig(max_distance=dmax)).compute(groups, m)
+    d_ref, g_ref = EsdfIntegrator(MapperConfig(max_distance=dmax, esdf_edt="edt")).compute(groups, m)
+    np.testing.assert_allclose(d, d_ref, atol=1e-5, rtol=0)
+    # Where the risk groups differ, the two groups' terms tie (equal margins, equidistant groups)
+    # and float32 rounding picked differently: each group's term there, from the ``edt`` package.
+    v = 0.05
+    ref = lambda sites: edt_package.edt((~sites).astype(np.uint8), anisotropy=(v,) * 3,  # noqa: E731
+                                        black_border=False)
+    depth = ref(groups == 0)
+    term = {0: np.full(shape, np.float32(dmax))}
+    for h in range(1, 4):
+        own = groups == h
+        t = ref(own) - np.float32(v / 2) - np.float32(m[h]) if own.any() else np.full(shape, np.inf, np.float32)
+        t[own] = -(depth[own] - np.float32(v / 2)) - np.float32(m[h])
+        term[h] = np.minimum(t, dmax)
+    differ = np.flatnonzero(g != g_ref)
+    ours_t = np.array([term[int(a)].flat[x] for a, x in zip(g.flat[differ], differ, strict=True)])
+    ref_t = np.array([term[int(a)].flat[x] for a, x in zip(g_ref.flat[differ], differ, strict=True)])
+    np.testing.assert_allclose(ours_t, ref_t, atol=1e-5, rtol=0)
 
 
 def test_compiled_path_sees_deep_interiors_in_a_sub_box() -> None:
