@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+
+import numpy as np
 import pytest
 
-from riskfield.protocol import ade20k
+from riskfield.protocol import EsdfGrid, ade20k
 from riskfield.services.geometry.camera import PinholeCamera
-from riskfield.services.geometry.shapes import Box, Plane
+from riskfield.services.geometry.shapes import Box, Plane, render
+from riskfield.services.geometry.transforms import look_at
+from riskfield.services.mapping.mapper import Mapper
 
 WALL = ade20k.index("wall")
 FLOOR = ade20k.index("floor")
@@ -29,3 +34,28 @@ def room() -> list:
 def small_camera() -> PinholeCamera:
     """A small camera (fast tests) with the angular resolution of the real one at half size."""
     return PinholeCamera.centred(160, 120, 125.0)
+
+
+Sweep = Callable[[list[Mapper], list, np.ndarray, float], Iterator[list[EsdfGrid]]]
+
+
+@pytest.fixture
+def sweep() -> Sweep:
+    """A camera sweeping a scene (128×96, one pose per angle of ``angles``, swaying ``sway`` m
+    sideways): each frame integrated into every mapper, then their 3-D grids, one list per frame."""
+    cam = PinholeCamera.centred(128, 96, 100.0)
+    K = (cam.fx, cam.fy, cam.cx, cam.cy)
+
+    def run(mappers: list[Mapper], scene: list, angles: np.ndarray, sway: float) -> Iterator[list[EsdfGrid]]:
+        for a in angles:
+            T = look_at(np.array([0.0, sway * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
+            pts, conf, lab = render(scene, T, cam)
+            grids = []
+            for m in mappers:
+                m.integrate(pts, conf, lab, T, intrinsics=K)
+                u = m.update_esdf()
+                assert u is not None and u.grid3d is not None
+                grids.append(u.grid3d)
+            yield grids
+
+    return run

@@ -7,9 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.protocol import RiskConfig
-from riskfield.services.geometry.camera import PinholeCamera
-from riskfield.services.geometry.shapes import Plane, render
-from riskfield.services.geometry.transforms import look_at
+from riskfield.services.geometry.shapes import Plane
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
 from riskfield.services.mapping.mapper import Mapper
@@ -75,25 +73,15 @@ def test_no_change_recomputes_nothing_and_a_local_edit_stays_local() -> None:
     assert not np.array_equal(d3, dist)
 
 
-def test_mapper_incremental_equals_full_over_a_sweep_of_frames(room: list) -> None:
+def test_mapper_incremental_equals_full_over_a_sweep_of_frames(room: list, sweep) -> None:
     """Through the mapper (solid interiors, the fill, labels changing): the incremental 3-D grid after
     every frame is the full recompute's."""
-    cam = PinholeCamera.centred(128, 96, 100.0)
-    K = (cam.fx, cam.fy, cam.cx, cam.cy)
     mappers = [Mapper(MapperConfig(output="3d", half_extent=(1.5, 1.5, 1.0), max_distance=0.5, esdf_update=u),
                       RiskConfig()) for u in ("incremental", "full")]
     for m in mappers:
         m.set_robot_position(np.zeros(3))
     scene = [*room, Plane((0, 1, 0), -1.2, room[0].label)]
-    for a in np.linspace(-0.8, 0.8, 4):
-        T = look_at(np.array([0.0, 0.3 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
-        pts, conf, lab = render(scene, T, cam)
-        outs = []
-        for m in mappers:
-            m.integrate(pts, conf, lab, T, intrinsics=K)
-            u = m.update_esdf()
-            assert u is not None and u.grid3d is not None
-            outs.append(u.grid3d)
+    for outs in sweep(mappers, scene, np.linspace(-0.8, 0.8, 4), 0.3):
         np.testing.assert_allclose(outs[0].distance, outs[1].distance, atol=1e-5, rtol=0)
         np.testing.assert_array_equal(outs[0].risk_group, outs[1].risk_group)
     assert (outs[0].distance < 0).any()

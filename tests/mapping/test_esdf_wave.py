@@ -8,9 +8,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from riskfield.protocol import RiskConfig
-from riskfield.services.geometry.camera import PinholeCamera
-from riskfield.services.geometry.shapes import Plane, render
-from riskfield.services.geometry.transforms import look_at
+from riskfield.services.geometry.shapes import Plane
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
 from riskfield.services.mapping.esdf_wave import WaveEsdf
@@ -155,26 +153,16 @@ def test_wave_follows_a_volume_shift(start: list, after: list, delta: tuple) -> 
     assert_same_field(d, g, *oracle.compute(groups, m), groups, m, cfg)
 
 
-def test_mapper_sweep_wave_against_full_recompute(room: list) -> None:
+def test_mapper_sweep_wave_against_full_recompute(room: list, sweep) -> None:
     """Through the mapper (solid interiors, the fill, labels changing) over a camera sweep: the wave's
     field is the full recompute's. Nearest-site propagation over 26 neighbours can miss the nearest
     site of a voxel whose nearest site is no neighbour's (digital Voronoi islands, far from the
     obstacles); such misses are counted and must stay rare and below a tenth of a voxel."""
-    cam = PinholeCamera.centred(128, 96, 100.0)
-    K = (cam.fx, cam.fy, cam.cx, cam.cy)
     mappers = [Mapper(MapperConfig(output="3d", half_extent=(1.5, 1.5, 1.0), max_distance=0.8,
                                    esdf_incremental=u), RiskConfig()) for u in ("wave", "box")]
     scene = [*room, Plane((0, 1, 0), -1.2, room[0].label)]  # no robot position: the volume follows the camera
     misses = 0
-    for a in np.linspace(-0.8, 0.8, 5):
-        T = look_at(np.array([0.0, 0.6 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
-        pts, conf, lab = render(scene, T, cam)
-        outs = []
-        for m in mappers:
-            m.integrate(pts, conf, lab, T, intrinsics=K)
-            u = m.update_esdf()
-            assert u is not None and u.grid3d is not None
-            outs.append(u.grid3d)
+    for outs in sweep(mappers, scene, np.linspace(-0.8, 0.8, 5), 0.6):
         err = np.abs(outs[0].distance - outs[1].distance)
         misses += int((err > 1e-5).sum())
         assert err.max() <= 0.1 * mappers[0].config.voxel_size
