@@ -30,21 +30,22 @@ _INF = 1 << 30  # "no site on this line yet": larger than any squared distance i
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _envelope(f: np.ndarray, n: int, o: np.ndarray, v: np.ndarray, z: np.ndarray) -> bool:
-    """o[q] = min over p of f[p] + (q − p)² for the p with f[p] < _INF; False (o untouched) when
-    there is none. ``v`` (int64, n) holds the envelope's parabolas left to right, ``z`` (float64,
-    n + 1) where each takes over. (An all-integer variant, the intersections cross-multiplied,
-    measured 13 % slower here: the readout then compares two parabolas per step.)"""
+def _envelope(f: np.ndarray, a: int, b: int, n: int, o: np.ndarray, v: np.ndarray, z: np.ndarray) -> bool:
+    """o[q] = min over p of f[p] + (q − p)² for q in [0, n), over the p in [a, b] with f[p] < _INF
+    (outside [a, b] f is not read: no site can be there); False (o untouched) when there is none.
+    ``v`` (int64, n) holds the envelope's parabolas left to right, ``z`` (float64, n + 1) where each
+    takes over. (An all-integer variant, the intersections cross-multiplied, measured 13 % slower
+    here: the readout then compares two parabolas per step.)"""
     k = -1
     s = 0.0
-    for q in range(n):
+    for q in range(a, b + 1):
         fq = f[q]
         if fq >= _INF:
             continue
-        a = fq + q * q
+        a2 = fq + q * q
         while k >= 0:
             p = v[k]
-            s = (a - (f[p] + p * p)) / (2.0 * (q - p))
+            s = (a2 - (f[p] + p * p)) / (2.0 * (q - p))
             if s <= z[k]:
                 k -= 1
             else:
@@ -70,20 +71,34 @@ def _envelope(f: np.ndarray, n: int, o: np.ndarray, v: np.ndarray, z: np.ndarray
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32) -> np.ndarray:
-    """The sites are the voxels where (labels == label) == equal."""
+def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.ndarray, hi: np.ndarray,
+         out: np.ndarray, fill: np.ndarray, fill_max: np.float32) -> np.float32:
+    """The sites are the voxels where (labels == label) == equal, all inside the box [lo, hi]
+    (inclusive; the whole grid when unknown). Outside it the first two passes do nothing and the
+    envelopes do not look: a risk group's transform over its reach box then costs about one pass
+    over the box, not three.
+
+    Two ways out. ``out`` (the grid's shape) receives every distance; or, when ``out`` is empty,
+    ``fill`` (the grid's shape) receives the distance where it is negative (the deep voxels'
+    depth, ``EsdfIntegrator._deep_depth``) if it is at most ``fill_max``, and only the lines
+    holding such a voxel are read out. Returns the largest distance found for a negative ``fill``
+    voxel (−1 when none; +inf when one has no site), written or not."""
     nx, ny, nz = labels.shape
     g = np.empty((nx, ny, nz), np.int32)
-    out = np.empty((nx, ny, nz), np.float32)
+    filling = out.size == 0
+    found = np.full(ny, np.float32(-1.0))
     m = max(nx, max(ny, nz))
-    # Passes 1 and 2 (k, then j) within each i-plane.
-    for i in prange(nx):
+    i0, i1 = max(lo[0], 0), min(hi[0], nx - 1)
+    j0, j1 = max(lo[1], 0), min(hi[1], ny - 1)
+    has_site = np.zeros(nx, np.bool_)
+    # Passes 1 and 2 (k, then j) within each i-plane of the site box.
+    for i in prange(i0, i1 + 1):
         f = np.empty(m, np.int32)
         o = np.empty(m, np.int32)
         v = np.empty(m, np.int64)
         z = np.empty(m + 1, np.float64)
         plane = False
-        for j in range(ny):
+        for j in range(j0, j1 + 1):
             d = _INF
             for k in range(nz):
                 if (labels[i, j, k] == label) == equal:
@@ -100,30 +115,53 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32) -> np.n
                 e = min(g[i, j, k], d)
                 g[i, j, k] = e * e if e < _INF else _INF
             plane = plane or g[i, j, 0] < _INF
-        if not plane:  # no site in this plane: all _INF, as pass 2 would leave it
+        has_site[i] = plane
+        if not plane:  # no site in this plane: pass 3 skips it
             continue
         for k in range(nz):
-            for j in range(ny):
+            for j in range(j0, j1 + 1):
                 f[j] = g[i, j, k]
-            if _envelope(f, ny, o, v, z):
+            if _envelope(f, j0, j1, ny, o, v, z):
                 for j in range(ny):
                     g[i, j, k] = o[j]
-    # Pass 3 (i) per j-plane, on a transposed copy so each line is contiguous; metres on the way out.
+            else:
+                for j in range(ny):
+                    g[i, j, k] = _INF
+    # Pass 3 (i) per j-plane, on a transposed copy of the planes with sites so each line is
+    # contiguous; metres on the way out.
     for j in prange(ny):
         t = np.empty((nz, nx), np.int32)
         o = np.empty(m, np.int32)
         v = np.empty(m, np.int64)
         z = np.empty(m + 1, np.float64)
-        for i in range(nx):
-            for k in range(nz):
-                t[k, i] = g[i, j, k]
+        for i in range(i0, i1 + 1):
+            if has_site[i]:
+                for k in range(nz):
+                    t[k, i] = g[i, j, k]
+            else:
+                for k in range(nz):
+                    t[k, i] = _INF
         for k in range(nz):
-            if not _envelope(t[k], nx, o, v, z):
+            if filling:
+                wanted = False
+                for i in range(nx):
+                    if fill[i, j, k] < 0:
+                        wanted = True
+                        break
+                if not wanted:
+                    continue
+            if not _envelope(t[k], i0, i1, nx, o, v, z):
                 for i in range(nx):
                     o[i] = _INF
             for i in range(nx):
-                out[i, j, k] = np.sqrt(np.float32(o[i])) * voxel if o[i] < _INF else np.float32(np.inf)
-    return out
+                d = np.sqrt(np.float32(o[i])) * voxel if o[i] < _INF else np.float32(np.inf)
+                if not filling:
+                    out[i, j, k] = d
+                elif fill[i, j, k] < 0:
+                    found[j] = max(found[j], d)
+                    if d <= fill_max:
+                        fill[i, j, k] = d
+    return found.max() if ny > 0 else np.float32(-1.0)
 
 
 def edt(sites: np.ndarray, voxel: float, threads: int = 1) -> np.ndarray:
@@ -133,14 +171,47 @@ def edt(sites: np.ndarray, voxel: float, threads: int = 1) -> np.ndarray:
     return edt_of_label(s.view(np.uint8), 1, True, voxel, threads)
 
 
-def edt_of_label(labels: np.ndarray, label: int, equal: bool, voxel: float, threads: int = 1) -> np.ndarray:
+def edt_of_label(labels: np.ndarray, label: int, equal: bool, voxel: float, threads: int = 1,
+                 site_box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``edt`` of the sites (labels == label) == equal of a uint8 label grid, which may be a strided
-    view (a box of the group map): no mask array is made for it."""
+    view (a box of the group map): no mask array is made for it. ``site_box`` (lo, hi), inclusive
+    voxel indices into ``labels``, bounds where the sites are when the caller knows it (a group's
+    bounding box from ``esdf_kernels.scan``); a site outside it would be missed."""
     shape = labels.shape
     if labels.ndim == 2:
         labels = labels[:, :, None]
     if labels.ndim != 3 or labels.dtype != np.uint8:
         raise ValueError(f"edt: a 2-D or 3-D uint8 grid, got shape {shape} {labels.dtype}")
+    lo, hi = _site_box(labels, site_box)
+    out = np.empty(labels.shape, np.float32)
     with jit.threads(threads):
-        out = _edt(labels, int(label), bool(equal), np.float32(voxel))
+        _edt(labels, int(label), bool(equal), np.float32(voxel), lo, hi, out, _NO_FILL, np.float32(0.0))
     return out.reshape(shape)
+
+
+def fill_depth(labels: np.ndarray, label: int, equal: bool, voxel: float, threads: int, depth: np.ndarray,
+               limit: float) -> float:
+    """Where ``depth`` (float32, the 3-D shape of ``labels``, may be a box view) is negative, write
+    the distance to the nearest site if it is ≤ ``limit`` (m); the rest stay negative. Returns the
+    largest distance found there (m; −1 if ``depth`` has no negative voxel, +inf if one has no
+    site). Only the lines through negative voxels are read out: for the inside depth of solid
+    obstacles, a fraction of the box."""
+    if labels.ndim != 3 or labels.dtype != np.uint8 or depth.shape != labels.shape or depth.dtype != np.float32:
+        raise ValueError(f"fill_depth: a 3-D uint8 grid and a float32 depth of its shape, got {labels.shape} "
+                         f"{labels.dtype} and {depth.shape} {depth.dtype}")
+    lo, hi = _site_box(labels, None)
+    with jit.threads(threads):
+        return float(_edt(labels, int(label), bool(equal), np.float32(voxel), lo, hi, _NO_OUT, depth,
+                          np.float32(limit)))
+
+
+_NO_OUT = np.empty((0, 0, 0), np.float32)
+_NO_FILL = np.empty((0, 0, 0), np.float32)
+
+
+def _site_box(labels: np.ndarray, site_box: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+    if site_box is None:
+        return np.zeros(3, np.int64), np.asarray(labels.shape, np.int64) - 1
+    lo, hi = np.zeros(3, np.int64), np.zeros(3, np.int64)
+    lo[:len(site_box[0])], hi[:len(site_box[1])] = site_box[0], site_box[1]
+    return lo, hi

@@ -238,7 +238,8 @@ class EsdfIntegrator:
         base = max((g for g in present if float(margins[g]) == m_min), key=lambda g: (int(size[g]), -g))
         if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _deep_depth)
             self._deep_depth(groups, depth, lo[n_groups + 1], hi[n_groups + 1])
-        e = self._edt_of_label(groups, 0, equal=False)  # to the nearest occupied voxel
+        occupied = (lo[1:n_groups + 1].min(axis=0), hi[1:n_groups + 1].max(axis=0))  # empty groups: lo > hi
+        e = self._edt_of_label(groups, 0, equal=False, site_box=occupied)  # to the nearest occupied voxel
         half = np.float32(0.5 * v)
         dist = k.base_term(groups, depth, e, base, half, np.float32(m_min))
         grp = np.full(groups.shape, base, dtype=np.uint8)
@@ -254,7 +255,7 @@ class EsdfIntegrator:
                                    np.float32(v))
             box = tuple(slice(int(a), int(b)) for a, b in zip(blo, bhi, strict=True))
             sub = groups[box]
-            s = self._edt_of_label(sub, g, equal=True)
+            s = self._edt_of_label(sub, g, equal=True, site_box=(lo[g] - blo, hi[g] - blo))
             k.combine(sub, depth[box], s, dist[box], grp[box], g, base, half, np.float32(m_g),
                       np.float32(0.5 * v + m_g))
         k.clip(dist, grp, np.float32(dmax))
@@ -265,27 +266,29 @@ class EsdfIntegrator:
         the distance to the nearest free voxel, from a transform over their box grown by a pad p.
 
         The box grown by p holds every voxel within p of a deep voxel, so a depth ≤ p found in it is
-        the depth; only if some deep voxel finds none that close is the box grown to the clip depth
-        (past which the depth is clipped anyway: inf). p is the deepest depth of the last call plus
-        one voxel: obstacles change little between frames, so the first box is nearly always
-        enough, and it is far smaller than the clip's (the bench room's solid furniture is at most
-        11 voxels deep; the clip is 42). The result does not depend on p, only the cost does."""
+        the depth; a deep voxel that finds none that close keeps its mark, and the box grown to the
+        clip depth (past which the depth is clipped anyway: inf) fills it. p is the deepest depth
+        of the last call plus one voxel: obstacles change little between frames, so the first box
+        is nearly always enough, and it is far smaller than the clip's (the bench room's solid
+        furniture is at most 11 voxels deep; the clip is 42). The result does not depend on p, only
+        the cost does. The transform reads out only the lines through deep voxels
+        (``distance_transform.fill_depth``)."""
         c = self.config
         v = c.voxel_size
         clip_pad = math.ceil((c.max_distance + v) / v) + 1
         pad = min(self._depth_pad, clip_pad)
+        deepest = -1.0
         while True:
             box = tuple(slice(max(int(lo[a]) - pad, 0), min(int(hi[a]) + pad + 1, n))
                         for a, n in enumerate(groups.shape))
-            d = depth[box]
-            deep = d < 0
-            found = self._edt_of_label(groups[box], 0, equal=True)[deep]  # to the nearest free voxel
-            deepest = float(found.max())
-            if pad >= clip_pad or deepest <= np.float32(pad) * np.float32(v):
-                d[deep] = found
+            limit = math.inf if pad >= clip_pad else float(np.float32(pad) * np.float32(v))
+            found = distance_transform.fill_depth(groups[box], 0, True, v, c.threads, depth[box], limit)
+            deepest = max(deepest, found) if found <= limit else deepest
+            if found <= limit:
                 break
             pad = clip_pad
-        self._depth_pad = min(math.ceil(deepest / v - 1e-6) + 1, clip_pad) if math.isfinite(deepest) else clip_pad
+        learnt = math.ceil(deepest / v - 1e-6) + 1 if math.isfinite(deepest) else clip_pad
+        self._depth_pad = max(1, min(learnt, clip_pad))
 
     @staticmethod
     def _masks(groups: np.ndarray, n_groups: int) -> dict[int, np.ndarray]:
@@ -300,11 +303,13 @@ class EsdfIntegrator:
         free = np.ascontiguousarray(~np.asarray(sites, dtype=bool)).view(np.uint8)
         return edt.edt(free, anisotropy=(c.voxel_size,) * free.ndim, black_border=False, parallel=c.threads)
 
-    def _edt_of_label(self, labels: np.ndarray, label: int, equal: bool) -> np.ndarray:
-        """``_edt`` of the sites (labels == label) == equal of a uint8 group map or a box of it."""
+    def _edt_of_label(self, labels: np.ndarray, label: int, equal: bool,
+                      site_box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """``_edt`` of the sites (labels == label) == equal of a uint8 group map or a box of it;
+        ``site_box`` (inclusive lo, hi) bounds where the sites are (``distance_transform.edt_of_label``)."""
         c = self.config
         if c.esdf_edt == "compiled":
-            return distance_transform.edt_of_label(labels, label, equal, c.voxel_size, c.threads)
+            return distance_transform.edt_of_label(labels, label, equal, c.voxel_size, c.threads, site_box)
         return self._edt((labels == label) == equal)
 
     def _edt_two_sided(self, union: np.ndarray) -> np.ndarray:

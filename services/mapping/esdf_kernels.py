@@ -41,9 +41,9 @@ def scan(groups: np.ndarray, n_groups: int, voxel: np.float32) -> tuple[np.ndarr
         for j in range(ny):
             for k in range(nz):
                 g = groups[i, j, k]
-                cnt[i, g] += 1
-                if g == 0:
+                if g == 0:  # most voxels: counted as the rest below
                     continue
+                cnt[i, g] += 1
                 exposed = ((i > 0 and groups[i - 1, j, k] == 0) or (i < nx - 1 and groups[i + 1, j, k] == 0)
                            or (j > 0 and groups[i, j - 1, k] == 0) or (j < ny - 1 and groups[i, j + 1, k] == 0)
                            or (k > 0 and groups[i, j, k - 1] == 0) or (k < nz - 1 and groups[i, j, k + 1] == 0))
@@ -77,12 +77,13 @@ def scan(groups: np.ndarray, n_groups: int, voxel: np.float32) -> tuple[np.ndarr
             glo[g, a] = 1 << 40
             ghi[g, a] = -1
     for i in range(nx):
-        for g in range(n_groups + 1):
+        for g in range(1, n_groups + 1):
             counts[g] += cnt[i, g]
         for g in range(n_groups + 2):
             for a in range(3):
                 glo[g, a] = min(glo[g, a], lo[i, g, a])
                 ghi[g, a] = max(ghi[g, a], hi[i, g, a])
+    counts[0] = nx * ny * nz - counts[1:].sum()
     return counts, glo, ghi, depth
 
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.services.mapping.config import MapperConfig
-from riskfield.services.mapping.distance_transform import edt
+from riskfield.services.mapping.distance_transform import edt, edt_of_label, fill_depth
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
 
 
@@ -33,6 +33,56 @@ def test_equals_the_edt_package(shape: list[int], density: float, voxel: float, 
         return
     assert (out[sites] == 0).all()
     np.testing.assert_allclose(out, reference(sites, voxel), rtol=1e-6, atol=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(shape=st.lists(st.integers(1, 21), min_size=2, max_size=3), density=st.sampled_from([0.01, 0.2, 1.0]),
+       grow=st.lists(st.integers(0, 4), min_size=6, max_size=6), threads=st.integers(1, 2),
+       seed=st.integers(0, 2**16))
+def test_a_site_box_changes_nothing_but_the_cost(shape: list[int], density: float, grow: list[int], threads: int,
+                                                 seed: int) -> None:
+    """Sites in a random sub-box of a grid (a risk group in its reach box): told that box (exactly
+    or loosely, even past the grid), the transform is bit-equal to the one that searches the whole
+    grid, on a strided view too."""
+    rng = np.random.default_rng(seed)
+    n = len(shape)
+    lo = np.array([rng.integers(0, s) for s in shape])
+    hi = np.array([rng.integers(a, s) for a, s in zip(lo, shape, strict=True)])
+    sites = np.zeros(shape, bool)
+    inner = tuple(slice(a, b + 1) for a, b in zip(lo, hi, strict=True))
+    sites[inner] = rng.random(sites[inner].shape) < density
+    labels = np.where(sites, 3, 1).astype(np.uint8)
+    whole = edt_of_label(labels, 3, True, 0.05, threads)
+    loose = (lo - np.array(grow[:n]), hi + np.array(grow[3:3 + n]))
+    told = edt_of_label(labels, 3, True, 0.05, threads, site_box=loose)
+    np.testing.assert_array_equal(told, whole)
+    big = np.zeros(tuple(2 * s for s in shape), np.uint8)
+    view = big[tuple(slice(0, None, 2) for _ in shape)]
+    view[...] = labels
+    np.testing.assert_array_equal(edt_of_label(view, 3, True, 0.05, threads, site_box=(lo, hi)), whole)
+
+
+@settings(max_examples=60, deadline=None)
+@given(shape=st.lists(st.integers(1, 19), min_size=3, max_size=3), density=st.sampled_from([0.3, 0.7, 0.95]),
+       limit_voxels=st.sampled_from([0.5, 1.0, 2.0, 3.5, 1e9]), threads=st.integers(1, 2), seed=st.integers(0, 2**16))
+def test_fill_depth_writes_the_distance_where_negative_and_within_the_limit(
+        shape: list[int], density: float, limit_voxels: float, threads: int, seed: int) -> None:
+    """The inside depth: where the depth array is negative (random "deep" voxels among the
+    occupied ones), the distance to the nearest free voxel if it is within the limit, else left
+    negative; every other voxel untouched; the largest distance found there returned."""
+    rng = np.random.default_rng(seed)
+    labels = (rng.random(shape) < density).astype(np.uint8)  # 1 = occupied, 0 = free (the sites)
+    depth = np.where(labels == 1, np.float32(0.05), np.float32(0.0)).astype(np.float32)
+    deep = (labels == 1) & (rng.random(shape) < 0.5)
+    depth[deep] = -1.0
+    before = depth.copy()
+    exact = edt(labels == 0, 0.05, threads)
+    limit = limit_voxels * 0.05
+    found = fill_depth(labels, 0, True, 0.05, threads, depth, limit)
+    assert found == (float(exact[deep].max()) if deep.any() else -1.0)
+    write = deep & (exact <= np.float32(limit))
+    np.testing.assert_array_equal(depth[write], exact[write])
+    np.testing.assert_array_equal(depth[~write], before[~write])
 
 
 def test_distances_are_exact_on_known_geometry() -> None:
