@@ -30,12 +30,13 @@ _INF = 1 << 30  # "no site on this line yet": larger than any squared distance i
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _envelope(f: np.ndarray, a: int, b: int, n: int, o: np.ndarray, v: np.ndarray, z: np.ndarray) -> bool:
-    """o[q] = min over p of f[p] + (q − p)² for q in [0, n), over the p in [a, b] with f[p] < _INF
-    (outside [a, b] f is not read: no site can be there); False (o untouched) when there is none.
-    ``v`` (int64, n) holds the envelope's parabolas left to right, ``z`` (float64, n + 1) where each
-    takes over. (An all-integer variant, the intersections cross-multiplied, measured 13 % slower
-    here: the readout then compares two parabolas per step.)"""
+def _envelope(f: np.ndarray, a: int, b: int, v: np.ndarray, z: np.ndarray) -> int:
+    """The lower envelope of the parabolas f[p] + (q − p)² over the p in [a, b] with f[p] < _INF
+    (outside [a, b] f is not read: no site can be there): its last index k (−1 when there is no
+    parabola); ``v[0..k]`` (int64) the parabolas left to right, parabola j minimal for q in
+    (z[j], z[j + 1]] (``z`` float64, z[0] = −∞, z[k + 1] = +∞). (An all-integer variant, the
+    intersections cross-multiplied, measured 13 % slower here: the readout then compares two
+    parabolas per step; popping by a multiplication instead of a division gained nothing.)"""
     k = -1
     s = 0.0
     for q in range(a, b + 1):
@@ -59,15 +60,15 @@ def _envelope(f: np.ndarray, a: int, b: int, n: int, o: np.ndarray, v: np.ndarra
             v[k] = q
             z[k] = s
         z[k + 1] = 1e300
-    if k < 0:
-        return False
-    j = 0
-    for q in range(n):
-        while z[j + 1] < q:
-            j += 1
-        p = v[j]
-        o[q] = f[p] + (q - p) * (q - p)
-    return True
+    return k
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _segment_end(z: np.ndarray, j: int, k: int, n: int) -> int:
+    """The last q in [0, n) that parabola j of an envelope of k + 1 holds. The envelope is read out
+    segment by segment, a branch-free inner loop per parabola instead of a boundary test per q
+    (10 % off the whole transform)."""
+    return n - 1 if j == k else min(n - 1, int(np.floor(z[j + 1])))
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -94,7 +95,6 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
     # Passes 1 and 2 (k, then j) within each i-plane of the site box.
     for i in prange(i0, i1 + 1):
         f = np.empty(m, np.int32)
-        o = np.empty(m, np.int32)
         v = np.empty(m, np.int64)
         z = np.empty(m + 1, np.float64)
         plane = False
@@ -121,17 +121,23 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
         for k in range(nz):
             for j in range(j0, j1 + 1):
                 f[j] = g[i, j, k]
-            if _envelope(f, j0, j1, ny, o, v, z):
-                for j in range(ny):
-                    g[i, j, k] = o[j]
-            else:
+            last = _envelope(f, j0, j1, v, z)
+            if last < 0:
                 for j in range(ny):
                     g[i, j, k] = _INF
+                continue
+            q = 0
+            for e in range(last + 1):
+                p = v[e]
+                fp = f[p]
+                end = _segment_end(z, e, last, ny)
+                while q <= end:
+                    g[i, q, k] = fp + (q - p) * (q - p)
+                    q += 1
     # Pass 3 (i) per j-plane, on a transposed copy of the planes with sites so each line is
     # contiguous; metres on the way out.
     for j in prange(ny):
         t = np.empty((nz, nx), np.int32)
-        o = np.empty(m, np.int32)
         v = np.empty(m, np.int64)
         z = np.empty(m + 1, np.float64)
         for i in range(i0, i1 + 1):
@@ -150,17 +156,29 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
                         break
                 if not wanted:
                     continue
-            if not _envelope(t[k], i0, i1, nx, o, v, z):
+            line = t[k]
+            last = _envelope(line, i0, i1, v, z)
+            if last < 0:  # no site: +inf
                 for i in range(nx):
-                    o[i] = _INF
-            for i in range(nx):
-                d = np.sqrt(np.float32(o[i])) * voxel if o[i] < _INF else np.float32(np.inf)
-                if not filling:
-                    out[i, j, k] = d
-                elif fill[i, j, k] < 0:
-                    found[j] = max(found[j], d)
-                    if d <= fill_max:
-                        fill[i, j, k] = d
+                    if not filling:
+                        out[i, j, k] = np.float32(np.inf)
+                    elif fill[i, j, k] < 0:
+                        found[j] = np.float32(np.inf)
+                continue
+            q = 0
+            for e in range(last + 1):
+                p = v[e]
+                fp = line[p]
+                end = _segment_end(z, e, last, nx)
+                while q <= end:
+                    d = np.sqrt(np.float32(fp + (q - p) * (q - p))) * voxel
+                    if not filling:
+                        out[q, j, k] = d
+                    elif fill[q, j, k] < 0:
+                        found[j] = max(found[j], d)
+                        if d <= fill_max:
+                            fill[q, j, k] = d
+                    q += 1
     return found.max() if ny > 0 else np.float32(-1.0)
 
 

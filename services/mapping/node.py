@@ -29,6 +29,7 @@ import numpy as np
 
 from riskfield.protocol import DistanceQuery, DistanceReply, Header, Limits, PerceptionFrame, RiskConfig, RobotState
 
+from ..runtime.memory import keep_freed_heap
 from ..runtime.node import Node
 from ..runtime.rate import TokenBucket
 from ..runtime.risk_file import watch_risk_file
@@ -47,6 +48,7 @@ class MappingNode:
         risk = None
         if settings.risk_file is not None:  # a bad file at start is a configuration error
             risk = watch_risk_file(node, settings.risk_file, settings.risk_poll_s, self._set_risk_from_file)
+        keep_freed_heap(settings.heap_keep_mb)  # before the warm-up's first large arrays
         self.mapper = Mapper(settings.mapper_config(), risk)
         self.mapper.warm_up()
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)

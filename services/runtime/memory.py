@@ -11,6 +11,16 @@ perception restarts, flat between restarts: fragmentation, not a leak.
 ``madvise(MADV_DONTNEED)``; measured 0.02 ms median, 0.6 ms worst on a fragmented 1 GB heap here,
 so a node calls it every second on its loop (``NodeSettings.heap_trim_s``). On other C libraries (musl, macOS) there is
 no such call and ``HeapTrimmer.available`` is False: trimming is a no-op there.
+
+The opposite need: a node that allocates and frees the same large arrays many times a second
+(the mapping node's 3-D ESDF: about 25 MB of arrays of 0.5-4 MB per update) should *keep* them
+between updates. glibc returns the top of the heap to the kernel at every ``free`` once more than
+``M_TRIM_THRESHOLD`` is free there (dynamically twice the mmap threshold, here 8 MB), so each
+update took 5100 fresh pages from the kernel (page faults and zeroing): 12.1 ms per 3-D ESDF
+against 10.5 ms with ``keep_freed_heap`` (the bench room, one process, same run). It raises the
+trim threshold and pins the mmap threshold (setting either turns glibc's dynamic thresholds
+off): freed arrays stay in the heap for the next update; the periodic ``malloc_trim`` still
+gives everything back once a second.
 """
 
 from __future__ import annotations
@@ -32,6 +42,29 @@ def _malloc_trim() -> Callable[[int], int] | None:
     fn.argtypes = [ctypes.c_size_t]
     fn.restype = ctypes.c_int
     return fn
+
+
+_M_TRIM_THRESHOLD = -1  # glibc malloc.h
+_M_MMAP_THRESHOLD = -3
+_MMAP_THRESHOLD_MAX = 32 << 20  # glibc's ceiling for M_MMAP_THRESHOLD on 64-bit (HEAP_MAX_SIZE / 2)
+
+
+def keep_freed_heap(keep_mb: int) -> bool:
+    """Let this process keep up to ``keep_mb`` MB of freed heap for reuse (see the module
+    docstring): arrays up to 32 MB come from the heap and freeing them no longer trims it. False
+    (nothing changed) for 0 or where there is no glibc ``mallopt``."""
+    if keep_mb <= 0:
+        return False
+    try:
+        mallopt = getattr(ctypes.CDLL(None), "mallopt", None)
+    except OSError:
+        return False
+    if mallopt is None:
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    keep = min(int(keep_mb) << 20, (1 << 31) - 1)
+    return bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)) and bool(mallopt(_M_TRIM_THRESHOLD, keep))
 
 
 def rss_kb() -> int:
