@@ -16,8 +16,9 @@ The opposite need: a node that allocates and frees the same large arrays many ti
 (the mapping node's 3-D ESDF: about 25 MB of arrays of 0.5-4 MB per update) should *keep* them
 between updates. glibc returns the top of the heap to the kernel at every ``free`` once more than
 ``M_TRIM_THRESHOLD`` is free there (dynamically twice the mmap threshold, here 8 MB), so each
-update took 5100 fresh pages from the kernel (page faults and zeroing): 12.1 ms per 3-D ESDF
-against 10.5 ms with ``keep_freed_heap`` (the bench room, one process, same run). It raises the
+update took 5200 fresh pages from the kernel (page faults and zeroing): 9.7 ms per 3-D ESDF
+against 7.4 ms with ``keep_freed_heap`` (``riskfield bench mapping``, the bench room, one process,
+same run). It raises the
 trim threshold and pins the mmap threshold (setting either turns glibc's dynamic thresholds
 off): freed arrays stay in the heap for the next update; the periodic ``malloc_trim`` still
 gives everything back once a second.
