@@ -75,21 +75,13 @@ def _segment_end(z: np.ndarray, j: int, k: int, n: int) -> int:
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.ndarray, hi: np.ndarray,
-         out: np.ndarray, fill: np.ndarray, fill_max: np.float32) -> np.float32:
+         out: np.ndarray) -> None:
     """The sites are the voxels where (labels == label) == equal, all inside the box [lo, hi]
     (inclusive; the whole grid when unknown). Outside it the first two passes do nothing and the
     envelopes do not look: a risk group's transform over its reach box then costs about one pass
-    over the box, not three.
-
-    Two ways out. ``out`` (the grid's shape) receives every distance; or, when ``out`` is empty,
-    ``fill`` (the grid's shape) receives the distance where it is negative (the deep voxels'
-    depth, ``EsdfIntegrator._deep_depth``) if it is at most ``fill_max``, and only the lines
-    holding such a voxel are read out. Returns the largest distance found for a negative ``fill``
-    voxel (−1 when none; +inf when one has no site), written or not."""
+    over the box, not three. Every distance goes to ``out`` (the grid's shape)."""
     nx, ny, nz = labels.shape
     g = np.empty((nx, ny, nz), np.int32)
-    filling = out.size == 0
-    found = np.full(ny, np.float32(-1.0))
     m = max(nx, max(ny, nz))
     i0, i1 = max(lo[0], 0), min(hi[0], nx - 1)
     j0, j1 = max(lo[1], 0), min(hi[1], ny - 1)
@@ -150,22 +142,11 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
                 for k in range(nz):
                     t[k, i] = _INF
         for k in range(nz):
-            if filling:
-                wanted = False
-                for i in range(nx):
-                    if fill[i, j, k] < 0:
-                        wanted = True
-                        break
-                if not wanted:
-                    continue
             line = t[k]
             last = _envelope(line, i0, i1, v, z)
             if last < 0:  # no site: +inf
                 for i in range(nx):
-                    if not filling:
-                        out[i, j, k] = np.float32(np.inf)
-                    elif fill[i, j, k] < 0:
-                        found[j] = np.float32(np.inf)
+                    out[i, j, k] = np.float32(np.inf)
                 continue
             q = 0
             for e in range(last + 1):
@@ -173,15 +154,120 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
                 fp = line[p]
                 end = _segment_end(z, e, last, nx)
                 while q <= end:
-                    d = np.sqrt(np.float32(fp + (q - p) * (q - p))) * voxel
-                    if not filling:
-                        out[q, j, k] = d
-                    elif fill[q, j, k] < 0:
-                        found[j] = max(found[j], d)
-                        if d <= fill_max:
-                            fill[q, j, k] = d
+                    out[q, j, k] = np.sqrt(np.float32(fp + (q - p) * (q - p))) * voxel
                     q += 1
-    return found.max() if ny > 0 else np.float32(-1.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _runs(f: np.ndarray, a: int, b: int, o: np.ndarray, v: np.ndarray, z: np.ndarray) -> None:
+    """The envelope pass of ``_inside`` on the line f[a..b]: the zeros are sites; each maximal run of
+    non-zero entries is the envelope of itself and the zeros bounding it (a site beyond a bounding
+    zero is farther than it from every voxel of the run), read out into o on the run."""
+    q = a
+    while q <= b:
+        if f[q] == 0:
+            q += 1
+            continue
+        s = q
+        while q <= b and f[q] != 0:
+            q += 1
+        e = q - 1
+        last = _envelope(f, max(s - 1, a), min(e + 1, b), v, z)
+        if last < 0:
+            for r in range(s, e + 1):
+                o[r] = _INF
+            continue
+        r = s
+        for t in range(last + 1):
+            end = _segment_end(z, t, last, e + 1)
+            if end < r:
+                continue
+            p = v[t]
+            fp = f[p]
+            while r <= end:
+                o[r] = fp + (r - p) * (r - p)
+                r += 1
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _inside(labels: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: np.ndarray, voxel: np.float32) -> None:
+    """``inside_depth``: the three passes of ``_edt`` with the free voxels (label 0) as the sites,
+    each line's envelopes built only over its runs of occupied voxels, in the box [lo, hi] that
+    holds every occupied voxel and a free layer around them."""
+    i0, j0, k0 = lo[0], lo[1], lo[2]
+    nx, ny, nz = hi[0] - i0 + 1, hi[1] - j0 + 1, hi[2] - k0 + 1
+    g = np.empty((nx, ny, nz), np.int32)
+    m = max(nx, max(ny, nz))
+    for i in prange(nx):  # passes 1 (k) and 2 (j) in each i-plane
+        f = np.empty(m, np.int32)
+        o = np.empty(m, np.int32)
+        v = np.empty(m, np.int64)
+        z = np.empty(m + 1, np.float64)
+        plane = False
+        for j in range(ny):
+            d = _INF
+            for k in range(nz):
+                if labels[i0 + i, j0 + j, k0 + k] == 0:
+                    d = 0
+                else:
+                    plane = True
+                    if d < _INF:
+                        d += 1
+                g[i, j, k] = d
+            d = _INF
+            for k in range(nz - 1, -1, -1):
+                if g[i, j, k] == 0:
+                    d = 0
+                elif d < _INF:
+                    d += 1
+                e = min(g[i, j, k], d)
+                g[i, j, k] = e * e if e < _INF else _INF
+        if not plane:
+            continue
+        for k in range(nz):
+            for j in range(ny):
+                f[j] = g[i, j, k]
+            _runs(f, 0, ny - 1, o, v, z)
+            for j in range(ny):
+                if f[j] != 0:
+                    g[i, j, k] = o[j]
+    for j in prange(ny):  # pass 3 (i), on a transposed copy of the j-plane; metres into depth
+        t = np.empty((nz, nx), np.int32)
+        o = np.empty(m, np.int32)
+        v = np.empty(m, np.int64)
+        z = np.empty(m + 1, np.float64)
+        for i in range(nx):
+            for k in range(nz):
+                t[k, i] = g[i, j, k]
+        for k in range(nz):
+            line = t[k]
+            _runs(line, 0, nx - 1, o, v, z)
+            for i in range(nx):
+                if line[i] != 0 and depth[i0 + i, j0 + j, k0 + k] < 0:
+                    depth[i0 + i, j0 + j, k0 + k] = (np.sqrt(np.float32(o[i])) * voxel if o[i] < _INF
+                                                     else np.float32(np.inf))
+
+
+def inside_depth(labels: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray, voxel: float,
+                 threads: int = 1) -> None:
+    """Where ``depth`` (float32, the shape of the 3-D uint8 ``labels``) is negative, write the
+    distance (m) from that voxel to the nearest free one (label 0; +inf when there is none): the
+    inside depth of solid obstacles. [lo, hi] (inclusive) bounds the occupied voxels.
+
+    The same separable transform as ``edt``, but with the free voxels as sites a line's envelope
+    only needs each run of occupied voxels and the two free voxels bounding it, so the cost follows
+    the occupied voxels and the box around them, not the depth: no pad to guess, no box grown by
+    the deepest depth (the bench room: 2.1 → see ``riskfield bench mapping``)."""
+    if labels.ndim != 3 or labels.dtype != np.uint8 or depth.shape != labels.shape or depth.dtype != np.float32:
+        raise ValueError(f"inside_depth: a 3-D uint8 grid and a float32 depth of its shape, got {labels.shape} "
+                         f"{labels.dtype} and {depth.shape} {depth.dtype}")
+    shape = np.asarray(labels.shape, np.int64)
+    blo = np.maximum(np.asarray(lo, np.int64) - 1, 0)  # the free layer bounding every run
+    bhi = np.minimum(np.asarray(hi, np.int64) + 1, shape - 1)
+    if np.any(bhi < blo):
+        return
+    with jit.threads(threads):
+        _inside(labels, blo, bhi, depth, np.float32(voxel))
 
 
 def edt(sites: np.ndarray, voxel: float, threads: int = 1) -> np.ndarray:
@@ -205,28 +291,8 @@ def edt_of_label(labels: np.ndarray, label: int, equal: bool, voxel: float, thre
     lo, hi = _site_box(labels, site_box)
     out = np.empty(labels.shape, np.float32)
     with jit.threads(threads):
-        _edt(labels, int(label), bool(equal), np.float32(voxel), lo, hi, out, _NO_FILL, np.float32(0.0))
+        _edt(labels, int(label), bool(equal), np.float32(voxel), lo, hi, out)
     return out.reshape(shape)
-
-
-def fill_depth(labels: np.ndarray, label: int, equal: bool, voxel: float, threads: int, depth: np.ndarray,
-               limit: float) -> float:
-    """Where ``depth`` (float32, the 3-D shape of ``labels``, may be a box view) is negative, write
-    the distance to the nearest site if it is ≤ ``limit`` (m); the rest stay negative. Returns the
-    largest distance found there (m; −1 if ``depth`` has no negative voxel, +inf if one has no
-    site). Only the lines through negative voxels are read out: for the inside depth of solid
-    obstacles, a fraction of the box."""
-    if labels.ndim != 3 or labels.dtype != np.uint8 or depth.shape != labels.shape or depth.dtype != np.float32:
-        raise ValueError(f"fill_depth: a 3-D uint8 grid and a float32 depth of its shape, got {labels.shape} "
-                         f"{labels.dtype} and {depth.shape} {depth.dtype}")
-    lo, hi = _site_box(labels, None)
-    with jit.threads(threads):
-        return float(_edt(labels, int(label), bool(equal), np.float32(voxel), lo, hi, _NO_OUT, depth,
-                          np.float32(limit)))
-
-
-_NO_OUT = np.empty((0, 0, 0), np.float32)
-_NO_FILL = np.empty((0, 0, 0), np.float32)
 
 
 def _site_box(labels: np.ndarray, site_box: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:

@@ -236,9 +236,9 @@ class EsdfIntegrator:
         m_min = min(float(margins[g]) for g in present)
         size = local if counts is None else counts
         base = max((g for g in present if float(margins[g]) == m_min), key=lambda g: (int(size[g]), -g))
-        if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _deep_depth)
-            self._deep_depth(groups, depth, lo[n_groups + 1], hi[n_groups + 1])
         occupied = (lo[1:n_groups + 1].min(axis=0), hi[1:n_groups + 1].max(axis=0))  # empty groups: lo > hi
+        if hi[n_groups + 1, 0] >= 0:  # deep voxels: their depth needs an EDT (see _deep_depth)
+            self._deep_depth(groups, depth, lo[n_groups + 1], hi[n_groups + 1], occupied)
         e = self._edt_of_label(groups, 0, equal=False, site_box=occupied)  # to the nearest occupied voxel
         half = np.float32(0.5 * v)
         dist = k.base_term(groups, depth, e, base, half, np.float32(m_min))
@@ -261,30 +261,35 @@ class EsdfIntegrator:
         k.clip(dist, grp, np.float32(dmax))
         return dist, grp
 
-    def _deep_depth(self, groups: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+    def _deep_depth(self, groups: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                    occupied: tuple[np.ndarray, np.ndarray]) -> None:
         """Fill the depth of the deep voxels (marked −1 in ``depth``, bounding box [lo, hi]) in place:
-        the distance to the nearest free voxel, from a transform over their box grown by a pad p.
+        the distance to the nearest free voxel.
 
-        The box grown by p holds every voxel within p of a deep voxel, so a depth ≤ p found in it is
-        the depth; a deep voxel that finds none that close keeps its mark, and the box grown to the
-        clip depth (past which the depth is clipped anyway: inf) fills it. p is the deepest depth
-        of the last call plus one voxel: obstacles change little between frames, so the first box
-        is nearly always enough, and it is far smaller than the clip's (the bench room's solid
-        furniture is at most 11 voxels deep; the clip is 42). The result does not depend on p, only
-        the cost does. The transform reads out only the lines through deep voxels
-        (``distance_transform.fill_depth``)."""
+        Compiled (``esdf_edt = "compiled"``): ``distance_transform.inside_depth`` over the occupied
+        voxels' box (``occupied``), whose cost follows the occupied voxels. With the ``edt`` package
+        (the previous implementation, kept for the bench and as an oracle): a transform over the
+        deep voxels' box grown by a pad p. The box grown by p holds every voxel within p of a deep
+        voxel, so a depth ≤ p found in it is the depth; only if some deep voxel finds none that close
+        is the box grown to the clip depth (past which the depth is clipped anyway: inf). p is the
+        deepest depth of the last call plus one voxel (obstacles change little between frames). The
+        result does not depend on p, only the cost does."""
         c = self.config
         v = c.voxel_size
+        if c.esdf_edt == "compiled":
+            distance_transform.inside_depth(groups, depth, occupied[0], occupied[1], v, c.threads)
+            return
         clip_pad = math.ceil((c.max_distance + v) / v) + 1
         pad = min(self._depth_pad, clip_pad)
-        deepest = -1.0
         while True:
             box = tuple(slice(max(int(lo[a]) - pad, 0), min(int(hi[a]) + pad + 1, n))
                         for a, n in enumerate(groups.shape))
-            limit = math.inf if pad >= clip_pad else float(np.float32(pad) * np.float32(v))
-            found = distance_transform.fill_depth(groups[box], 0, True, v, c.threads, depth[box], limit)
-            deepest = max(deepest, found) if found <= limit else deepest
-            if found <= limit:
+            d = depth[box]
+            deep = d < 0
+            found = self._edt_of_label(groups[box], 0, equal=True)[deep]  # to the nearest free voxel
+            deepest = float(found.max())
+            if pad >= clip_pad or deepest <= np.float32(pad) * np.float32(v):
+                d[deep] = found
                 break
             pad = clip_pad
         learnt = math.ceil(deepest / v - 1e-6) + 1 if math.isfinite(deepest) else clip_pad

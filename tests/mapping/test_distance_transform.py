@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.services.mapping.config import MapperConfig
-from riskfield.services.mapping.distance_transform import edt, edt_of_label, fill_depth
+from riskfield.services.mapping.distance_transform import edt, edt_of_label, inside_depth
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
 
 
@@ -62,27 +62,29 @@ def test_a_site_box_changes_nothing_but_the_cost(shape: list[int], density: floa
     np.testing.assert_array_equal(edt_of_label(view, 3, True, 0.05, threads, site_box=(lo, hi)), whole)
 
 
-@settings(max_examples=60, deadline=None)
-@given(shape=st.lists(st.integers(1, 19), min_size=3, max_size=3), density=st.sampled_from([0.3, 0.7, 0.95]),
-       limit_voxels=st.sampled_from([0.5, 1.0, 2.0, 3.5, 1e9]), threads=st.integers(1, 2), seed=st.integers(0, 2**16))
-def test_fill_depth_writes_the_distance_where_negative_and_within_the_limit(
-        shape: list[int], density: float, limit_voxels: float, threads: int, seed: int) -> None:
-    """The inside depth: where the depth array is negative (random "deep" voxels among the
-    occupied ones), the distance to the nearest free voxel if it is within the limit, else left
-    negative; every other voxel untouched; the largest distance found there returned."""
+@settings(max_examples=80, deadline=None)
+@given(shape=st.lists(st.integers(1, 19), min_size=3, max_size=3), density=st.sampled_from([0.05, 0.3, 0.7, 0.97, 1.0]),
+       solid=st.booleans(), threads=st.integers(1, 2), seed=st.integers(0, 2**16))
+def test_inside_depth_is_the_transform_to_the_free_voxels(shape: list[int], density: float, solid: bool, threads: int,
+                                                          seed: int) -> None:
+    """Random occupancy (speckle, or a solid block with speckle around it, up to a full grid with no
+    free voxel): where the depth array is negative, the distance to the nearest free voxel, as the
+    full transform gives it (+inf with none); every other voxel untouched."""
     rng = np.random.default_rng(seed)
-    labels = (rng.random(shape) < density).astype(np.uint8)  # 1 = occupied, 0 = free (the sites)
-    depth = np.where(labels == 1, np.float32(0.05), np.float32(0.0)).astype(np.float32)
-    deep = (labels == 1) & (rng.random(shape) < 0.5)
-    depth[deep] = -1.0
+    labels = (rng.random(shape) < density).astype(np.uint8) * rng.integers(1, 4, size=shape).astype(np.uint8)
+    if solid:
+        labels[tuple(slice(n // 4, n - n // 4) for n in shape)] = 2
+    occupied = labels != 0
+    depth = np.where(occupied, np.float32(0.05), np.float32(0.0)).astype(np.float32)
+    marked = occupied & (rng.random(shape) < 0.6)
+    depth[marked] = -1.0
     before = depth.copy()
-    exact = edt(labels == 0, 0.05, threads)
-    limit = limit_voxels * 0.05
-    found = fill_depth(labels, 0, True, 0.05, threads, depth, limit)
-    assert found == (float(exact[deep].max()) if deep.any() else -1.0)
-    write = deep & (exact <= np.float32(limit))
-    np.testing.assert_array_equal(depth[write], exact[write])
-    np.testing.assert_array_equal(depth[~write], before[~write])
+    if occupied.any():
+        idx = np.argwhere(occupied)
+        inside_depth(labels, depth, idx.min(axis=0), idx.max(axis=0), 0.05, threads)
+    exact = edt(~occupied, 0.05, threads)
+    np.testing.assert_array_equal(depth[marked], exact[marked])
+    np.testing.assert_array_equal(depth[~marked], before[~marked])
 
 
 def test_distances_are_exact_on_known_geometry() -> None:
