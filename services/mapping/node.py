@@ -62,7 +62,8 @@ class MappingNode:
         # fifo, not latest: under the keyframe protocol (keyframes.py) a dropped new/updated keyframe
         # would leave its old contribution in the map; 8 bounds the backlog. Frames outside that
         # protocol (tracking frames, senders without ``kind``) keep latest-value semantics in
-        # ``on_frame``: one with newer frames queued behind it is skipped, never a backlog.
+        # ``on_frame``: one with more than ``frame_backlog`` newer frames queued behind it is
+        # skipped, never a longer backlog.
         self._frame_key = k.perception_frame
         node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="fifo", maxlen=8,
                        limits=frame_limits)
@@ -81,7 +82,7 @@ class MappingNode:
             arrival = self.node.arrival_ns or time.time_ns()
             st["frame_arrival_age_ms"] = (arrival - frame.header.stamp_ns) / 1e6
             st["frame_wait_ms"] = (time.time_ns() - arrival) / 1e6
-        if frame.kind in (None, "tracking") and self.node.backlog(self._frame_key) > 0:
+        if frame.kind in (None, "tracking") and self.node.backlog(self._frame_key) > self.s.frame_backlog:
             st["superseded_frames"] = st.get("superseded_frames", 0) + 1
             return
         try:

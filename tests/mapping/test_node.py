@@ -290,6 +290,30 @@ def test_node_follows_the_keyframe_protocol_without_dropping_updates(router_endp
         assert proc.stop() == 0
 
 
+def test_a_pair_of_frames_back_to_back_both_reach_the_map(router_endpoint: str) -> None:
+    """``frame_backlog = 1`` (the default): two plain frames sent back to back are both integrated
+    and both get an ESDF, whichever way their arrival interleaves with the handling of the first
+    (the one ahead never has more than one newer frame behind it)."""
+    keys = Keys("t_map_pair")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=100", "--set", "status_period_s=0.2"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        status = Collector(s, keys.status("mapping"), NodeStatus)
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        pair = [f.model_copy(update={"header": f.header.model_copy(update={"stamp_ns": 2_000_000 + i})})
+                for i, f in enumerate(frames(2))]
+        for f in pair:
+            put(s, keys.perception_frame, f)
+        stamps = {f.header.stamp_ns for f in pair}
+        assert wait_until(lambda: stamps <= {g.header.stamp_ns for g in grids.items}, 20), proc.output
+        assert wait_until(lambda: bool(status.items) and status.items[-1].extra.get("frames") == 2, 10)
+        assert "superseded_frames" not in status.items[-1].extra
+        status.close()
+        grids.close()
+        assert proc.stop() == 0
+
+
 def test_plain_frames_keep_latest_value_semantics_behind_the_fifo(router_endpoint: str) -> None:
     """Frames outside the keyframe protocol (no ``kind``) sent back to back: each is integrated or
     skipped as superseded by a newer one waiting behind it, never both and never lost, and the
