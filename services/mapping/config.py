@@ -156,14 +156,16 @@ class EsdfParams(BaseModel):
     esdf_incremental: Literal["box", "wave"] = "box"
     """How ``incremental`` works: ``box`` recomputes the changed voxels' box grown by the reach (exact);
     ``wave`` keeps nearest-site maps and moves only the voxels whose value changes (``esdf_wave``;
-    26-neighbour propagation: rare digital misses of a few mm far from obstacles, see there)."""
+    26-neighbour propagation: rare digital misses of a few mm far from obstacles, see there; on the
+    bench room 4.9 ms against the box's 8.3 over a built map, 33 ms while the map grows)."""
     esdf_kernel: Literal["numba", "numpy"] = "numba"
     """3-D exact field: ``numba`` compiled passes around the EDTs (``esdf_kernels``), ``numpy`` the
     array-operation path (the cross-check; the same result)."""
     esdf_edt: Literal["compiled", "edt"] = "compiled"
     """The distance transforms under the field: ``compiled`` the numba transform of
-    ``distance_transform`` (exact squared distances, 2.5× faster here), ``edt`` the ``edt`` package
-    (the previous implementation: the bench's before/after and the tests' oracle)."""
+    ``distance_transform`` (exact squared distances; the union's transform 4× faster here, the
+    inside depth over the occupied runs only), ``edt`` the ``edt`` package (the previous
+    implementation: the bench's before/after and the tests' oracle)."""
 
     @model_validator(mode="after")
     def _band_order(self) -> EsdfParams:
