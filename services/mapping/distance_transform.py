@@ -255,9 +255,11 @@ def inside_depth(labels: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.n
     inside depth of solid obstacles. [lo, hi] (inclusive) bounds the occupied voxels.
 
     The same separable transform as ``edt``, but with the free voxels as sites a line's envelope
-    only needs each run of occupied voxels and the two free voxels bounding it, so the cost follows
-    the occupied voxels and the box around them, not the depth: no pad to guess, no box grown by
-    the deepest depth (the bench room: 2.1 → see ``riskfield bench mapping``)."""
+    only needs each run of occupied voxels and the two free voxels bounding it (a site beyond a
+    bounding free voxel is farther from every voxel of the run), so the cost follows the occupied
+    voxels and the box around them, not the depth: no pad to guess, no box grown by the deepest
+    depth. On the bench room the 3-D update went from 9.13 to 7.82 ms with it (the previous
+    transform over the deep voxels' box grown by a learnt pad took 2.1 ms)."""
     if labels.ndim != 3 or labels.dtype != np.uint8 or depth.shape != labels.shape or depth.dtype != np.float32:
         raise ValueError(f"inside_depth: a 3-D uint8 grid and a float32 depth of its shape, got {labels.shape} "
                          f"{labels.dtype} and {depth.shape} {depth.dtype}")
