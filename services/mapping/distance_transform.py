@@ -73,6 +73,21 @@ def _segment_end(z: np.ndarray, j: int, k: int, n: int) -> int:
     return n - 1 if j == k else min(n - 1, int(np.floor(z[j + 1])))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _backward_squared(g: np.ndarray, i: int, j: int, nz: int) -> None:
+    """Pass 1's second sweep of the column g[i, j, :], which holds the distances to the last site
+    before each voxel (0 on the sites): the smaller of that and the distance to the next site,
+    squared (_INF where the column has no site)."""
+    d = _INF
+    for k in range(nz - 1, -1, -1):
+        if g[i, j, k] == 0:
+            d = 0
+        elif d < _INF:
+            d += 1
+        e = min(g[i, j, k], d)
+        g[i, j, k] = e * e if e < _INF else _INF
+
+
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.ndarray, hi: np.ndarray,
          out: np.ndarray) -> None:
@@ -100,14 +115,7 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
                 elif d < _INF:
                     d += 1
                 g[i, j, k] = d
-            d = _INF
-            for k in range(nz - 1, -1, -1):
-                if g[i, j, k] == 0:
-                    d = 0
-                elif d < _INF:
-                    d += 1
-                e = min(g[i, j, k], d)
-                g[i, j, k] = e * e if e < _INF else _INF
+            _backward_squared(g, i, j, nz)
             plane = plane or g[i, j, 0] < _INF
         has_site[i] = plane
         if not plane:  # no site in this plane: pass 3 skips it
@@ -214,14 +222,7 @@ def _inside(labels: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: np.ndarra
                     if d < _INF:
                         d += 1
                 g[i, j, k] = d
-            d = _INF
-            for k in range(nz - 1, -1, -1):
-                if g[i, j, k] == 0:
-                    d = 0
-                elif d < _INF:
-                    d += 1
-                e = min(g[i, j, k], d)
-                g[i, j, k] = e * e if e < _INF else _INF
+            _backward_squared(g, i, j, nz)
         if not plane:
             continue
         for k in range(nz):

@@ -33,16 +33,21 @@ from collections.abc import Callable
 _PAGE_KB = os.sysconf("SC_PAGE_SIZE") // 1024 if hasattr(os, "sysconf") else 4
 
 
-def _malloc_trim() -> Callable[[int], int] | None:
+def _libc(name: str, argtypes: list, restype: type) -> Callable[..., int] | None:
+    """A function of this process's C library, typed; None where it has none (not glibc)."""
     try:
-        fn = getattr(ctypes.CDLL(None), "malloc_trim", None)
+        fn = getattr(ctypes.CDLL(None), name, None)
     except OSError:
         return None
     if fn is None:
         return None
-    fn.argtypes = [ctypes.c_size_t]
-    fn.restype = ctypes.c_int
+    fn.argtypes = argtypes
+    fn.restype = restype
     return fn
+
+
+def _malloc_trim() -> Callable[[int], int] | None:
+    return _libc("malloc_trim", [ctypes.c_size_t], ctypes.c_int)
 
 
 _M_TRIM_THRESHOLD = -1  # glibc malloc.h
@@ -54,16 +59,9 @@ def keep_freed_heap(keep_mb: int) -> bool:
     """Let this process keep up to ``keep_mb`` MB of freed heap for reuse (see the module
     docstring): arrays up to 32 MB come from the heap and freeing them no longer trims it. False
     (nothing changed) for 0 or where there is no glibc ``mallopt``."""
-    if keep_mb <= 0:
-        return False
-    try:
-        mallopt = getattr(ctypes.CDLL(None), "mallopt", None)
-    except OSError:
-        return False
+    mallopt = _libc("mallopt", [ctypes.c_int, ctypes.c_int], ctypes.c_int) if keep_mb > 0 else None
     if mallopt is None:
         return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
     keep = min(int(keep_mb) << 20, (1 << 31) - 1)
     return bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)) and bool(mallopt(_M_TRIM_THRESHOLD, keep))
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import msgpack
@@ -290,52 +292,52 @@ def test_node_follows_the_keyframe_protocol_without_dropping_updates(router_endp
         assert proc.stop() == 0
 
 
+@contextlib.contextmanager
+def plain_burst(router_endpoint: str, robot: str, msgs: list[PerceptionFrame],
+                first_stamp: int) -> Iterator[tuple[ServiceProcess, Collector, Collector, list[PerceptionFrame]]]:
+    """A mapping node (status every 0.2 s) sent ``msgs`` back to back, outside the keyframe
+    protocol, stamped ``first_stamp``, +1, …: yields the process, its status and ESDF collectors and
+    the frames as sent; the node must stop cleanly after."""
+    keys = Keys(robot)
+    args = ["--robot", robot, "--set", "esdf_rate_hz=100", "--set", "status_period_s=0.2"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        status = Collector(s, keys.status("mapping"), NodeStatus)
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        sent = [f.model_copy(update={"header": f.header.model_copy(update={"stamp_ns": first_stamp + i})})
+                for i, f in enumerate(msgs)]
+        for f in sent:
+            put(s, keys.perception_frame, f)
+        try:
+            yield proc, status, grids, sent
+        finally:
+            status.close()
+            grids.close()
+        assert proc.stop() == 0
+
+
 def test_a_pair_of_frames_back_to_back_both_reach_the_map(router_endpoint: str) -> None:
     """``frame_backlog = 1`` (the default): two plain frames sent back to back are both integrated
     and both get an ESDF, whichever way their arrival interleaves with the handling of the first
     (the one ahead never has more than one newer frame behind it)."""
-    keys = Keys("t_map_pair")
-    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=100", "--set", "status_period_s=0.2"]
-    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
-        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
-        status = Collector(s, keys.status("mapping"), NodeStatus)
-        grids = Collector(s, keys.esdf, EsdfGrid)
-        put(s, keys.state, state())
-        pair = [f.model_copy(update={"header": f.header.model_copy(update={"stamp_ns": 2_000_000 + i})})
-                for i, f in enumerate(frames(2))]
-        for f in pair:
-            put(s, keys.perception_frame, f)
+    with plain_burst(router_endpoint, "t_map_pair", frames(2), 2_000_000) as (proc, status, grids, pair):
         stamps = {f.header.stamp_ns for f in pair}
         assert wait_until(lambda: stamps <= {g.header.stamp_ns for g in grids.items}, 20), proc.output
         assert wait_until(lambda: bool(status.items) and status.items[-1].extra.get("frames") == 2, 10)
         assert "superseded_frames" not in status.items[-1].extra
-        status.close()
-        grids.close()
-        assert proc.stop() == 0
 
 
 def test_plain_frames_keep_latest_value_semantics_behind_the_fifo(router_endpoint: str) -> None:
     """Frames outside the keyframe protocol (no ``kind``) sent back to back: each is integrated or
-    skipped as superseded by a newer one waiting behind it, never both and never lost, and the
+    skipped as superseded by newer ones waiting behind it, never both and never lost, and the
     newest one always reaches the map (its stamp is the ESDF's)."""
-    keys = Keys("t_map_latest")
-    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=50", "--set", "status_period_s=0.2"]
-    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
-        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
-        status = Collector(s, keys.status("mapping"), NodeStatus)
-        grids = Collector(s, keys.esdf, EsdfGrid)
-        put(s, keys.state, state())
-        burst = [f.model_copy(update={"header": f.header.model_copy(update={"stamp_ns": 1_000_000 + i})})
-                 for i, f in enumerate(frames(4) * 2)]
-        for f in burst:
-            put(s, keys.perception_frame, f)
+    with plain_burst(router_endpoint, "t_map_latest", frames(4) * 2, 1_000_000) as (proc, status, grids, burst):
 
         def settled() -> bool:
             ex = status.items[-1].extra if status.items else {}
             return ex.get("frames", 0) + ex.get("superseded_frames", 0) == len(burst)
 
         assert wait_until(settled, 20), status.items[-1].extra if status.items else proc.output
-        assert wait_until(lambda: any(g.header.stamp_ns == 1_000_000 + len(burst) - 1 for g in grids.items), 10)
-        status.close()
-        grids.close()
-        assert proc.stop() == 0
+        newest = burst[-1].header.stamp_ns
+        assert wait_until(lambda: any(g.header.stamp_ns == newest for g in grids.items), 10)
