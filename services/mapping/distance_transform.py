@@ -137,7 +137,8 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
                     g[i, q, k] = fp + (q - p) * (q - p)
                     q += 1
     # Pass 3 (i) per j-plane, on a transposed copy of the planes with sites so each line is
-    # contiguous; metres on the way out.
+    # contiguous; metres on the way out. Both passes read their envelopes out in place rather than
+    # through one helper and a buffer: that cost 10 % of the union's transform (2.91 against 2.61 ms).
     for j in prange(ny):
         t = np.empty((nz, nx), np.int32)
         v = np.empty(m, np.int64)
