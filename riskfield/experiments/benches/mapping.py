@@ -16,7 +16,9 @@ incremental (``EsdfIntegrator.update``) against the full recompute, and the comp
 package, full and incremental, and the compiled EDT against the ``edt`` package alone; how many frames
 changed no occupancy (then the update is a copy); and the 2-D slice. The wavefront update
 (``esdf_incremental = "wave"``, opt-in) is timed beside the box update, with its largest deviation
-from the full recompute over the sweep; ``--node-wave`` also runs the 3-D node with it.
+from the full recompute over the sweep; ``--node-wave`` also runs the 3-D node with it. First of all
+(the policy cannot be undone in a process), the 3-D ESDF under glibc's own heap policy against the
+mapping node's (``heap_keep_mb``), with the page faults per update.
 
 ``--node-seconds`` > 0 also runs the mapping node and the safety filter (50 Hz) as their own
 processes over a loopback Zenoh router (mapping ``output = 3d``, ``esdf_rate_hz = 60``), feeds the
