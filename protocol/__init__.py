@@ -26,6 +26,10 @@ from .messages import (
     PerceptionFrame,
     RobotState,
     SafetyStatus,
+    SimActor,
+    SimActors,
+    TrackedObject,
+    TrackedObjects,
     VelocityCommand,
 )
 from .risk import RiskConfig, RiskGroup
@@ -35,5 +39,5 @@ __all__ = [
     "DecodeError", "DepthImage", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
     "Keys", "Limits", "LimoDiagnostics", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig",
     "RiskGroup",
-    "RobotState", "SafetyStatus", "VelocityCommand", "ade20k", "decode", "encode", "to_map",
+    "RobotState", "SafetyStatus", "SimActor", "SimActors", "TrackedObject", "TrackedObjects", "VelocityCommand", "ade20k", "decode", "encode", "to_map",
 ]

@@ -16,6 +16,8 @@ from .messages import (
     PerceptionFrame,
     RobotState,
     SafetyStatus,
+    SimActors,
+    TrackedObjects,
     VelocityCommand,
 )
 from .risk import RiskConfig
@@ -38,6 +40,8 @@ TOPICS: dict[str, type[Message]] = {
     "config/risk": RiskConfig,
     "sim/truth": PerceptionFrame,
     "limo/diagnostics": LimoDiagnostics,  # simulation only: perfect pointmap and labels, stamped like the image
+    "map/objects": TrackedObjects,  # additive: tracked people/animals with velocities, stamped like map/esdf
+    "sim/actors": SimActors,  # additive, simulation only: ground truth of the moving objects
 }
 
 
@@ -80,6 +84,8 @@ class Keys:
     risk_config = property(lambda self: self.key("config/risk"))
     sim_truth = property(lambda self: self.key("sim/truth"))
     sim_spawn = property(lambda self: self.key("sim/spawn"))
+    sim_actors = property(lambda self: self.key("sim/actors"))
+    objects = property(lambda self: self.key("map/objects"))
 
     def alive(self, service: str) -> str:
         return self.key(f"alive/{_check(service, 'service', False)}")

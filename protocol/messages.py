@@ -327,6 +327,64 @@ class LimoDiagnostics(Message):
     feedback_age_ms: FiniteFloat = -1.0
 
 
+class TrackedObject(BaseModel):
+    """One moving-capable obstacle (person, animal) tracked across map updates, world frame."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    id: Annotated[int, Field(ge=0)]
+    """Stable while the object is tracked; never reused by one publisher."""
+    label: Annotated[int, Field(ge=0)]
+    """ADE20K class index of the object's segment."""
+    risk_group: Annotated[int, Field(ge=0)]
+    """1-based risk group (as ``EsdfGrid.risk_group``), 0 = none."""
+    position: Vec3
+    """Centre of the object's occupied voxels (m)."""
+    velocity: Vec3
+    """Estimated velocity (m/s); zero for an object judged static."""
+    radius: NonNegFloat
+    """Horizontal extent about ``position`` (m), before inflation."""
+    age_ms: NonNegFloat
+    """How long ago the object was last observed, relative to the header stamp (0: in the newest frame)."""
+    tracked_ms: NonNegFloat = 0.0
+    """How long the object has been tracked: a young track's velocity is less certain."""
+
+
+class TrackedObjects(Message):
+    """Additive (``map/objects``): the mapper's tracked people and animals, stamped like the ESDF they
+    were extracted from, so that a filter or planner can add the obstacle's motion (∂h/∂t)."""
+
+    SCHEMA: ClassVar[str] = "TrackedObjects/1"
+
+    objects: list[TrackedObject] = Field(default_factory=list)
+
+
+class SimActor(BaseModel):
+    """Ground truth of one simulated object that can move (world frame)."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    name: str
+    label: Annotated[int, Field(ge=0)]
+    """ADE20K class index."""
+    position: Vec3
+    """Centre of the object's footprint at floor height (m)."""
+    velocity: Vec3
+    """m/s."""
+    radius: NonNegFloat
+    """Horizontal radius of the object's cylinder (m)."""
+    height: NonNegFloat = 0.0
+
+
+class SimActors(Message):
+    """Additive, simulation only (``sim/actors``): the ground-truth poses and velocities of the scene's
+    moving objects, stamped like the camera image of the same simulation step."""
+
+    SCHEMA: ClassVar[str] = "SimActors/1"
+
+    actors: list[SimActor] = Field(default_factory=list)
+
+
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     Image,
     PerceptionFrame,
@@ -340,4 +398,6 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     NavGoal,
     NodeStatus,
     LimoDiagnostics,
+    TrackedObjects,
+    SimActors,
 )

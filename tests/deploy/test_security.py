@@ -489,9 +489,9 @@ def _allowed(acl: dict, subject: str, message: str, key: str) -> bool:
 #: Who puts each key of the product (the wire contract, the additive keys, the ROS 2 bridge's).
 PUTS = {
     "safety-filter": ["cmd/safe", "safety/status"],
-    "mapping": ["map/esdf", "map/esdf3d"],
+    "mapping": ["map/esdf", "map/esdf3d", "map/objects"],
     "perception": ["perception/frame"],
-    "simulator": ["camera/image", "camera/depth", "state", "sim/truth"],
+    "simulator": ["camera/image", "camera/depth", "state", "sim/truth", "sim/actors"],
     "limo": ["state", "limo/diagnostics"],
     "mavlink": ["state"],
     "joystick": ["cmd/ref"],
