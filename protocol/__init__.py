@@ -39,5 +39,6 @@ __all__ = [
     "DecodeError", "DepthImage", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
     "Keys", "Limits", "LimoDiagnostics", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig",
     "RiskGroup",
-    "RobotState", "SafetyStatus", "SimActor", "SimActors", "TrackedObject", "TrackedObjects", "VelocityCommand", "ade20k", "decode", "encode", "to_map",
+    "RobotState", "SafetyStatus", "SimActor", "SimActors", "TrackedObject", "TrackedObjects",
+    "VelocityCommand", "ade20k", "decode", "encode", "to_map",
 ]
