@@ -59,14 +59,21 @@ def test_a_ray_cast_at_the_centre_from_outside_hits(shape, o) -> None:
 
 def _smooth_enough(shape, x: np.ndarray, h: float = 1e-3) -> bool:
     """Away from the kinks of the distance (a sphere's centre, a box's medial axis inside and the
-    boundaries between its face/edge/corner regions outside, where the Hessian jumps)."""
+    boundaries between its face/edge/corner regions outside, where the Hessian jumps).
+
+    A box's medial axis inside is where two faces are equally near: two adjacent faces (the two
+    largest ``q`` tie) or the two opposite faces of the nearest pair (the mid-plane ``rel[k] = 0``,
+    where the distance is ``|rel[k]| − half[k]``: a V, whose central difference is 0 whatever the
+    gradient picks)."""
     if isinstance(shape, Sphere):
         return float(shape.distance(x)) + shape.radius > 10 * h
     if isinstance(shape, Box):
         q, _ = shape._q(x)
         if (q <= 0).all():
             top = np.sort(q)
-            return top[-1] - top[-2] > 10 * h
+            k = int(np.argmax(q))
+            mid_plane = abs(float(x[k] - shape.center[k])) <= 10 * h
+            return top[-1] - top[-2] > 10 * h and not mid_plane
         return bool(np.all(np.abs(q) > 10 * h))
     return True
 
@@ -85,6 +92,29 @@ def test_gradient_and_hessian_match_finite_differences(shape, x) -> None:
     np.testing.assert_allclose(shape.hessian(x), fd_hess, atol=1e-4 * (1 + np.abs(fd_hess).max()))
     if not (isinstance(shape, Sphere) and shape.planar):
         assert np.linalg.norm(shape.gradient(x)) == pytest.approx(1.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(lo=point, size=st.tuples(*[st.floats(0.1, 1.5)] * 3), axis=st.integers(0, 2), t=st.floats(0.05, 0.95),
+       s=st.floats(0.05, 0.95))
+def test_on_a_boxs_mid_plane_the_gradient_is_one_of_the_two_nearest_faces_normals(lo, size, axis, t, s) -> None:
+    """The mid-plane between the nearest pair of opposite faces is a kink (the distance is
+    ``|rel| − half`` across it): no finite difference to match, but the gradient is still a
+    subgradient there, the outward normal of one of the two faces, and each side's one-sided
+    derivative is that side's normal."""
+    box = Box(lo, tuple(np.add(lo, size)))
+    half, c = box.half, box.center
+    assume(half[axis] < np.delete(half, axis).min() - 1e-3)  # this pair of faces is the nearest
+    others = [a for a in range(3) if a != axis]
+    x = c.copy()
+    for a, f in zip(others, (t, s), strict=True):  # anywhere on the mid-plane nearer this pair than the rest
+        x[a] = c[a] + (2 * f - 1) * (half[a] - half[axis])
+    e = np.eye(3)[axis]
+    g = box.gradient(x)
+    assert any(np.allclose(g, n) for n in (e, -e))
+    h = 1e-6
+    assert (box.distance(x + h * e) - box.distance(x)) / h == pytest.approx(1.0, abs=1e-6)
+    assert (box.distance(x - h * e) - box.distance(x)) / h == pytest.approx(1.0, abs=1e-6)
 
 
 @settings(max_examples=100, deadline=None)
