@@ -10,6 +10,8 @@ import time
 import uuid
 from pathlib import Path
 
+import pytest
+
 from riskfield.edge.limo import protocol as p
 from riskfield.edge.limo.emulator import ChassisEmulator
 from riskfield.edge.limo.messages import LimoDiagnostics, decode_diagnostics
@@ -137,10 +139,13 @@ def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str,
             c.close()
 
 
-def test_after_the_filter_is_sigkilled_the_watchdog_stops_the_chassis(router_endpoint: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("timed", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_after_the_filter_is_sigkilled_the_watchdog_stops_the_chassis(router_endpoint: str, tmp_path: Path,
+                                                                      timed: bool) -> None:
     """The real chain ref → safety filter → cmd/safe → LIMO node → chassis; the filter dies by
-    SIGKILL (no brake of its own can go out): the bridge's watchdog stops the platform within its
-    period (plus one poll and a scheduling margin) of the last command."""
+    SIGKILL (no brake of its own can go out): the bridge's watchdog stops the platform. ``timed``
+    (slow): within its period (plus one poll and a scheduling margin) of the last command, a
+    wall-clock bound a loaded machine can miss."""
     robot = f"t_limo_{uuid.uuid4().hex[:6]}"
     keys = Keys(robot)
     watchdog_s, poll_s = 0.2, 0.005
@@ -170,9 +175,11 @@ def test_after_the_filter_is_sigkilled_the_watchdog_stops_the_chassis(router_end
             assert wait_until(lambda: emu.model.v == 0.0, 5.0), node.output
             moving = [t for t, m in emu.frames(p.MotionCommand) if not m.is_stop]
             stops = [t for t, m in emu.frames(p.MotionCommand) if m.is_stop and t > moving[-1]]
-            assert moving[-1] < t_kill + 0.1  # the last moving frame came from the live filter
+            assert stops, node.output  # the chassis stopped on a stop frame after the last command
             latency = stops[0] - moving[-1]
-            assert latency <= watchdog_s + 0.15, latency  # the watchdog period + a busy machine's margin
+            if timed:
+                assert moving[-1] < t_kill + 0.1  # the last moving frame came from the live filter
+                assert latency <= watchdog_s + 0.15, latency  # the watchdog period + a busy machine's margin
             print(f"\nwatchdog stop {1e3 * latency:.0f} ms after the last command "
                   f"({1e3 * (stops[0] - t_kill):.0f} ms after SIGKILL)")
         finally:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-import time
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -31,7 +31,7 @@ from riskfield.protocol import (
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, render
 from riskfield.services.geometry.transforms import orbit
-from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
+from riskfield.testing import Collector, ServiceProcess, StatusWatch, client_session, put, wait_alive, wait_until
 
 CAM = PinholeCamera.centred(160, 120, 125.0)
 
@@ -87,10 +87,11 @@ IN_FRONT = np.array([[0.5, -0.55, 0.3], [0.6, -0.55, 0.3]])
 
 def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: str) -> None:
     keys = Keys("t_map_pub")
-    args = ["--robot", keys.robot, "--set", "output=both", "--set", "esdf_rate_hz=20"]
+    args = ["--robot", keys.robot, "--set", "output=both", "--set", "esdf_rate_hz=20", "--set", "status_period_s=0.05"]
     with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
         assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
         grids, grids3d = Collector(s, keys.esdf, EsdfGrid), Collector(s, keys.key("map/esdf3d"), EsdfGrid)
+        status = StatusWatch(s, keys.status("mapping"))
         # before any frame: nothing published, queries say "outside the map"
         early = ask(s, keys, IN_FRONT)
         assert early.in_map is not None and not early.in_map.any()
@@ -109,10 +110,15 @@ def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: s
         assert np.all(reply.risk_group == 1)
         assert np.all(np.abs(reply.distance - true) <= 0.075)
         assert np.all(reply.gradient[:, 0] < -0.5)
-        # no new data: no new grids (the filter must see the map age)
-        n = len(grids.items)
-        time.sleep(0.4)  # an absence over 8 ESDF periods (scenario): nothing to wait for
-        assert len(grids.items) == n
+        # No new data: no new grids (the filter must see the map age). The node's own status, on
+        # the loop thread its ESDF timer runs on, shows 8 ESDF periods of its uptime passing with
+        # nothing published: proof that the loop ran, not that it stalled. Statuses and grids leave
+        # the node's session in order, so a grid published before that status has arrived by then.
+        first = status.wait(lambda st: st.published.get("map/esdf", 0) >= len(grids.items))
+        published = first.published["map/esdf"]
+        later = status.wait(lambda st: st.uptime_s >= first.uptime_s + 0.4)
+        assert later.published.get("map/esdf") == published == len(grids.items)
+        status.close()
         grids.close()
         grids3d.close()
         assert proc.stop() == 0
@@ -232,8 +238,11 @@ def test_risk_config_hot_reload_from_key_and_file(router_endpoint: str, tmp_path
         narrow = RiskConfig()
         narrow.groups[0].margin = 0.05
         n = len(grids.items)
-        time.sleep(0.05)  # a later modification time than the last write (file-system clock resolution)
+        # The same size as the last write: the watcher sees it by a later modification time, set
+        # here rather than waited for (the file system's clock resolution).
+        before = risk_file.stat().st_mtime_ns
         risk_file.write_text(yaml.safe_dump(narrow.model_dump(exclude={"header"})))
+        os.utime(risk_file, ns=(before + 10**9, before + 10**9))
         grids.wait(n + 1)
         d2 = ask(s, keys, IN_FRONT).distance
         assert np.allclose(d0 - d2, -0.10, atol=1e-5)

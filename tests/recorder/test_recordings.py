@@ -411,8 +411,12 @@ def test_flipped_bytes_in_a_compressed_chunk_never_hang_or_traceback(tmp_path):
     assert "corrupt" in r.stderr or "CRC" in r.stderr or "truncated" in r.stderr, r.stderr
 
 
-def test_size_limit_and_file_splitting(router_endpoint, tmp_path):
-    robot = "t_split"
+@pytest.mark.parametrize("timed", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_size_limit_and_file_splitting(router_endpoint, tmp_path, timed):
+    """The recorder splits past ``split_mb`` and stops past ``max_mb``. By how much a file or the
+    total overshoots depends on what arrives within one flush period, i.e. on the machine's load:
+    those bounds are checked only ``timed`` (slow)."""
+    robot = f"t_split_{int(timed)}"
     rng = np.random.default_rng(1)
     big = encode(EsdfGrid(origin=(0, 0, 0), voxel_size=0.1, distance=rng.random((64, 64, 1), np.float32),
                           risk_group=np.zeros((64, 64, 1), np.uint8), groups=["high"], max_distance=2.0,
@@ -435,8 +439,10 @@ def test_size_limit_and_file_splitting(router_endpoint, tmp_path):
     files = [Path(f) for f in summary["files"]]
     assert files[0].name == "recording.mcap" and files[1].name == "recording-001.mcap" and len(files) >= 3
     sizes = [f.stat().st_size for f in files]
-    assert 0.5e6 <= sum(sizes) < 0.5e6 + 0.3e6  # stops within about one flush period past the limit
-    assert all(s >= 0.15e6 for s in sizes[:-1]) and all(s < 0.15e6 + 0.3e6 for s in sizes)
+    assert sum(sizes) >= 0.5e6 and all(s >= 0.15e6 for s in sizes[:-1])
+    if timed:
+        assert sum(sizes) < 0.5e6 + 0.3e6  # stops within about one flush period past the limit
+        assert all(s < 0.15e6 + 0.3e6 for s in sizes)
     for f in files:  # every part is a complete MCAP file of its own
         keys, err = scan(f)
         assert err is None and keys[f"rf/{robot}/map/esdf"].raw > 0

@@ -248,7 +248,9 @@ def test_perception_dead_brakes_with_stale_map_although_mapping_re_emits(router_
         assert all(g.header.stamp_ns == last_stamp for g in re_emitted)  # the stamp of the newest frame
         assert [g.header.seq for g in re_emitted] == sorted({g.header.seq for g in re_emitted})
         first_stale = next(st for st in status.items[n_status:] if st.fallback == "stale_map")
-        assert 400.0 < first_stale.esdf_age_ms < 1500.0, first_stale  # the content age, not the arrival's
+        # The content age, not the arrival's (a few ms): past the timeout and tolerance, and no
+        # older than the newest frame is now (one wall clock: no bound on how late the status came).
+        assert 400.0 < first_stale.esdf_age_ms <= (time.time_ns() - last_stamp) / 1e6, first_stale
         grids.close()
         status.close()
         assert filt.stop() == 0, filt.output

@@ -22,7 +22,16 @@ from riskfield.protocol import (
 )
 from riskfield.services.fields import AnalyticField, to_esdf, to_grid_message
 from riskfield.services.geometry.shapes import Sphere
-from riskfield.testing import Collector, ServiceProcess, client_session, hostile_payloads, put, wait_alive, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    StatusWatch,
+    client_session,
+    hostile_payloads,
+    put,
+    wait_alive,
+    wait_until,
+)
 
 GROUPS = ["high", "mid", "low"]
 
@@ -321,12 +330,18 @@ def test_an_exception_in_a_step_brakes_and_one_that_ends_the_loop_brakes_last(ro
 def test_a_new_map_is_acted_on_at_once_not_at_the_next_tick(router_endpoint):
     # A control rate of one step per 30 s: the first tick comes long after the waits below, and no
     # reference is sent, so only the map's arrival can make the filter step and report it.
+    # The state is in the inbox before the map is put (the node's status counts it), so the map's
+    # step sees it; long state and map timeouts, so a loaded machine's delays between the two puts
+    # and the step cannot turn the answer into stale_state or stale_map (their own tests are above).
     robot = "t_sf_step_on_map"
-    args = ["--robot", robot, "--set", "rate_hz=0.0333"]
+    args = ["--robot", robot, "--set", "rate_hz=0.0333", "--set", "status_period_s=0.1",
+            "--set", "state_timeout_s=60", "--set", "map_timeout_s=30"]
     with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/safety-filter"), proc.output
         status = Collector(session, f"rf/{robot}/safety/status", SafetyStatus)
+        node_status = StatusWatch(session, f"rf/{robot}/status/safety-filter")
         put(session, f"rf/{robot}/state", state(x=0.1))
+        node_status.wait(lambda st: st.received.get("state", 0) >= 1)
         m = grid()
         m.header.stamp_ns = time.time_ns()
         put(session, f"rf/{robot}/map/esdf", m)
@@ -334,3 +349,4 @@ def test_a_new_map_is_acted_on_at_once_not_at_the_next_tick(router_endpoint):
         st = next(s for s in status.items if s.esdf_age_ms >= 0)
         assert st.fallback == "no_ref" and st.h == pytest.approx(0.2, abs=0.01)  # the map is in force
         status.close()
+        node_status.close()
