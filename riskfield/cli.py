@@ -7,7 +7,7 @@ import importlib
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -15,6 +15,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from riskfield import __version__
+
+if TYPE_CHECKING:
+    from riskfield.services.runtime.settings import KnownSettings
 
 app = typer.Typer(help="Semantic-risk safety filtering from one RGB camera, as Zenoh services.",
                   no_args_is_help=True, add_completion=False)
@@ -52,12 +55,31 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
+def every_service_settings() -> KnownSettings:
+    """What every service ``riskfield run`` knows accepts, for the keys of a file or environment
+    shared by a stack (``runtime.settings.know_other_services``). Importing every service is this
+    layer's business, not the runtime's; it happens only when a node meets a key not its own."""
+    from riskfield.services.runtime import SERVICES, load_service
+    from riskfield.services.runtime.settings import KnownSettings
+
+    settings: dict[str, Any] = {}
+    for name in SERVICES:
+        try:
+            settings[name] = load_service(name).settings
+        except Exception:  # a missing extra, or a native library that fails to load
+            settings[name] = None
+    return KnownSettings.of(settings)
+
+
 @app.callback()
 def main(
     version: Annotated[bool | None, typer.Option("--version", callback=_version, is_eager=True,
                                                     help="Print the version and exit.")] = None,
 ) -> None:
     """riskfield command line."""
+    from riskfield.services.runtime.settings import know_other_services
+
+    know_other_services(every_service_settings)
 
 
 Connect = Annotated[list[str] | None, typer.Option("--connect", "-e", help="Zenoh endpoint to dial (repeatable).")]

@@ -20,8 +20,13 @@ else is not an error:
   this service;
 - top-level file keys: a setting of this service is applied, a setting of another known
   service or a service's section is skipped, anything else is an error;
-- ``RISKFIELD_*`` variables: likewise, plus ``NOT_SETTINGS`` (hardware endpoints and the
-  deployment's compose variables); variables without the prefix are not ours and ignored.
+- ``RISKFIELD_*`` variables: likewise, plus ``NOT_SETTINGS`` (the deployment's compose
+  variables); variables without the prefix are not ours and ignored.
+
+Which other services exist, and what they accept, is not this module's knowledge: the layer that
+starts nodes (the CLI) installs it with ``know_other_services``, as a function called only when a
+key is not this node's own (so a node normally imports no other service). Without it, every key
+must be this node's own.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ import difflib
 import logging
 import os
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -50,13 +55,10 @@ from pydantic_settings import (
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ENV_PREFIX = "RISKFIELD_"
 
-#: ``RISKFIELD_*`` variables that are not settings of the node reading them: hardware endpoints
-#: (shared/DESIGN.md, "Runtime conventions"; read by the bridges, harmless elsewhere) and the
-#: variables docker compose interpolates (image, tag, router address, secrets, volumes).
-NOT_SETTINGS: frozenset[str] = frozenset({
-    "LIMO_PORT", "JOYSTICK_DEVICE", "MAVLINK_URL",
-    "SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME",
-})
+#: ``RISKFIELD_*`` variables that are no service's settings: the variables docker compose
+#: interpolates (image, tag, router address, secrets, volumes). The bridges' hardware endpoints
+#: (``RISKFIELD_LIMO_PORT``, ...) are their settings' aliases, known like any other service's.
+NOT_SETTINGS: frozenset[str] = frozenset({"SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME"})
 
 
 #: Settings that were renamed: the old name's error points at the new one.
@@ -151,36 +153,49 @@ def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, wh
 
 
 @dataclass(frozen=True)
-class _Known:
-    sections: frozenset[str]  # every service's config-file section name
-    keys: frozenset[str]  # every setting key of the services that load here
-    env: frozenset[str]  # every RISKFIELD_* variable of those services
-    missing: tuple[str, ...]  # services that do not load here (extras not installed)
+class KnownSettings:
+    """What the other services of a stack accept: their config-file sections, setting keys and
+    ``RISKFIELD_*`` variables, and the services that could not load here (extras not installed)."""
+
+    sections: frozenset[str] = frozenset()
+    keys: frozenset[str] = frozenset()
+    env: frozenset[str] = frozenset()
+    missing: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, services: Mapping[str, type[BaseModel] | None]) -> KnownSettings:
+        """From each service's name and settings class (None: it does not load here)."""
+        sections, keys, env = set(), set(), set()
+        for name, settings in services.items():
+            sections.update({name, name.replace("-", "_")})
+            if settings is not None:
+                keys.update(setting_names(settings))
+                env.update(env_names(settings))
+        missing = tuple(name for name, settings in services.items() if settings is None)
+        return cls(frozenset(sections), frozenset(keys), frozenset(env), missing)
+
+
+_other_services: Callable[[], KnownSettings] | None = None
+
+
+def know_other_services(provider: Callable[[], KnownSettings] | None) -> None:
+    """Install what the other services accept, for the keys a shared file or environment holds
+    for them (the CLI does, before it builds a node's settings). ``provider`` is called at most
+    once, when a key is first found not to be the node's own; None: nothing is known elsewhere."""
+    global _other_services
+    _other_services = provider
+    _known.cache_clear()
 
 
 @lru_cache(maxsize=1)
-def _all_services() -> _Known:
-    """What every service of the registry accepts. Loaded only when a key is not this node's
-    own, so a node normally imports no other service."""
-    from .service import SERVICES, load_service  # service.py imports this module
-
-    sections, keys, env, missing = set(), set(), set(), []
-    for name in SERVICES:
-        sections.update({name, name.replace("-", "_")})
-        try:
-            cls = load_service(name).settings
-        except Exception:  # a missing extra, or a native library that fails to load
-            missing.append(name)
-            continue
-        keys.update(setting_names(cls))
-        env.update(env_names(cls))
-    return _Known(frozenset(sections), frozenset(keys), frozenset(env), tuple(missing))
+def _known() -> KnownSettings:
+    return KnownSettings() if _other_services is None else _other_services()
 
 
 def _unknown(error: UnknownSetting) -> None:
     """Raise ``error``, unless a service that does not load here might own the key: then the
     node must still start (a robot image lacks the server's extras), so only warn."""
-    missing = _all_services().missing
+    missing = _known().missing
     if not missing:
         raise error
     logging.getLogger("riskfield.settings").warning(
@@ -206,9 +221,9 @@ def check_environment(model: type[NodeSettings], environ: Mapping[str, str] | No
                     raise UnknownSetting(upper, service, "environment variable",
                                          [f"{head}__{n.upper()}" for n in sub.model_fields])
             continue
-        if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _all_services().env:
+        if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _known().env:
             continue
-        _unknown(UnknownSetting(upper, service, "environment variable", [*own, *_all_services().env]))
+        _unknown(UnknownSetting(upper, service, "environment variable", [*own, *_known().env]))
 
 
 class _FileSource(PydanticBaseSettingsSource):
@@ -237,7 +252,7 @@ class _FileSource(PydanticBaseSettingsSource):
                 continue
             if key in own_sections:
                 continue
-            known = _all_services()
+            known = _known()
             if key in known.sections or key in known.keys:
                 continue  # another service's section or setting: theirs to check
             _unknown(UnknownSetting(key, service, f"top level of {path}", [*fields, *known.sections]))

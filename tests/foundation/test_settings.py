@@ -9,8 +9,19 @@ import sys
 import pytest
 
 from riskfield.services.runtime import UnknownSetting
-from riskfield.services.runtime.settings import check_environment
+from riskfield.services.runtime.settings import KnownSettings, check_environment, know_other_services
 from riskfield.services.safety_filter.settings import FilterSettings
+
+
+@pytest.fixture(autouse=True)
+def stack():
+    """What the CLI tells the runtime before it builds a node's settings: the other services'
+    keys (a node started by ``riskfield run`` knows them; the runtime alone knows none)."""
+    from riskfield.cli import every_service_settings
+
+    know_other_services(every_service_settings)
+    yield
+    know_other_services(None)
 
 
 @pytest.fixture
@@ -124,10 +135,10 @@ def test_core_parameters_are_composed_of_per_stage_structs():
 
 def test_an_unknown_variable_only_warns_when_a_service_cannot_load_here(env, monkeypatch, caplog):
     """A robot image lacks the server's extras: the key might be mapping's, so the filter starts."""
-    from riskfield.services.runtime import settings as rs
+    from riskfield.cli import every_service_settings
 
-    known = rs._all_services()
-    monkeypatch.setattr(rs, "_all_services", lambda: rs._Known(known.sections, frozenset(), frozenset(), ("mapping",)))
+    known = every_service_settings()
+    know_other_services(lambda: KnownSettings(known.sections, frozenset(), frozenset(), ("mapping",)))
     env.setenv("RISKFIELD_VOXEL_SIZE", "0.1")
     with caplog.at_level("WARNING", "riskfield.settings"):
         FilterSettings()
@@ -183,3 +194,26 @@ def test_renamed_settings_point_at_the_new_name(env):
     env.setenv("RISKFIELD_RISK_CONFIG", "/tmp/risk.yaml")
     with pytest.raises(UnknownSetting, match="did you mean 'RISKFIELD_RISK_FILE'"):
         FilterSettings()
+
+
+def test_without_the_other_services_known_a_key_of_theirs_is_an_error(env, tmp_path):
+    """The runtime knows no service: only the layer above (the CLI) makes another service's
+    keys acceptable."""
+    know_other_services(None)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("voxel_size: 0.1\n")
+    with pytest.raises(UnknownSetting, match="'voxel_size'"):
+        FilterSettings(config=cfg)
+    env.setenv("RISKFIELD_LIMO_PORT", "/dev/ttyUSB0")
+    with pytest.raises(UnknownSetting, match="RISKFIELD_LIMO_PORT"):
+        FilterSettings()
+
+
+def test_a_shared_file_is_accepted_by_a_node_started_from_the_cli(env, tmp_path):
+    """``riskfield run`` in a fresh process: the CLI installs the other services' keys."""
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("voxel_size: 0.1\n")  # mapping's: skipped, not refused
+    r = subprocess.run([sys.executable, "-m", "riskfield", "run", "relay", "--config", str(cfg),
+                        "--connect", "tcp/127.0.0.1:9", "--set", "connect_timeout_s=0.1"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 3 and "no Zenoh router" in r.stderr, r.stderr  # past the settings, at the session

@@ -47,7 +47,7 @@ from ..scenarios import LOOP, TELEOP_TARGETS, TRACKED, UNSEEN, clearance_series,
 from ..teleop import distance_at, first_intervention, is_intervention
 
 if TYPE_CHECKING:
-    from .run import DemoConfig
+    from .config import DemoConfig
 
 @dataclass
 class Streams:

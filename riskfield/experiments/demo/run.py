@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import yaml
 from rich.console import Console
@@ -22,22 +20,8 @@ from ..navigation import drive, place_unseen
 from ..scenarios import LOOP, TELEOP_TARGETS, UNSEEN, navigation_waypoints, scenario
 from ..stack import recording
 from ..teleop import operator_args, wait_operator_done
+from .config import DemoConfig
 from .report import make_report
-
-
-@dataclass
-class DemoConfig:
-    out: Path = Path("out/demo")
-    live: bool = False
-    robot: str = "demo1"
-    seed: int = 0
-    teleop_push_s: float = 6.0
-    laps: float = 1.5
-    budget_s: float = 100.0  # the two experiments together, after start-up
-    robot_radius: float = 0.15
-    verbose: bool = False
-    perception: str = "sim"  # or "rgbd": the simulator publishes depth, perception poses it by odometry
-    phases: dict[str, float] = field(default_factory=dict)
 
 
 def camera_pipeline(c: DemoConfig, extra: dict[str, list[str]] | None = None) -> list[tuple[str, str, list[str]]]:
