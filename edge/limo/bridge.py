@@ -18,9 +18,11 @@ serial link. Rules it enforces:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from .kinematics import LimoLimits, MotionMode, WheelOdometry, command_to_motion
+from pydantic import Field, field_validator
+
+from .kinematics import LimoLimits, MotionMode, Pos, WheelOdometry, command_to_motion
 from .protocol import (
     ControlModeCommand,
     FrameParser,
@@ -38,23 +40,29 @@ from .protocol import (
 COMMAND_MODE = 1  # control mode reported by the chassis when it obeys the serial line
 
 
-@dataclass(frozen=True)
-class BridgeConfig:
-    """``motion_mode=None`` follows the mode the chassis reports (differential until it does)."""
+class BridgeConfig(LimoLimits):
+    """The bridge core's parameters: the platform limits plus command mode, watchdog and feedback.
+    ``motion_mode=None`` ("auto") follows the mode the chassis reports (differential until it does)."""
 
-    motion_mode: MotionMode | None = None
-    limits: LimoLimits = field(default_factory=LimoLimits)
-    watchdog_s: float = 0.2
-    stop_repeat_s: float = 0.1
-    enable_retry_s: float = 1.0
-    feedback_timeout_s: float = 0.5
-    use_imu: bool = True
+    motion_mode: MotionMode | None = Field(default=None, description=(
+        "auto (follow the chassis), differential, ackermann or mecanum"))
+    watchdog_s: Pos = Field(default=0.2, description="a command older than this is replaced by a stop frame")
+    stop_repeat_s: Pos = Field(default=0.1, description="stop frames repeat this often while no command comes")
+    enable_retry_s: Pos = Field(default=1.0, description="the serial-command-mode request repeats this often "
+                                                          "until the chassis confirms it")
+    feedback_timeout_s: Pos = Field(default=0.5, description="no feedback for this long: no state is published")
+    use_imu: bool = Field(default=True, description="IMU yaw and yaw rate replace the wheels' when present")
 
-    def __post_init__(self) -> None:
-        for name in ("watchdog_s", "stop_repeat_s", "enable_retry_s", "feedback_timeout_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive, got {value}")
+    @field_validator("motion_mode", mode="before")
+    @classmethod
+    def _parse_mode(cls, value: object) -> object:
+        if value is None or (isinstance(value, str) and value.strip().lower() == "auto"):
+            return None
+        return MotionMode.parse(value) if isinstance(value, (str, int)) else value
+
+    @property
+    def limits(self) -> LimoLimits:
+        return self
 
 
 @dataclass(frozen=True)

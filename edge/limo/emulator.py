@@ -29,6 +29,7 @@ import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from riskfield.protocol.platforms import LIMO
 from riskfield.services.runtime.signals import stop_event
 
 from .kinematics import MotionMode, wrap_angle
@@ -50,8 +51,8 @@ from .protocol import (
 @dataclass
 class ChassisModel:
     motion_mode: MotionMode = MotionMode.DIFFERENTIAL
-    wheelbase: float = 0.2
-    track: float = 0.172
+    wheelbase: float = LIMO.wheelbase
+    track: float = LIMO.track
     battery_v: float = 12.1
     error_bits: int = 0
     control_mode: int = 0  # 0 standby until 0x421 enables serial command mode (1)

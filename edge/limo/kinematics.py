@@ -32,10 +32,16 @@ seen first so the map frame starts at the robot's initial pose with heading 0.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from enum import IntEnum
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from riskfield.protocol.platforms import LIMO
 
 from .protocol import MotionCommand
+
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 class MotionMode(IntEnum):
@@ -50,24 +56,20 @@ class MotionMode(IntEnum):
         return cls(int(value))
 
 
-@dataclass(frozen=True)
-class LimoLimits:
-    """Platform limits (SI). Defaults: the LIMO's published figures; ``max_angular`` is a
-    conservative choice, not a datasheet number."""
+class LimoLimits(BaseModel):
+    """The limits every command is scaled into (SI), defaults from ``protocol.platforms.LIMO``."""
 
-    max_linear: float = 1.0
-    max_lateral: float = 1.0
-    max_angular: float = 2.0
-    max_wheel_speed: float = 1.0
-    max_steering: float = 0.488
-    wheelbase: float = 0.2
-    track: float = 0.172
-    min_speed_for_steering: float = 1e-3
+    model_config = ConfigDict(extra="forbid")
 
-    def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"limit {name} must be positive and finite, got {value}")
+    max_linear: Pos = Field(default=LIMO.max_linear, description="|forward speed| (m/s)")
+    max_lateral: Pos = Field(default=LIMO.max_lateral, description="|lateral speed|, mecanum mode (m/s)")
+    max_angular: Pos = Field(default=LIMO.max_angular, description="|yaw rate| (rad/s)")
+    max_wheel_speed: Pos = Field(default=LIMO.max_wheel_speed, description="|speed| of any wheel (m/s)")
+    max_steering: Pos = Field(default=LIMO.max_steering, description="|central steering angle|, Ackermann (rad)")
+    wheelbase: Pos = Field(default=LIMO.wheelbase, description="axle distance (m)")
+    track: Pos = Field(default=LIMO.track, description="wheel distance left to right (m)")
+    min_speed_for_steering: Pos = Field(default=1e-3, description=(
+        "below this |speed| (m/s) an Ackermann chassis cannot turn: the steering is 0"))
 
 
 def _scale(limits: list[tuple[float, float]]) -> float:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
@@ -20,43 +20,24 @@ from riskfield.protocol import RobotState, VelocityCommand
 from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
 
 from .bridge import BridgeConfig, LimoBridge, PlanarState
-from .kinematics import LimoLimits, MotionMode
 from .messages import LimoDiagnostics
 from .serial_link import SerialLink
 
 
-class LimoSettings(NodeSettings):
+class LimoSettings(NodeSettings, BridgeConfig):
+    """The bridge core's ``BridgeConfig`` (flat: ``--set watchdog_s=0.3``, ``RISKFIELD_MAX_LINEAR``)
+    plus the serial line and the node's timers."""
+
     model_config = SettingsConfigDict(populate_by_name=True)
     SERVICE: ClassVar[str] = "limo"
 
     port: str = Field(default="/dev/ttyTHS1", validation_alias="riskfield_limo_port",
                       description="serial device (env RISKFIELD_LIMO_PORT)")
     baudrate: int = Field(default=460800, gt=0)
-    motion_mode: Literal["auto", "differential", "ackermann", "mecanum"] = "auto"
-    watchdog_s: float = Field(default=0.2, gt=0)
-    stop_repeat_s: float = Field(default=0.1, gt=0)
-    enable_retry_s: float = Field(default=1.0, gt=0)
-    feedback_timeout_s: float = Field(default=0.5, gt=0)
-    poll_s: float = Field(default=0.005, gt=0)
-    reconnect_s: float = Field(default=0.5, gt=0)
+    poll_s: float = Field(default=0.005, gt=0, description="serial read, state, watchdog and reopen period")
+    reconnect_s: float = Field(default=0.5, gt=0, description="a lost port is reopened this often")
     diagnostics_period_s: float = Field(default=0.5, gt=0)
-    use_imu: bool = True
-    max_linear: float = Field(default=1.0, gt=0)
-    max_lateral: float = Field(default=1.0, gt=0)
-    max_angular: float = Field(default=2.0, gt=0)
-    max_wheel_speed: float = Field(default=1.0, gt=0)
-    max_steering: float = Field(default=0.488, gt=0)
-    wheelbase: float = Field(default=0.2, gt=0)
-    track: float = Field(default=0.172, gt=0)
     state_frame: str = "map"
-
-    def bridge_config(self) -> BridgeConfig:
-        limits = LimoLimits(self.max_linear, self.max_lateral, self.max_angular, self.max_wheel_speed,
-                            self.max_steering, self.wheelbase, self.track)
-        mode = None if self.motion_mode == "auto" else MotionMode.parse(self.motion_mode)
-        return BridgeConfig(motion_mode=mode, limits=limits, watchdog_s=self.watchdog_s,
-                            stop_repeat_s=self.stop_repeat_s, enable_retry_s=self.enable_retry_s,
-                            feedback_timeout_s=self.feedback_timeout_s, use_imu=self.use_imu)
 
 
 def to_robot_state(s: PlanarState, frame_id: str) -> RobotState:
@@ -72,7 +53,7 @@ def to_robot_state(s: PlanarState, frame_id: str) -> RobotState:
 class LimoNode:
     def __init__(self, node: Node, s: LimoSettings):
         self.node, self.s = node, s
-        self.core = LimoBridge(s.bridge_config())
+        self.core = LimoBridge(s)  # the settings are a BridgeConfig
         self.link = SerialLink(s.port, s.baudrate, s.reconnect_s)
         self.diag_key = node.keys.key("limo/diagnostics")
         node.subscribe(node.keys.cmd_safe, VelocityCommand, self.on_command)
@@ -135,7 +116,7 @@ class LimoNode:
             self.node.ratelog(logging.WARNING, "chassis-error", f"chassis reports error bits {d.error_bits:#06x}")
         if d.mode_mismatch:
             self.node.ratelog(logging.WARNING, "mode", f"chassis reports motion mode {d.motion_mode}, "
-                              f"configured {self.s.motion_mode}")
+                              f"configured {self.s.motion_mode.name.lower() if self.s.motion_mode else 'auto'}")
 
     def close(self) -> None:
         """Stop the robot before letting go of the port."""

@@ -15,10 +15,11 @@ constant body twist ``(vx, vy, ω)`` the SE(2) exponential is
 rotated into the world by the heading at the start of the step, and θ ← θ + ωΔt. With
 ``vy = 0`` this is the unicycle's arc of radius v/ω; with ω → 0 the straight line.
 
-LIMO values (``LIMO``): the vendor states about 1 m/s and, in Ackermann mode, a 0.2 m wheelbase
-and ±0.488 rad steering (0.4 m minimum turning radius). The yaw-rate and acceleration limits are
-our choice, picked to be gentle on a 4.2 kg robot: |ω| ≤ 2.5 rad/s, |a| ≤ 1.5 m/s²,
-|α| ≤ 6 rad/s². They are parameters; a real unit should be measured.
+LIMO values (``LIMO``) come from ``riskfield.protocol.platforms.LIMO``, the one home of the
+platform's figures (the bridge and the filter read them too; its docstring gives the sources):
+about 1 m/s, in Ackermann mode a 0.2 m wheelbase and ±0.488 rad steering (0.4 m minimum turning
+radius), |ω| ≤ 2 rad/s, |a| ≤ 1.5 m/s², |α| ≤ 6 rad/s². They are parameters; a real unit should be
+measured.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+
+from riskfield.protocol.platforms import LIMO as PLATFORM
 
 from ..geometry.transforms import yaw_matrix, yaw_of, yaw_quaternion
 
@@ -56,17 +59,17 @@ class Robot(Protocol):
 
 @dataclass(frozen=True)
 class PlanarLimits:
-    v_max: float = 1.0  # |forward speed| (m/s)
+    v_max: float = PLATFORM.max_linear  # |forward speed| (m/s)
     vy_max: float = 0.0  # |lateral speed| (m/s); > 0 only for mecanum
-    w_max: float = 2.5  # |yaw rate| (rad/s)
-    a_max: float = 1.5  # |linear acceleration| (m/s²)
-    alpha_max: float = 6.0  # |yaw acceleration| (rad/s²)
+    w_max: float = PLATFORM.max_angular  # |yaw rate| (rad/s)
+    a_max: float = PLATFORM.max_accel  # |linear acceleration| (m/s²)
+    alpha_max: float = PLATFORM.max_yaw_accel  # |yaw acceleration| (rad/s²)
 
 
 LIMO = PlanarLimits()
-LIMO_MECANUM = PlanarLimits(vy_max=1.0)
-LIMO_WHEELBASE = 0.2
-LIMO_MAX_STEER = 0.488
+LIMO_MECANUM = PlanarLimits(vy_max=PLATFORM.max_lateral)
+LIMO_WHEELBASE = PLATFORM.wheelbase
+LIMO_MAX_STEER = PLATFORM.max_steering
 
 
 def wrap_angle(a: float) -> float:
