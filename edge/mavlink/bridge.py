@@ -17,12 +17,17 @@ Setpoints are addressed to the system and component of the first autopilot heart
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Literal
+
+from pydantic import Field
 
 from riskfield.services.geometry.transforms import euler_zyx_matrix
 
 from .convert import (
     MAV_FRAME_BODY_NED,
+    MAV_FRAME_LOCAL_NED,
+    Pos,
     PoseENU,
     Setpoint,
     VelocityLimits,
@@ -60,24 +65,27 @@ class RequestInterval:
 Outgoing = Heartbeat | SetpointOut | RequestInterval
 
 
-@dataclass(frozen=True)
-class MavlinkConfig:
-    setpoint_hz: float = 20.0
-    heartbeat_hz: float = 1.0
-    watchdog_s: float = 0.2
-    frame: int = MAV_FRAME_BODY_NED
-    limits: VelocityLimits = field(default_factory=VelocityLimits)
-    stream_hz: float = 30.0
-    interval_retry_s: float = 5.0
-    state_timeout_s: float = 0.5
+class MavlinkConfig(VelocityLimits):
+    """The bridge core's parameters: the setpoint limits plus its schedule."""
 
-    def __post_init__(self) -> None:
-        if self.setpoint_hz < 10:
-            raise ValueError(f"setpoint_hz {self.setpoint_hz} < 10: autopilots drop out of offboard/guided control")
-        for name in ("heartbeat_hz", "watchdog_s", "stream_hz", "interval_retry_s", "state_timeout_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive, got {value}")
+    setpoint_hz: float = Field(default=20.0, ge=10, allow_inf_nan=False, description=(
+        "setpoints per second while the vehicle is seen; below 10 autopilots drop out of offboard/guided "
+        "control (PX4 below 2 Hz)"))
+    heartbeat_hz: Pos = Field(default=1.0, description="GCS heartbeats per second")
+    watchdog_s: Pos = Field(default=0.2, description="a cmd/safe older than this is replaced by zero setpoints")
+    frame: Literal["body", "local"] = Field(default="body", description=(
+        "setpoint frame: body (MAV_FRAME_BODY_NED, no attitude needed) or local (MAV_FRAME_LOCAL_NED)"))
+    stream_hz: Pos = Field(default=30.0, description="LOCAL_POSITION_NED and ATTITUDE rate asked of the vehicle")
+    interval_retry_s: Pos = Field(default=5.0, description="the stream request repeats this often until they come")
+    state_timeout_s: Pos = Field(default=0.5, description="position and attitude older than this give no state")
+
+    @property
+    def limits(self) -> VelocityLimits:
+        return self
+
+    @property
+    def mav_frame(self) -> int:
+        return MAV_FRAME_BODY_NED if self.frame == "body" else MAV_FRAME_LOCAL_NED
 
 
 @dataclass
@@ -151,7 +159,7 @@ class MavlinkBridge:
             self.counters.watchdog_stops += 1
         r = None if self._att is None else euler_zyx_matrix(*self._att[0])
         linear, wz = self._cmd if fresh and self._cmd is not None else ((0.0, 0.0, 0.0), 0.0)
-        sp = command_to_setpoint(linear, wz, self.config.limits, self.config.frame, r)
+        sp = command_to_setpoint(linear, wz, self.config.limits, self.config.mav_frame, r)
         self._last_sp = now
         self.counters.setpoints += 1
         self.counters.zero_setpoints += sp.is_zero

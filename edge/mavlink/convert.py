@@ -24,10 +24,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from riskfield.services.geometry.transforms import euler_zyx_matrix, matrix_to_quat
+
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_NED = 8
@@ -48,13 +52,14 @@ def attitude_ned_frd_to_enu_flu(roll: float, pitch: float, yaw: float) -> np.nda
     return P @ euler_zyx_matrix(roll, pitch, yaw) @ F
 
 
-@dataclass(frozen=True)
-class VelocityLimits:
+class VelocityLimits(BaseModel):
     """Bounds of the setpoint; exceeded → the whole command is scaled by one factor (see below)."""
 
-    max_horizontal: float = 1.0
-    max_vertical: float = 0.5
-    max_yaw_rate: float = 1.0
+    model_config = ConfigDict(extra="forbid")
+
+    max_horizontal: Pos = Field(default=1.0, description="|horizontal velocity| (m/s)")
+    max_vertical: Pos = Field(default=0.5, description="|vertical velocity| (m/s)")
+    max_yaw_rate: Pos = Field(default=1.0, description="|yaw rate| (rad/s)")
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
@@ -20,43 +20,28 @@ from riskfield.protocol import RobotState, VelocityCommand
 from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
 
 from .bridge import Heartbeat, MavlinkBridge, MavlinkConfig, RequestInterval, SetpointOut
-from .convert import MAV_FRAME_BODY_NED, MAV_FRAME_LOCAL_NED, VelocityLimits
 
 MAV = mavutil.mavlink
 
 
-class MavlinkSettings(NodeSettings):
+class MavlinkSettings(NodeSettings, MavlinkConfig):
+    """The bridge core's ``MavlinkConfig`` (flat: ``--set max_yaw_rate=0.5``) plus the link."""
+
     model_config = SettingsConfigDict(populate_by_name=True)
     SERVICE: ClassVar[str] = "mavlink"
 
     url: str = Field(default="udpin:0.0.0.0:14550", validation_alias="riskfield_mavlink_url",
                      description="pymavlink connection string (env RISKFIELD_MAVLINK_URL)")
     baudrate: int = Field(default=115200, gt=0, description="for serial links")
-    frame: Literal["body", "local"] = "body"
-    setpoint_hz: float = Field(default=20.0, ge=10)
-    heartbeat_hz: float = Field(default=1.0, gt=0)
-    watchdog_s: float = Field(default=0.2, gt=0)
-    stream_hz: float = Field(default=30.0, gt=0)
-    max_horizontal: float = Field(default=1.0, gt=0)
-    max_vertical: float = Field(default=0.5, gt=0)
-    max_yaw_rate: float = Field(default=1.0, gt=0)
     poll_s: float = Field(default=0.005, gt=0)
     source_system: int = Field(default=255, ge=1, le=255)
     source_component: int = Field(default=MAV.MAV_COMP_ID_MISSIONPLANNER, ge=0, le=255)
-
-    def bridge_config(self) -> MavlinkConfig:
-        return MavlinkConfig(
-            setpoint_hz=self.setpoint_hz, heartbeat_hz=self.heartbeat_hz, watchdog_s=self.watchdog_s,
-            frame=MAV_FRAME_BODY_NED if self.frame == "body" else MAV_FRAME_LOCAL_NED,
-            limits=VelocityLimits(self.max_horizontal, self.max_vertical, self.max_yaw_rate),
-            stream_hz=self.stream_hz,
-        )
 
 
 class MavlinkNode:
     def __init__(self, node: Node, s: MavlinkSettings):
         self.node, self.s = node, s
-        self.core = MavlinkBridge(s.bridge_config(), t0=time.monotonic())
+        self.core = MavlinkBridge(s, t0=time.monotonic())  # the settings are a MavlinkConfig
         try:
             # autoreconnect: a USB/serial autopilot link is reopened after it drops (UDP needs nothing).
             self.conn = mavutil.mavlink_connection(s.url, baud=s.baudrate, source_system=s.source_system,

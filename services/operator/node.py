@@ -15,18 +15,19 @@ from ..runtime.settings import NodeSettings
 from .operator import OperatorConfig, ScriptedOperator, Target
 
 
-class OperatorSettings(NodeSettings):
+class OperatorSettings(NodeSettings, OperatorConfig):
+    """The scripted operator's ``OperatorConfig`` (flat: ``--set push_s=6``) plus its targets and rates."""
+
     SERVICE: ClassVar[str] = "operator"
 
-    targets: list[tuple[str, float, float]] = Field(default_factory=list)  # [name, x, y] in visiting order
-    seed: int = 0
-    rate_hz: float = Field(default=20.0, gt=0)
-    push_s: float = Field(default=7.0, gt=0)
-    state_timeout_s: float = Field(default=0.5, gt=0)
+    targets: list[tuple[str, float, float]] = Field(default_factory=list, description="[name, x, y] in visiting order")
+    seed: int = Field(default=0, description="draws the operator's speed, aim and noise: one seed, one operator")
+    rate_hz: float = Field(default=20.0, gt=0, description="cmd/ref rate (the joystick's)")
+    state_timeout_s: float = Field(default=0.5, gt=0, description="no state for this long: zero cmd/ref")
 
 
 def setup(node: Node, s: OperatorSettings) -> None:
-    op = ScriptedOperator([Target(*t) for t in s.targets], OperatorConfig(push_s=s.push_s), seed=s.seed)
+    op = ScriptedOperator([Target(*t) for t in s.targets], s, seed=s.seed)  # the settings are an OperatorConfig
     last: dict[str, object] = {}
 
     def on_state(st: RobotState) -> None:

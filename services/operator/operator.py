@@ -13,8 +13,13 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
 
 @dataclass(frozen=True)
@@ -24,21 +29,26 @@ class Target:
     y: float
 
 
-@dataclass(frozen=True)
-class OperatorConfig:
-    cruise_speed: float = 0.45  # m/s before the per-run scale
-    speed_spread: float = 0.2  # per-run speed scale drawn from 1 ± spread
-    heading_gain: float = 1.8  # rad/s per rad of heading error
-    max_turn: float = 1.2  # rad/s
-    aim_spread: float = 0.08  # m, lateral aim offset per target
-    reaction_s: float = 0.2
-    noise_v: float = 0.04  # m/s, OU stationary std
-    noise_w: float = 0.12  # rad/s
-    noise_tau_s: float = 0.7
-    push_s: float = 7.0  # how long the operator keeps pushing at a target
-    backoff_s: float = 1.5
-    backoff_speed: float = 0.3
-    turn_tolerance: float = 0.15  # rad: facing the next target when the error is below this
+class OperatorConfig(BaseModel):
+    """How the scripted operator drives: its speed, aim, reaction and stick noise, and its rhythm."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    cruise_speed: Pos = Field(default=0.45, description="forward push (m/s) before the per-run scale")
+    speed_spread: Annotated[float, Field(ge=0, lt=1)] = Field(default=0.2, description=(
+        "the per-run speed scale is drawn from 1 ± this"))
+    heading_gain: Pos = Field(default=1.8, description="yaw rate (rad/s) per rad of heading error")
+    max_turn: Pos = Field(default=1.2, description="|yaw rate| of the stick (rad/s)")
+    aim_spread: NonNeg = Field(default=0.08, description="std (m) of the lateral aim offset per target")
+    reaction_s: NonNeg = Field(default=0.2, description="the operator acts on a state this old (s)")
+    noise_v: NonNeg = Field(default=0.04, description="stationary std (m/s) of the forward stick's OU noise")
+    noise_w: NonNeg = Field(default=0.12, description="stationary std (rad/s) of the turn stick's OU noise")
+    noise_tau_s: Pos = Field(default=0.7, description="time constant (s) of the stick noise")
+    push_s: Pos = Field(default=7.0, description="how long the operator keeps pushing at a target (s)")
+    backoff_s: NonNeg = Field(default=1.5, description="how long it backs off after a push (s)")
+    backoff_speed: NonNeg = Field(default=0.3, description="backing-off speed (m/s)")
+    turn_tolerance: Pos = Field(default=0.15, description=(
+        "facing the next target (rad) when the heading error is below this"))
 
 
 @dataclass

@@ -57,7 +57,7 @@ def test_local_ned_setpoint_uses_the_attitude() -> None:
 
 @given(small, small, small, small)
 def test_limits_scale_uniformly(vx: float, vy: float, vz: float, wz: float) -> None:
-    lim = VelocityLimits(0.5, 0.2, 0.4)
+    lim = VelocityLimits(max_horizontal=0.5, max_vertical=0.2, max_yaw_rate=0.4)
     sp = command_to_setpoint((3 * vx, 3 * vy, 3 * vz), 3 * wz, lim)
     assert math.hypot(sp.vx, sp.vy) <= lim.max_horizontal + 1e-9
     assert abs(sp.vz) <= lim.max_vertical + 1e-9 and abs(sp.yaw_rate) <= lim.max_yaw_rate + 1e-9
