@@ -15,20 +15,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from .mapping import EV_ABS, EV_KEY, EV_SYN, SYN_DROPPED, SYN_REPORT, JoystickMapping, StickCommand, command
 from .source import DeviceInfo, InputEvent
 
 
-@dataclass(frozen=True)
-class GatewayConfig:
-    rate_hz: float = 50.0
-    reconnect_s: float = 1.0
+class GatewayConfig(BaseModel):
+    """The gateway core's timing (the stick mapping is ``JoystickMapping``)."""
 
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0 and self.reconnect_s > 0):
-            raise ValueError("rate_hz and reconnect_s must be positive")
+    model_config = ConfigDict(extra="forbid")
+
+    rate_hz: float = Field(default=50.0, gt=0, allow_inf_nan=False, description=(
+        "cmd/ref rate, always (a changed stick also publishes at once)"))
+    reconnect_s: float = Field(default=1.0, gt=0, allow_inf_nan=False, description=(
+        "a missing or lost device is reopened this often"))
 
 
 class JoystickGateway:

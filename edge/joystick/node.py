@@ -29,7 +29,7 @@ from .source import DeviceLost, DeviceUnavailable, EvdevSource, EventSource, Raw
 from .waker import FdWaker
 
 
-class JoystickSettings(NodeSettings):
+class JoystickSettings(NodeSettings, GatewayConfig):
     model_config = SettingsConfigDict(populate_by_name=True)
     SERVICE: ClassVar[str] = "joystick"
 
@@ -46,10 +46,8 @@ class JoystickSettings(NodeSettings):
     max_lateral: float = Field(default=0.5, gt=0)
     max_angular: float = Field(default=1.0, gt=0)
     min_scale: float = Field(default=0.0, ge=0, le=1)
-    rate_hz: float = Field(default=50.0, gt=0)
     poll_s: float = Field(default=0.01, gt=0)
     wake_on_input: bool = Field(default=True, description="wake on a readable device instead of waiting for poll_s")
-    reconnect_s: float = Field(default=1.0, gt=0)
     source_name: str = "joystick"
 
     def mapping(self) -> JoystickMapping:
@@ -76,7 +74,7 @@ class JoystickSettings(NodeSettings):
 class JoystickNode:
     def __init__(self, node: Node, s: JoystickSettings):
         self.node, self.s = node, s
-        self.core = JoystickGateway(s.mapping(), GatewayConfig(rate_hz=s.rate_hz, reconnect_s=s.reconnect_s))
+        self.core = JoystickGateway(s.mapping(), s)  # the settings are a GatewayConfig
         self.source = s.event_source()
         self.waker: FdWaker | None = None
         if s.wake_on_input:
