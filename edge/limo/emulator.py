@@ -30,9 +30,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from riskfield.protocol.platforms import LIMO
+from riskfield.services.geometry.transforms import wrap_angle
 from riskfield.services.runtime.signals import stop_event
 
-from .kinematics import MotionMode, wrap_angle
+from .kinematics import MotionMode
 from .protocol import (
     ControlModeCommand,
     FrameParser,

@@ -38,6 +38,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 from riskfield.protocol.platforms import LIMO
+from riskfield.services.geometry.transforms import wrap_angle
 
 from .protocol import MotionCommand
 
@@ -114,10 +115,6 @@ def command_to_motion(vx: float, vy: float, wz: float, mode: MotionMode, limits:
     delta = steering_angle(vx, wz, limits)
     # The angular field stays 0: in Ackermann mode the chassis steers by the steering field alone.
     return MotionCommand(linear=v, steering=delta)
-
-
-def wrap_angle(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 class WheelOdometry:

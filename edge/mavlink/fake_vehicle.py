@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from pymavlink import mavutil
 
+from riskfield.services.geometry.transforms import wrap_angle
 from riskfield.services.runtime.signals import stop_event
 
 from .convert import MAV_FRAME_BODY_NED, MAV_FRAME_LOCAL_NED, VELOCITY_YAWRATE_MASK
@@ -52,7 +53,7 @@ class VehicleModel:
         self.x += self.vel[0] * dt
         self.y += self.vel[1] * dt
         self.z += self.vel[2] * dt
-        self.yaw = (self.yaw + self.yaw_rate * dt + math.pi) % (2 * math.pi) - math.pi
+        self.yaw = wrap_angle(self.yaw + self.yaw_rate * dt)
 
 
 @dataclass

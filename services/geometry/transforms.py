@@ -47,6 +47,12 @@ def euler_zyx_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
 
 
+def wrap_angle(a: float) -> float:
+    """The angle in [−π, π) equal to ``a`` modulo 2π: the one wrap every heading error and
+    integrated yaw uses (the navigator's atan2 form gave (−π, π], the others this range)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
 def yaw_quaternion(yaw: float) -> np.ndarray:
     """Quaternion xyzw of a rotation by ``yaw`` about +z (closed form: the simulator's per-step pose)."""
     return np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])

@@ -43,10 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def wrap_angle(a: float) -> float:
-    """Angle in (−π, π]."""
-    return math.atan2(math.sin(a), math.cos(a))
+from ..geometry.transforms import wrap_angle
 
 
 def clip_norm(x: np.ndarray, limit: float) -> np.ndarray:

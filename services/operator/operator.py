@@ -18,6 +18,8 @@ from typing import Annotated
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from ..geometry.transforms import wrap_angle
+
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
@@ -64,10 +66,6 @@ class _Noise:
         a = math.exp(-dt / self.tau)
         self.x = a * self.x + self.sigma * math.sqrt(1 - a * a) * float(self.rng.standard_normal())
         return self.x
-
-
-def wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 @dataclass
@@ -120,7 +118,7 @@ class ScriptedOperator:
         bearing = math.atan2(tgt.y - py, tgt.x - px)
         aim_x = tgt.x - math.sin(bearing) * self.aims[self.index]
         aim_y = tgt.y + math.cos(bearing) * self.aims[self.index]
-        err = wrap(math.atan2(aim_y - py, aim_x - px) - pyaw)
+        err = wrap_angle(math.atan2(aim_y - py, aim_x - px) - pyaw)
         w = float(np.clip(c.heading_gain * err, -c.max_turn, c.max_turn))
         elapsed = t - self._phase_t0
         if self.phase == "turn":

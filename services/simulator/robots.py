@@ -32,7 +32,7 @@ import numpy as np
 
 from riskfield.protocol.platforms import LIMO as PLATFORM
 
-from ..geometry.transforms import yaw_matrix, yaw_of, yaw_quaternion
+from ..geometry.transforms import wrap_angle, yaw_matrix, yaw_of, yaw_quaternion
 
 
 @dataclass(frozen=True)
@@ -70,10 +70,6 @@ LIMO = PlanarLimits()
 LIMO_MECANUM = PlanarLimits(vy_max=PLATFORM.max_lateral)
 LIMO_WHEELBASE = PLATFORM.wheelbase
 LIMO_MAX_STEER = PLATFORM.max_steering
-
-
-def wrap_angle(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _towards(current: float, target: float, rate: float, dt: float) -> float:

@@ -21,6 +21,7 @@ from riskfield.services.geometry.transforms import (
     quat_to_matrix,
     transform_points,
     world_to_body,
+    wrap_angle,
     yaw_matrix,
     yaw_of,
     yaw_quaternion,
@@ -123,3 +124,15 @@ def test_orbit_looks_at_the_target_from_the_arc() -> None:
         assert np.hypot(T[0, 3], T[1, 3]) == pytest.approx(0.2) and T[2, 3] == pytest.approx(0.3)
         to_target = np.array([1.2, 0.0, 0.3]) - T[:3, 3]
         np.testing.assert_allclose(T[:3, 2], to_target / np.linalg.norm(to_target), atol=1e-12)
+
+
+@settings(max_examples=300)
+@given(a=st.floats(-1e4, 1e4))
+def test_wrap_angle_is_the_same_angle_in_minus_pi_to_pi(a: float) -> None:
+    w = wrap_angle(a)
+    assert -math.pi <= w < math.pi
+    assert math.cos(w) == pytest.approx(math.cos(a), abs=1e-9) and math.sin(w) == pytest.approx(math.sin(a), abs=1e-9)
+
+
+def test_wrap_angle_at_the_seam() -> None:
+    assert wrap_angle(math.pi) == -math.pi and wrap_angle(-math.pi) == -math.pi and wrap_angle(0.0) == 0.0

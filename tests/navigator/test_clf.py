@@ -8,7 +8,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from riskfield.services.navigator.clf import DoubleIntegratorCLF, UnicycleCLF, clip_norm, wrap_angle
+from riskfield.services.geometry.transforms import wrap_angle
+from riskfield.services.navigator.clf import DoubleIntegratorCLF, UnicycleCLF, clip_norm
 
 coord = st.floats(-3.0, 3.0, allow_nan=False)
 angle = st.floats(-math.pi, math.pi, allow_nan=False)
