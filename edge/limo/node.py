@@ -9,7 +9,6 @@ to ``{prefix}/{robot}/limo/diagnostics`` every ``diagnostics_period_s``.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from typing import ClassVar
 
@@ -17,6 +16,7 @@ from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
 from riskfield.protocol import RobotState, VelocityCommand
+from riskfield.services.geometry.transforms import yaw_quaternion
 from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
 
 from .bridge import BridgeConfig, LimoBridge, PlanarState
@@ -43,8 +43,7 @@ class LimoSettings(NodeSettings, BridgeConfig):
 def to_robot_state(s: PlanarState, frame_id: str) -> RobotState:
     """A planar estimate as a ``RobotState``: z = 0, yaw-only quaternion, world-frame velocity."""
     vx, vy = s.world_velocity()
-    half = 0.5 * s.yaw
-    msg = RobotState(position=(s.x, s.y, 0.0), orientation=(0.0, 0.0, math.sin(half), math.cos(half)),
+    msg = RobotState(position=(s.x, s.y, 0.0), orientation=tuple(yaw_quaternion(s.yaw).tolist()),
                      linear_velocity=(vx, vy, 0.0), angular_velocity=(0.0, 0.0, s.wz))
     msg.header.frame_id = frame_id
     return msg

@@ -5,7 +5,9 @@ rotation matrices map body (or camera) coordinates to world, ``T_AB`` is the 4×
 points in frame B to frame A, yaw is the heading about world +z. The general conversions are
 scipy's ``Rotation`` (``scipy/spatial/transform/_rotation.pyx``: ``from_quat`` normalises,
 ``from_euler`` with upper-case axes is intrinsic); the helpers below that run per control step
-or per pixel are closed forms, checked against ``Rotation`` by ``tests/geometry``.
+or per pixel are closed forms, checked against ``Rotation`` by ``tests/geometry``. scipy is
+imported by the functions that use it, not by the module: the bridges and the ROS 2 bridge use
+the closed forms without scipy installed.
 
 ``riskfield.protocol.RobotState.yaw`` keeps its own two-line closed form because the wire
 contract depends on numpy, pydantic and msgpack only.
@@ -17,7 +19,6 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 Quaternion = tuple[float, float, float, float]
 
@@ -31,11 +32,15 @@ def quat_to_matrix(q: Sequence[float] | np.ndarray) -> np.ndarray:
     q = np.asarray(q, np.float64)
     if not (np.isfinite(q).all() and q.any()):
         return np.full((3, 3), np.nan)
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_quat(q).as_matrix()
 
 
 def matrix_to_quat(R: np.ndarray) -> Quaternion:
     """Unit quaternion (x, y, z, w) with w ≥ 0 of a rotation matrix."""
+    from scipy.spatial.transform import Rotation
+
     q = Rotation.from_matrix(np.asarray(R, np.float64)).as_quat()
     if q[3] < 0:
         q = -q
@@ -44,7 +49,27 @@ def matrix_to_quat(R: np.ndarray) -> Quaternion:
 
 def euler_zyx_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """R = Rz(yaw) · Ry(pitch) · Rx(roll): intrinsic Z-Y-X (aerospace) Euler angles."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
+
+
+def quat_rotate(q: Sequence[float] | np.ndarray, v: Sequence[float] | np.ndarray) -> np.ndarray:
+    """``R(q)·v`` for a unit quaternion ``q = (x, y, z, w)``, closed form: ``v + 2u×(u×v + w v)``
+    with ``u = (x, y, z)``."""
+    u, w = np.asarray(q[:3], np.float64), float(q[3])
+    v = np.asarray(v, np.float64)
+    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+
+
+def quat_mul(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Hamilton product ``a ⊗ b`` in (x, y, z, w) order: the rotation ``b`` then ``a``."""
+    ax, ay, az, aw = (float(c) for c in a)
+    bx, by, bz, bw = (float(c) for c in b)
+    return np.array([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz])
 
 
 def wrap_angle(a: float) -> float:

@@ -25,6 +25,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from riskfield.protocol import EsdfGrid, Header, RobotState, SafetyStatus, VelocityCommand
 
+from ..geometry.transforms import quat_mul, quat_rotate
+
 TwistType = Literal["Twist", "TwistStamped"]
 Distro = Literal["humble", "jazzy"]
 
@@ -235,24 +237,6 @@ def _normalised(q: Sequence[float]) -> np.ndarray:
     return a / n
 
 
-def rotate(q: Sequence[float], v: Sequence[float]) -> np.ndarray:
-    """``R(q)·v`` for a unit quaternion ``q = (x, y, z, w)``:
-    :math:`v + 2u×(u×v + w v)` with :math:`u = (x, y, z)`."""
-    u, w = np.asarray(q[:3], float), float(q[3])
-    v = np.asarray(v, dtype=float)
-    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
-
-
-def quat_mul(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
-    """Hamilton product :math:`a ⊗ b` in (x, y, z, w) order: the rotation ``b`` then ``a``."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array([aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz])
-
-
 def odometry_to_state(o: Odometry, map_frame: str, map_T_odom: Transform | None = None) -> RobotState:
     """The ``RobotState`` in ``map_frame`` of an Odometry.
 
@@ -269,14 +253,14 @@ def odometry_to_state(o: Odometry, map_frame: str, map_T_odom: Transform | None 
             raise FrameMismatch(f"odometry frame {o.frame_id!r} is not the map frame {map_frame!r} "
                              f"and no {map_frame} → {o.frame_id} transform is known")
         qt = _normalised(map_T_odom.rotation)
-        p = rotate(qt, p) + np.asarray(map_T_odom.translation, dtype=float)
+        p = quat_rotate(qt, p) + np.asarray(map_T_odom.translation, dtype=float)
         q = _normalised(quat_mul(qt, q))
     return RobotState(
         header=Header(stamp_ns=o.stamp_ns, frame_id=map_frame),
         position=tuple(float(c) for c in p),
         orientation=tuple(float(c) for c in q),
-        linear_velocity=tuple(float(c) for c in rotate(q, o.linear)),
-        angular_velocity=tuple(float(c) for c in rotate(q, o.angular)),
+        linear_velocity=tuple(float(c) for c in quat_rotate(q, o.linear)),
+        angular_velocity=tuple(float(c) for c in quat_rotate(q, o.angular)),
     )
 
 

@@ -18,6 +18,8 @@ from riskfield.services.geometry.transforms import (
     matrix_to_quat,
     orbit,
     pose_matrix,
+    quat_mul,
+    quat_rotate,
     quat_to_matrix,
     transform_points,
     world_to_body,
@@ -136,3 +138,26 @@ def test_wrap_angle_is_the_same_angle_in_minus_pi_to_pi(a: float) -> None:
 
 def test_wrap_angle_at_the_seam() -> None:
     assert wrap_angle(math.pi) == -math.pi and wrap_angle(-math.pi) == -math.pi and wrap_angle(0.0) == 0.0
+
+
+vectors = st.lists(st.floats(-10, 10), min_size=3, max_size=3)
+
+
+@settings(max_examples=200)
+@given(q=quats, r=quats, v=vectors)
+def test_quaternion_rotate_and_product_are_scipys(q: list, r: list, v: list) -> None:
+    q, r = np.asarray(q) / np.linalg.norm(q), np.asarray(r) / np.linalg.norm(r)
+    np.testing.assert_allclose(quat_rotate(q, v), Rotation.from_quat(q).apply(v), atol=1e-9)
+    product = Rotation.from_quat(quat_mul(q, r))
+    np.testing.assert_allclose(product.as_matrix(), (Rotation.from_quat(q) * Rotation.from_quat(r)).as_matrix(),
+                               atol=1e-9)
+
+
+def test_the_transforms_load_without_scipy() -> None:
+    """The bridges use the closed forms on a robot install: scipy comes in only with ``Rotation``."""
+    import subprocess
+    import sys
+
+    code = "import sys, riskfield.services.geometry.transforms; print('scipy' in sys.modules)"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "False", r.stderr
