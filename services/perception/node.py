@@ -20,7 +20,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
 
-from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, ade20k
+from riskfield.protocol import DepthImage, Image, Keys, PerceptionFrame, RobotState, ade20k
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec, ServiceUnavailable
@@ -29,7 +29,7 @@ from .backend import Labeller, MissingBackend, PerceptionBackend
 from .degrade import DegradationConfig
 from .sim_backend import SimBackend, SimBackendConfig
 
-TRUTH_KEY = "sim/truth"
+TRUTH_KEY = Keys().relative(Keys().sim_truth)  # the wire contract's key, relative to {prefix}/{robot}
 GEOMETRIES = ("sim", "mast3r", "rgbd")
 LABELS = ("sim", "efficientvit")
 

@@ -38,9 +38,6 @@ from .robots import ROBOT_TYPES
 from .scenario import ObjectSpec, load_scenario
 from .world import World
 
-TRUTH_KEY = "sim/truth"
-SPAWN_KEY = "sim/spawn"
-
 
 class SimulatorSettings(NodeSettings):
     SERVICE: ClassVar[str] = "simulator"
@@ -131,7 +128,7 @@ class Simulator:
                 header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), depth=frame.depth, fx=cam.fx, fy=cam.fy,
                 cx=cam.cx, cy=cam.cy))
         if self.s.publish_truth:
-            self.node.publish(self.node.keys.key(TRUTH_KEY), PerceptionFrame(
+            self.node.publish(self.node.keys.sim_truth, PerceptionFrame(
                 header=Header(stamp_ns=stamp, frame_id=self.s.map_frame), T_WC=frame.T_WC, points=frame.points,
                 confidence=frame.valid.astype(np.float32), labels=frame.labels, keyframe_id=self.frames))
         self.frames += 1
@@ -142,7 +139,7 @@ class Simulator:
 def setup(node: Node, s: SimulatorSettings) -> Simulator:
     sim = Simulator(node, s)
     node.subscribe(node.keys.cmd_safe, VelocityCommand, sim.on_command, queue="latest")
-    node.subscribe(node.keys.key(SPAWN_KEY), None, sim.on_spawn, queue="fifo", maxlen=64)
+    node.subscribe(node.keys.sim_spawn, None, sim.on_spawn, queue="fifo", maxlen=64)
     node.every(1.0 / s.physics_hz, sim.tick)
     node.every(1.0 / s.state_hz, sim.publish_state)
     if s.camera_hz > 0:
