@@ -82,6 +82,7 @@ def main(
     know_other_services(every_service_settings)
 
 
+#: The one ``--connect`` of every command (the argparse tools: ``runtime.session.add_connect_argument``).
 Connect = Annotated[list[str] | None, typer.Option("--connect", "-e", help="Zenoh endpoint to dial (repeatable).")]
 Listen = Annotated[list[str] | None, typer.Option("--listen", "-l", help="Zenoh endpoint to listen on (repeatable).")]
 

@@ -146,9 +146,10 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     from riskfield.services.runtime import build_settings, parse_overrides
+    from riskfield.services.runtime.session import add_connect_argument
 
     ap = argparse.ArgumentParser(description="Keyboard teleop: publishes cmd/ref.")
-    ap.add_argument("-e", "--connect", action="append")
+    add_connect_argument(ap)
     ap.add_argument("--robot")
     ap.add_argument("--duration", type=float)
     ap.add_argument("set", nargs="*", help="settings as key=value")

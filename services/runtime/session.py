@@ -6,6 +6,7 @@ helpers (``riskfield/testing.py``), the fault-drill agents and the codec bench a
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import re
@@ -44,6 +45,17 @@ def check_endpoint(endpoint: str) -> str:
             raise ValueError(f"endpoint {endpoint!r}: a {m['proto']} address is host:port with a port up to "
                              f"65535, {example}")
     return endpoint
+
+
+#: ``--connect``'s help, the same for ``riskfield run`` (``riskfield.cli.Connect``) and the argparse tools.
+CONNECT_HELP = "Zenoh endpoint to dial (repeatable, or comma-separated)."
+
+
+def add_connect_argument(parser: argparse.ArgumentParser) -> None:
+    """The one ``-e/--connect ENDPOINT`` of the tools built on argparse (the keyboard, the fault
+    drill's agents), as zenoh-python's examples share ``add_config_arguments``. Not in the example
+    planner: an external client, it depends on the wire contract only."""
+    parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT", help=CONNECT_HELP)
 
 
 def zenoh_message(exc: BaseException | str) -> str:
