@@ -16,13 +16,12 @@ import itertools
 import signal
 import subprocess
 import threading
-import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import zenoh
 
-from riskfield.protocol import ENCODING, Message, NodeStatus, decode, encode
+from riskfield.protocol import Message, NodeStatus, decode, encode
+from riskfield.services.runtime.client import Collector, put
 from riskfield.services.runtime.processes import (  # noqa: F401  (re-exported test API)
     Child,
     EmbeddedRouter,
@@ -42,48 +41,6 @@ def client_config(endpoint: str, mode: str = "client") -> zenoh.Config:
 class ZenohRouter(EmbeddedRouter):
     """A Python Zenoh router session on a free loopback port (what `riskfield run router` runs);
     the runtime's ``EmbeddedRouter`` under its test name."""
-
-
-def put(session: zenoh.Session, key: str, msg: Message | bytes) -> None:
-    payload = msg if isinstance(msg, (bytes, bytearray)) else encode(msg)
-    # BLOCK: a test's burst must arrive whole (the default, DROP, sheds load under CPU pressure).
-    session.put(key, bytes(payload), encoding=zenoh.Encoding(ENCODING),
-                congestion_control=zenoh.CongestionControl.BLOCK)
-
-
-class Collector:
-    """Subscribes to a key and keeps every decoded message (or raw payload) it sees."""
-
-    def __init__(self, session: zenoh.Session, key: str, msg_type: type[Message] | None = None):
-        self.items: list[Any] = []
-        self.keys: list[str] = []
-        self.times: list[float] = []  # time.monotonic() at arrival
-        self._lock = threading.Lock()
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            raw = sample.payload.to_bytes()
-            item = decode(raw, msg_type) if msg_type is not None else raw
-            with self._lock:
-                self.items.append(item)
-                self.keys.append(str(sample.key_expr))
-                self.times.append(time.monotonic())
-
-        self._sub = session.declare_subscriber(key, on_sample)
-
-    def wait(self, n: int = 1, timeout_s: float = 10.0) -> list[Any]:
-        if not wait_until(lambda: len(self.items) >= n, timeout_s):
-            raise TimeoutError(f"got {len(self.items)} of {n} messages in {timeout_s} s")
-        with self._lock:
-            return list(self.items)
-
-    def clear(self) -> None:
-        with self._lock:
-            self.items.clear()
-            self.keys.clear()
-            self.times.clear()
-
-    def close(self) -> None:
-        self._sub.undeclare()
 
 
 def open_when_ready(open_fn: Callable[[], zenoh.Session], timeout_s: float = 20.0,

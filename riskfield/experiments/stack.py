@@ -14,15 +14,12 @@ simulator's images.
 from __future__ import annotations
 
 import contextlib
-import threading
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import zenoh
-
-from riskfield.protocol import ENCODING, Keys, Message, decode, encode
+from riskfield.protocol import Keys, Message
+from riskfield.services.runtime.client import Collector, put
 from riskfield.services.runtime.processes import Child, EmbeddedRouter, ProcessRunner, client_session
 
 #: The safety filter as the benchmarks run it (50 Hz control).
@@ -80,44 +77,27 @@ class Stack:
         return self.runner.keys
 
 
-def publish(session: Any, key: str, msg: Message | bytes) -> None:
-    """Put a message (or an encoded payload) that must arrive whole: congestion control BLOCK
-    (the default, DROP, sheds load under CPU pressure, and a lost goal stalls an experiment)."""
-    payload = msg if isinstance(msg, (bytes, bytearray)) else encode(msg)
-    session.put(key, bytes(payload), encoding=zenoh.Encoding(ENCODING),
-                congestion_control=zenoh.CongestionControl.BLOCK)
+#: Put a message that must arrive whole (a lost goal stalls an experiment): the runtime's ``put``.
+publish = put
 
 
 class Recorder:
-    """Every message on some keys, decoded, with its arrival time (``time.monotonic``)."""
+    """Every message on some keys, decoded, with its arrival time (``time.monotonic``): one
+    ``Collector`` per name."""
 
     def __init__(self, session: Any, keys: dict[str, tuple[str, type[Message]]]):
-        self.items: dict[str, list[tuple[float, Any]]] = {name: [] for name in keys}
-        self._lock = threading.Lock()
-        self._subs = []
-        for name, (key, msg_type) in keys.items():
-            def on_sample(sample: Any, name: str = name, msg_type: type[Message] = msg_type) -> None:
-                try:
-                    msg = decode(sample.payload.to_bytes(), msg_type)
-                except Exception:
-                    return
-                with self._lock:
-                    self.items[name].append((time.monotonic(), msg))
-
-            self._subs.append(session.declare_subscriber(key, on_sample))
+        self._collectors = {name: Collector(session, key, msg_type) for name, (key, msg_type) in keys.items()}
 
     def snapshot(self, name: str) -> list[tuple[float, Any]]:
-        with self._lock:
-            return list(self.items[name])
+        return self._collectors[name].snapshot()
 
     def clear(self) -> None:
-        with self._lock:
-            for v in self.items.values():
-                v.clear()
+        for c in self._collectors.values():
+            c.clear()
 
     def close(self) -> None:
-        for s in self._subs:
-            s.undeclare()
+        for c in self._collectors.values():
+            c.close()
 
 
 @contextlib.contextmanager

@@ -1,10 +1,10 @@
-"""The demo report's camera → cmd/safe latency and ESDF content age, from stamps and receive times."""
+"""The camera → cmd/safe latency and ESDF content age, from stamps and receive times."""
 
 from __future__ import annotations
 
 import pytest
 
-from riskfield.experiments.demo.report import (
+from riskfield.experiments.latency import (
     arrival_age_ms,
     camera_to_command_ms,
     content_age_ms,
@@ -100,3 +100,12 @@ def test_the_bench_runs_the_demos_camera_services_and_previous_adds_only_its_set
         assert args_p == args + PREVIOUS.get(label, [])
     args_of = {label: args for label, _, args in previous}
     assert "esdf_rate_hz=10" in args_of["mapping"] and "step_on_map=false" in args_of["safety-filter"]
+
+
+def test_timing_stats_one_naming_and_none_for_nothing() -> None:
+    from riskfield.experiments.timing import timing_stats
+
+    st = timing_stats([1.0, 2.0, 3.0, 4.0])
+    assert st is not None and set(st) == {"n", "median", "p90", "p95", "p99", "mean", "max"}
+    assert (st["n"], st["median"], st["mean"], st["max"]) == (4, 2.5, 2.5, 4.0)
+    assert timing_stats([]) is None

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from riskfield.experiments.demo.report import command_latency_ms
+from riskfield.experiments.latency import command_latency_ms
 from riskfield.experiments.scenarios import LOOP, collisions, episodes, navigation_waypoints
 from riskfield.experiments.teleop import first_intervention
 

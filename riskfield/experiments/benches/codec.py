@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from riskfield.experiments.timing import timing_stats
 from riskfield.protocol import EsdfGrid, PerceptionFrame, VelocityCommand, decode, encode
 
 app = typer.Typer(add_completion=False)
@@ -101,9 +102,8 @@ def codec(
     table = Table("operation", "median ms", "p99 ms", title="riskfield bench codec")
     summary = {}
     for name, t in rows:
-        med, p99 = float(np.median(t)), float(np.percentile(t, 99))
-        table.add_row(name, f"{med:.3f}", f"{p99:.3f}")
-        summary[name] = {"median_ms": med, "p99_ms": p99, "n": len(t)}
+        summary[name] = st = timing_stats(t)
+        table.add_row(name, f"{st['median']:.3f}", f"{st['p99']:.3f}")
     Console().print(table)
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -34,6 +34,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from riskfield.experiments.timing import timing_stats
 from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.compiled import HAVE_NUMBA
@@ -135,11 +136,6 @@ def paced_steps_us(filt: SafetyFilter, grid, cases: list, period_s: float) -> di
             "wake_back_to_back_p50": float(np.median(back))}
 
 
-def _stats(x: list[float]) -> dict[str, float]:
-    a = np.asarray(x)
-    return {"median": float(np.median(a)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
-
-
 def speed_ratios(results: dict[str, dict]) -> dict[str, dict[str, float]]:
     """Per model: step p50/p99 (µs) of the compiled step, the numpy step (both today's defaults,
     exact QP) and the paper's filter, and the speed-ups (×: the other's time over the compiled one's)."""
@@ -213,8 +209,8 @@ def main(
             qp_us = np.min([p[1] for p in passes], axis=0).tolist()
             results[f"{name}/{which}/{solver}/{backend}"] = {
                 "model": name, "variant": which, "solver": solver, "backend": backend, "steps": len(cases),
-                "points": filt.model.m, "rows_mean": float(np.mean(rows)), "step_us": _stats(step_us),
-                "qp_us": _stats(qp_us), "field_query_us": _stats(query_us),
+                "points": filt.model.m, "rows_mean": float(np.mean(rows)), "step_us": timing_stats(step_us),
+                "qp_us": timing_stats(qp_us), "field_query_us": timing_stats(query_us),
                 "intervening_fraction": hits / len(cases), "fallback_fraction": fallbacks / len(cases),
                 "slack_fraction": slack / len(cases),
             }

@@ -22,7 +22,7 @@ frame shows something new. A camera frame's stamp is carried unchanged by the im
 ``perception/frame`` and the ESDF built from it (its ``header.stamp_ns`` is the newest integrated
 frame's). The bench notes when each of them and each ``cmd/safe`` arrives here (wall clock, the
 clock that stamped them) and reports, with the demo report's own functions
-(``demo.report.latency_summary``): camera → first ``cmd/safe`` after the ESDF built from that
+(``experiments.latency.latency_summary``): camera → first ``cmd/safe`` after the ESDF built from that
 frame arrived, the ESDF content age at each ``cmd/safe`` (now − stamp) and its arrival age
 (now − arrival), p50/p99, the time from the stamp to each stage and the frames a stage never
 passed on, and the nodes' own timings from their status. Target: content age p99 ≤ camera period
@@ -53,6 +53,7 @@ from riskfield.edge.joystick.source import pack_event
 from riskfield.edge.limo.emulator import ChassisEmulator
 from riskfield.edge.limo.protocol import MotionCommand
 from riskfield.experiments.stack import publish
+from riskfield.experiments.timing import timing_stats
 from riskfield.protocol import EsdfGrid, Keys, NodeStatus, SafetyStatus, VelocityCommand, decode, encode
 from riskfield.services.runtime.processes import EmbeddedRouter, ProcessRunner, client_session, wait_until
 
@@ -104,14 +105,6 @@ class Timeline:
                 if v == mm and after <= t <= after + within:
                     return t
         return None
-
-
-def percentiles(x: list[float]) -> dict[str, float]:
-    if not x:
-        return {"n": 0}
-    a = np.asarray(x)
-    return {"n": len(x), "p50_ms": float(np.percentile(a, 50)), "p90_ms": float(np.percentile(a, 90)),
-            "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max()), "mean_ms": float(a.mean())}
 
 
 @app.command()
@@ -256,16 +249,16 @@ def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, fil
             hop_ref.append((t_ref - t_send) * 1e3)
             hop_filter.append((t_safe - t_ref) * 1e3)
             hop_limo.append((t_serial - t_safe) * 1e3)
-    stats = {"total": percentiles(total), "event_to_cmd_ref": percentiles(hop_ref),
-             "cmd_ref_to_cmd_safe": percentiles(hop_filter), "cmd_safe_to_serial": percentiles(hop_limo)}
+    stats = {"total": timing_stats(total), "event_to_cmd_ref": timing_stats(hop_ref),
+             "cmd_ref_to_cmd_safe": timing_stats(hop_filter), "cmd_safe_to_serial": timing_stats(hop_limo)}
     table = Table("path", "n", "p50 ms", "p90 ms", "p99 ms", "max ms", title=f"teleop latency ({filter_service})")
     for name, st in stats.items():
-        if st["n"]:
-            table.add_row(name, str(st["n"]), *(f"{st[k]:.2f}" for k in ("p50_ms", "p90_ms", "p99_ms", "max_ms")))
+        if st:
+            table.add_row(name, str(st["n"]), *(f"{st[k]:.2f}" for k in ("median", "p90", "p99", "max")))
         else:
             table.add_row(name, "0", "-", "-", "-", "-")
     console.print(table)
-    p99 = stats["total"].get("p99_ms")
+    p99 = (stats["total"] or {}).get("p99")
     ok = p99 is not None and p99 <= TARGET_P99_MS and lost == 0
     console.print(f"lost events: {lost} of {samples};  target p99 ≤ {TARGET_P99_MS} ms: "
                   + ("[green]met[/green]" if ok else "[red]not met[/red]"))
@@ -310,8 +303,8 @@ def camera_path(console: Console, seconds: float, warmup_s: float, extra: dict[s
     past the first usable ESDF)."""
     import yaml
 
-    from riskfield.experiments.demo.report import STAGES, latency_summary, latency_table
     from riskfield.experiments.demo.run import DemoConfig, camera_pipeline
+    from riskfield.experiments.latency import STAGES, latency_summary, latency_table
     from riskfield.experiments.scenarios import scenario
     from riskfield.experiments.stack import Stack
     from riskfield.services.recorder.mcap_io import peek_schema

@@ -48,6 +48,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from riskfield.experiments.timing import timing_stats
 from riskfield.protocol import RiskConfig, ade20k, decode
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, Sphere, render
@@ -77,10 +78,7 @@ def bench_scene() -> list:
 
 def _stats(samples: tuple[list[float], list[float]]) -> dict[str, float]:
     """Wall-clock and CPU (this process, all threads) milliseconds of repeated runs."""
-    wall, cpu = np.asarray(samples[0]), np.asarray(samples[1])
-    return {"median_ms": float(np.median(wall)), "p99_ms": float(np.percentile(wall, 99)),
-            "mean_ms": float(wall.mean()), "max_ms": float(wall.max()), "cpu_median_ms": float(np.median(cpu)),
-            "n": len(wall)}
+    return {**(timing_stats(samples[0]) or {}), "cpu_median": float(np.median(samples[1]))}
 
 
 def _time(fn: Callable[[], object], repeat: int) -> tuple[list[float], list[float]]:
@@ -197,7 +195,7 @@ def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamer
                    mapping_set: tuple[str, ...] = ()) -> dict[str, float]:
     """The mapping node in its own process, fed pointmaps at ``rate_hz``: ESDF rate and latency;
     ``with_filter``: also the safety filter, and camera → ``cmd/safe`` latency and ESDF content age."""
-    from riskfield.experiments.demo.report import camera_to_command_ms, content_age_ms
+    from riskfield.experiments.latency import camera_to_command_ms, content_age_ms
     from riskfield.experiments.stack import FAST_FILTER, Stack, publish
     from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RobotState, VelocityCommand, encode
 
@@ -395,7 +393,7 @@ def main(
     for dim, esdf_key in (("2d", "esdf2d_exact"), ("3d", "esdf3d_exact")):
         parts = ("integrate_frame", "occupancy", esdf_key)
         results[f"update_{dim}_total"] = {k: sum(results[p][k] for p in parts)
-                                          for k in ("median_ms", "cpu_median_ms")}
+                                          for k in ("median", "cpu_median")}
     table = Table(title=f"mapping: {width}x{height} pointmaps into {mapper.shape} voxels of "
                         f"{mapper.config.voxel_size} m, pixel stride {pixel_stride}, {threads} EDT threads")
     table.add_column("step")
@@ -403,8 +401,8 @@ def main(
     table.add_column("p99 ms", justify="right")
     table.add_column("CPU median ms", justify="right")
     for name, r in results.items():
-        table.add_row(name, f"{r['median_ms']:.2f}", f"{r['p99_ms']:.2f}" if "p99_ms" in r else "",
-                      f"{r['cpu_median_ms']:.2f}")
+        table.add_row(name, f"{r['median']:.2f}", f"{r['p99']:.2f}" if "p99" in r else "",
+                      f"{r['cpu_median']:.2f}")
     console.print(table)
     ctable = Table(title="issue 16: previous implementation vs now (same run, same frames; medians)")
     for col in ("step", "previous ms", "now ms", "previous / now"):
@@ -440,9 +438,9 @@ def main(
                   f"max {margin_error.max():.3f} m, mean {margin_error.mean():.4f} m")
     budget = 50.0
     for k in ("update_2d_total", "update_3d_total"):
-        ms = results[k]["median_ms"]
+        ms = results[k]["median"]
         verdict = "within" if ms <= budget else "over"
-        console.print(f"{k}: {ms:.1f} ms median wall ({results[k]['cpu_median_ms']:.1f} ms CPU), {verdict} the "
+        console.print(f"{k}: {ms:.1f} ms median wall ({results[k]['cpu_median']:.1f} ms CPU), {verdict} the "
                       f"20 Hz budget ({budget:.0f} ms); load average {load0[0]:.2f} → {os.getloadavg()[0]:.2f} "
                       f"on {os.cpu_count()} CPUs")
 

@@ -14,6 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from riskfield.experiments.timing import timing_stats
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, encode
 from riskfield.protocol.messages import Header
 from riskfield.services.perception.fusion import fuse_pointmap, vote_fuse
@@ -22,12 +23,6 @@ from riskfield.services.perception.sim_backend import SimBackend, SimBackendConf
 from riskfield.services.simulator.world import World
 
 app = typer.Typer(add_completion=False)
-
-
-def _stats(ts: list[float]) -> dict[str, float]:
-    a = np.asarray(ts)
-    return {"median_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max()),
-            "n": len(ts)}
 
 
 @app.command()
@@ -59,7 +54,7 @@ def perception(out: Annotated[Path, typer.Option(help="Folder for summary.json."
             t0 = time.perf_counter()
             b.process(None, t, i)
             ts.append((time.perf_counter() - t0) * 1e3)
-        results[f"sim backend per frame ({mode})"] = _stats(ts)
+        results[f"sim backend per frame ({mode})"] = timing_stats(ts)
         extra[f"keyframes_{mode}"] = b.n_keyframes
     rb = RgbdBackend()
     ts, ts_enc = [], []
@@ -71,9 +66,9 @@ def perception(out: Annotated[Path, typer.Option(help="Folder for summary.json."
         encode(frame)
         ts.append((t1 - t0) * 1e3)
         ts_enc.append((time.perf_counter() - t0) * 1e3)
-    results["rgbd backend per frame"] = _stats(ts)
-    results["rgbd backend + encoding per frame"] = _stats(ts_enc)
-    extra["rgbd_rate_hz"] = 1e3 / results["rgbd backend + encoding per frame"]["median_ms"]
+    results["rgbd backend per frame"] = timing_stats(ts)
+    results["rgbd backend + encoding per frame"] = timing_stats(ts_enc)
+    extra["rgbd_rate_hz"] = 1e3 / results["rgbd backend + encoding per frame"]["median"]
     rng = np.random.default_rng(0)
     N = 512 * 384
     X, C = rng.normal(size=(N, 3)).astype(np.float32), np.ones(N, np.float32)
@@ -86,10 +81,10 @@ def perception(out: Annotated[Path, typer.Option(help="Folder for summary.json."
             t0 = time.perf_counter()
             fn()
             ts.append((time.perf_counter() - t0) * 1e3)
-        results[name] = _stats(ts)
+        results[name] = timing_stats(ts)
     table = Table("operation", "median ms", "p99 ms", "max ms", "n", title="riskfield bench perception")
     for k, v in results.items():
-        table.add_row(k, f"{v['median_ms']:.2f}", f"{v['p99_ms']:.2f}", f"{v['max_ms']:.2f}", str(int(v["n"])))
+        table.add_row(k, f"{v['median']:.2f}", f"{v['p99']:.2f}", f"{v['max']:.2f}", str(int(v["n"])))
     Console().print(table)
     Console().print(f"rgbd backend rate: {extra['rgbd_rate_hz']:.0f} frames/s (median, one core, with encoding)")
     out.mkdir(parents=True, exist_ok=True)

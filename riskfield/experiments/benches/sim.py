@@ -18,6 +18,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from riskfield.experiments.timing import timing_stats
 from riskfield.protocol import Image, PerceptionFrame, encode
 from riskfield.services.simulator.scenario import load_scenario
 from riskfield.services.simulator.scene import Scene
@@ -33,8 +34,7 @@ def _time(fn: Callable[[], object], n: int) -> dict[str, float]:
         t0 = time.perf_counter()
         fn()
         ts.append((time.perf_counter() - t0) * 1e3)
-    a = np.asarray(ts)
-    return {"median_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max()), "n": n}
+    return timing_stats(ts)
 
 
 @app.command()
@@ -73,7 +73,7 @@ def sim(out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Pa
     summary = {"bench": "sim", "scenario": "navigation", "moving_objects": len(moving), "results": results}
     table = Table("operation", "median ms", "p99 ms", "max ms", "n", title="riskfield bench sim")
     for k, v in results.items():
-        table.add_row(k, f"{v['median_ms']:.2f}", f"{v['p99_ms']:.2f}", f"{v['max_ms']:.2f}", str(int(v["n"])))
+        table.add_row(k, f"{v['median']:.2f}", f"{v['p99']:.2f}", f"{v['max']:.2f}", str(int(v["n"])))
     Console().print(table)
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
