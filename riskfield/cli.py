@@ -166,7 +166,7 @@ def _print_settings(service: str) -> None:
     print(f"\n{service} settings (--set key=value, the {service} section of a config file, or RISKFIELD_<KEY>):")
     common = NodeSettings.model_fields
     for name, field in spec.settings.model_fields.items():
-        if name in common:
+        if name in common or name in spec.settings.REFERENCE_ONLY:
             continue
         if field.default_factory is not None:
             default = repr(field.default_factory())

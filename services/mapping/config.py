@@ -174,6 +174,18 @@ class EsdfParams(BaseModel):
         return self
 
 
+#: ``EsdfParams`` fields that choose a reference implementation, kept so the tests and the bench can
+#: compare against it: core parameters (``MapperConfig(esdf_kernel="numpy")``), not node settings
+#: (``MappingSettings.REFERENCE_ONLY``: setting one is an error saying this). ``esdf_incremental``
+#: stays a setting: ``wave`` is a real, faster option, not an oracle.
+REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
+    "esdf_update": "the full recomputation is the incremental update's test reference "
+                   "(MapperConfig(esdf_update='full'))",
+    "esdf_kernel": "the numpy path is the compiled kernels' cross-check (MapperConfig(esdf_kernel='numpy'))",
+    "esdf_edt": "the edt package is the compiled transform's test oracle and the bench's before "
+                "(MapperConfig(esdf_edt='edt'))",
+}
+
 P = TypeVar("P", bound=BaseModel)
 
 

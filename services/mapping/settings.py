@@ -13,11 +13,12 @@ from typing import Annotated, ClassVar
 from pydantic import Field
 
 from ..runtime.settings import NodeSettings
-from .config import MapperConfig
+from .config import REFERENCE_IMPLEMENTATIONS, MapperConfig
 
 
 class MappingSettings(NodeSettings, MapperConfig):
     SERVICE: ClassVar[str] = "mapping"
+    REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
 
     esdf_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
     """The ESDF is rebuilt and published at most this often on average (a token bucket, so a frame

@@ -68,7 +68,7 @@ RENAMED: dict[str, str] = {"risk_config": "risk_file", "risk_config_file": "risk
 class UnknownSetting(ValueError):
     """A key no setting answers to: names the key, where it came from and the nearest valid one."""
 
-    def __init__(self, key: str, service: str, where: str, candidates: Iterable[str]):
+    def __init__(self, key: str, service: str, where: str, candidates: Iterable[str], removed: str | None = None):
         self.key, self.service, self.where = key, service, where
         candidates = sorted(set(candidates))
         head, _, leaf = key.rpartition(".")
@@ -81,6 +81,10 @@ class UnknownSetting(ValueError):
         self.suggestion = close[0] if close else None
         hint = f"; did you mean {self.suggestion!r}?" if self.suggestion else ""
         origin = f" ({where})" if where else ""
+        if removed is not None:  # a core parameter that is not a setting: say what to use instead
+            self.suggestion = None
+            super().__init__(f"{key!r}{origin} is not a setting of {service or 'this node'}: {removed}")
+            return
         super().__init__(f"unknown setting {key!r}{origin} for {service or 'this node'}{hint}")
 
 
@@ -117,10 +121,19 @@ def _aliases(name: str, field: FieldInfo) -> list[str]:
     return []
 
 
+def reference_only(model: type[BaseModel]) -> Mapping[str, str]:
+    """Fields of a node's core configuration that are not settings (``NodeSettings.REFERENCE_ONLY``:
+    reference implementations kept for tests and benches) → what to use instead."""
+    return getattr(model, "REFERENCE_ONLY", {})
+
+
 def setting_names(model: type[BaseModel]) -> dict[str, FieldInfo]:
     """Every key a model accepts (field names and string aliases) → its field."""
     out: dict[str, FieldInfo] = {}
+    skip = reference_only(model)
     for name, field in model.model_fields.items():
+        if name in skip:
+            continue
         out[name] = field
         for a in _aliases(name, field):
             out[a] = field
@@ -136,7 +149,9 @@ def _env_vars(name: str, field: FieldInfo) -> list[str]:
 
 def env_names(model: type[BaseModel]) -> dict[str, FieldInfo]:
     """``RISKFIELD_*`` variable (upper case, before any ``__``) → the field it sets."""
-    return {var: field for name, field in model.model_fields.items() for var in _env_vars(name, field)}
+    skip = reference_only(model)
+    return {var: field for name, field in model.model_fields.items() if name not in skip
+            for var in _env_vars(name, field)}
 
 
 def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, where: str, path: str = "") -> None:
@@ -146,7 +161,8 @@ def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, wh
     for key, value in data.items():
         field = names.get(key)
         if field is None:
-            raise UnknownSetting(path + key, service, where, [path + n for n in names])
+            raise UnknownSetting(path + key, service, where, [path + n for n in names],
+                                 reference_only(model).get(key))
         sub = _model_of(field)
         if sub is not None and isinstance(value, Mapping):
             check_keys(sub, value, service, where, f"{path}{key}.")
@@ -223,6 +239,9 @@ def check_environment(model: type[NodeSettings], environ: Mapping[str, str] | No
             continue
         if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _known().env:
             continue
+        removed = reference_only(model).get(head[len(ENV_PREFIX):].lower())
+        if removed is not None:
+            raise UnknownSetting(upper, service, "environment variable", own, removed)
         _unknown(UnknownSetting(upper, service, "environment variable", [*own, *_known().env]))
 
 
@@ -255,7 +274,8 @@ class _FileSource(PydanticBaseSettingsSource):
             known = _known()
             if key in known.sections or key in known.keys:
                 continue  # another service's section or setting: theirs to check
-            _unknown(UnknownSetting(key, service, f"top level of {path}", [*fields, *known.sections]))
+            _unknown(UnknownSetting(key, service, f"top level of {path}", [*fields, *known.sections],
+                                    reference_only(cls).get(key)))
         for name in own_sections:
             section = data.get(name)
             if section is None:
@@ -298,6 +318,9 @@ class NodeSettings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid")
     SERVICE: ClassVar[str] = ""
+    #: Fields of the core configuration a node's settings are composed of that are no settings:
+    #: reference implementations kept for tests and benches → what to use instead (the error says it).
+    REFERENCE_ONLY: ClassVar[dict[str, str]] = {}
     mode: Literal["peer", "client", "router"] = "client"
     connect: Annotated[list[str], NoDecode] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
     listen: Annotated[list[str], NoDecode] = Field(default_factory=list)

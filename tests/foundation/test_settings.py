@@ -217,3 +217,22 @@ def test_a_shared_file_is_accepted_by_a_node_started_from_the_cli(env, tmp_path)
                         "--connect", "tcp/127.0.0.1:9", "--set", "connect_timeout_s=0.1"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 3 and "no Zenoh router" in r.stderr, r.stderr  # past the settings, at the session
+
+
+def test_a_reference_implementation_is_no_setting_and_the_error_says_what_to_use(env, tmp_path):
+    """Oracles stay core parameters (tests and benches reach them), not node settings."""
+    from riskfield.services.mapping.config import MapperConfig
+    from riskfield.services.mapping.settings import MappingSettings
+
+    assert MapperConfig(esdf_kernel="numpy").esdf_kernel == "numpy"
+    with pytest.raises(UnknownSetting, match=r"'esdf_kernel' is not a setting of mapping: the numpy path"):
+        MappingSettings(esdf_kernel="numpy")
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("mapping:\n  esdf_edt: edt\n")
+    with pytest.raises(UnknownSetting, match=r"'esdf_edt' \(section 'mapping' .*\) is not a setting.*edt package"):
+        MappingSettings(config=cfg)
+    env.setenv("RISKFIELD_ESDF_UPDATE", "full")
+    with pytest.raises(UnknownSetting, match=r"RISKFIELD_ESDF_UPDATE.*not a setting.*full recomputation"):
+        MappingSettings()
+    env.delenv("RISKFIELD_ESDF_UPDATE")
+    assert MappingSettings(esdf_incremental="wave").mapper_config().esdf_kernel == "numba"  # a real option stays
