@@ -7,9 +7,12 @@ unknown ones, strict settings):
 
 * memory: each service's RSS (``/proc/<pid>/status`` VmRSS, sampled every 5 s; a level is a
   floor, see ``rss_level``) grows < 5 % from the minute after the 60 s warm-up to the second half
-  of the run (``end_window``), the router included. Perception is excluded from that bound: it is
-  killed every 60 s, so no incarnation lives past the 60 s warm-up the bound starts from; its RSS
-  is reported per incarnation (just before each kill) instead;
+  of the run (``end_window``). The router's bound is on what it retains with no perception frame in
+  flight (``quiet_growth``: sampled after each kill, once its heap trim ran and before the restarted
+  perception is up), since what it forwards is in flight in it and a loaded machine holds more in
+  flight. Perception is excluded from the bounds: it is killed every 60 s, so no incarnation lives
+  past the 60 s warm-up the bound starts from; its RSS is reported per incarnation (just before
+  each kill) instead;
 * a brake (``SafetyStatus.fallback`` set, ``cmd/safe`` zero) within 0.5 s of every kill;
 * motion resumed (no fallback, ``cmd/safe`` moving) after every restart;
 * the runner restarted perception once per kill and nothing else.
@@ -34,7 +37,14 @@ from riskfield.experiments.navigation import as_waypoints
 from riskfield.experiments.scenarios import LOOP, scenario
 from riskfield.experiments.stack import publish
 from riskfield.protocol import Keys, NavGoal, SafetyStatus, VelocityCommand, decode
-from riskfield.services.runtime.processes import ProcessRunner, RestartPolicy, client_session, free_port, wait_until
+from riskfield.services.runtime.processes import (
+    ProcessRunner,
+    RestartPolicy,
+    alive_services,
+    client_session,
+    free_port,
+    wait_until,
+)
 
 SOAK_S = float(os.environ.get("SOAK_SECONDS", "600"))
 KILL_EVERY_S = 60.0
@@ -44,6 +54,10 @@ LEVEL_WINDOW_S = 60.0  # the warm level is the floor of the samples over this lo
 BRAKE_WITHIN_S = 0.5
 RSS_GROWTH = 0.05
 MOVING = 0.02  # m/s: cmd/safe faster than this is motion
+#: After a kill, the router's RSS is sampled over this window (s): its 1 s heap trim (``heap_trim_s``)
+#: has run once without the dead perception's frames, and the restarted one (interpreter, open3d,
+#: backend) is not up yet (checked by its liveliness token; a sample with it up is dropped).
+QUIET_AFTER_KILL_S = (1.2, 2.0)
 SERVICES = ("simulator", "perception", "mapping", "safety-filter", "navigator")
 
 
@@ -68,6 +82,22 @@ def rss_level(series: list[dict], label: str, t_from: float, t_to: float, q: flo
     bound compares; the median (``q = 0.5``) and the ceiling are reported beside it."""
     values = sorted(s[label] for s in series if label in s and t_from <= s["t_s"] < t_to)
     return values[min(int(q * len(values)), len(values) - 1)] if values else None
+
+
+def quiet_growth(kills: list[dict], soak_s: float) -> float | None:
+    """Growth of what the router retains with no perception frame in flight: the floor of its quiet
+    samples after the kills of the second half (``end_window``) over the first kill's (at the end of
+    the warm-up). A load that holds frames in flight longer does not raise a quiet sample; a leak,
+    or a session's memory that outlives it, raises every later one (1.5 MB per restart: +6 MB by the
+    second half). None without the samples."""
+    quiet = [(k["at_s"], k["router_quiet_kb"]) for k in kills if k.get("router_quiet_kb")]
+    if not quiet:
+        return None
+    start = end_window(soak_s)[0]
+    late = [kb for at, kb in quiet if at >= start]
+    if not late or quiet[0][0] >= start:
+        return None
+    return (min(late) - quiet[0][1]) / quiet[0][1]
 
 
 def end_window(soak_s: float) -> tuple[float, float]:
@@ -191,6 +221,12 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
                                        "lived_s": round(time.monotonic() - child.started_at, 1)})
                 t_kill = time.monotonic()
                 os.kill(victim, signal.SIGKILL)
+                quiet: list[int] = []  # the brake's timing is taken from the Timeline meanwhile
+                while (now := time.monotonic()) < t_kill + QUIET_AFTER_KILL_S[1]:
+                    if now >= t_kill + QUIET_AFTER_KILL_S[0]:
+                        quiet.append(rss_kb(pids["router"]))
+                    time.sleep(0.1)
+                restarted_up = bool(alive_services(session, keys.alive("perception")))
                 assert wait_until(lambda t=t_kill: line.first_brake_after(t) is not None, 10.0), log()
                 t_brake = line.first_brake_after(t_kill)
                 assert wait_until(lambda c=child, n=n: c.restarts == n + 1 and c.alive(), 60.0), log()
@@ -198,7 +234,8 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
                 assert wait_until(lambda t=t_restart: line.first_motion_after(t) is not None, 120.0), log()
                 t_resume = line.first_motion_after(t_restart)
                 kills.append({"at_s": round(t_kill - t0, 1), "brake_ms": round(1e3 * (t_brake - t_kill), 1),
-                              "restart_s": round(t_restart - t_kill, 2), "resume_s": round(t_resume - t_kill, 2)})
+                              "restart_s": round(t_restart - t_kill, 2), "resume_s": round(t_resume - t_kill, 2),
+                              "router_quiet_kb": None if restarted_up or not quiet else min(quiet)})
                 next_kill += KILL_EVERY_S
             for label, pid in pids.items():
                 if label in rss:
@@ -236,9 +273,12 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
         print(table)
         print("perception RSS per incarnation (kB, at its kill / at the end): "
               + ", ".join(f"{p['rss_kb']} ({p['lived_s']:.0f} s)" for p in perception_rss))
-        print(f"{'kill at s':>10}{'brake ms':>10}{'restart s':>11}{'resume s':>10}")
+        print(f"{'kill at s':>10}{'brake ms':>10}{'restart s':>11}{'resume s':>10}{'router quiet kB':>17}")
         for k in kills:
-            print(f"{k['at_s']:>10.1f}{k['brake_ms']:>10.1f}{k['restart_s']:>11.2f}{k['resume_s']:>10.2f}")
+            print(f"{k['at_s']:>10.1f}{k['brake_ms']:>10.1f}{k['restart_s']:>11.2f}{k['resume_s']:>10.2f}"
+                  f"{k['router_quiet_kb'] or '–':>17}")
+        quiet = quiet_growth(kills, SOAK_S)
+        print("router quiet growth: " + ("–" if quiet is None else f"{100 * quiet:.2f} %"))
     assert code == [0], log()  # every service, perception's last incarnation included, stopped cleanly
     assert len(kills) == max(0, int((SOAK_S - 1e-9) // KILL_EVERY_S))
     assert runner.children["perception"].restarts == len(kills)
@@ -250,7 +290,12 @@ def test_soak_full_stack_with_perception_killed_every_minute(tmp_path: Path, cap
         # buffers resident and the router grew 5.6-10.4 % here, flat between restarts.
         # The message carries the table and the router's samples: CI prints only the failure.
         router = " ".join(f"{x['t_s']:.0f}:{x['router']}" for x in series if "router" in x)
-        assert all(r["growth_pct"] < 100 * RSS_GROWTH for r in rss.values()), f"\n{table}\nrouter kB: {router}"
+        others = {label: r for label, r in rss.items() if label != "router" or quiet is None}
+        assert all(r["growth_pct"] < 100 * RSS_GROWTH for r in others.values()), f"\n{table}\nrouter kB: {router}"
+        # The router by what it retains between perception sessions (the module doc): at load 3 its
+        # floor rose 7.3 % (84.0 → 90.2 MB; issue 26), its quiet level not measured then.
+        held = [k["router_quiet_kb"] for k in kills]
+        assert quiet is None or quiet < RSS_GROWTH, f"\n{table}\nrouter quiet kB: {held}"
 
 
 # The router's RSS (kB) every 5 s from 5 s to 595 s in the CI run that failed the last-minute
@@ -283,3 +328,12 @@ def test_end_level_passes_a_session_hold_and_fails_a_leak_per_restart() -> None:
     # The same run with 1.5 MB that every restart keeps: the floor of the second half sees it.
     leaky = [{**s, "router": s["router"] + 1536 * int(s["t_s"] // KILL_EVERY_S)} for s in series]
     assert growth(leaky) > RSS_GROWTH
+
+
+def test_quiet_growth_passes_a_steady_router_and_fails_a_leak_per_restart() -> None:
+    kills = [{"at_s": 60.0 * k, "router_quiet_kb": 84000 + (k % 2) * 300} for k in range(1, 10)]
+    assert abs(quiet_growth(kills, 600.0)) < 0.01
+    leaky = [{**k, "router_quiet_kb": k["router_quiet_kb"] + 1536 * i} for i, k in enumerate(kills)]
+    assert quiet_growth(leaky, 600.0) > RSS_GROWTH  # 1.5 MB kept per restart
+    assert quiet_growth([{**k, "router_quiet_kb": None} for k in kills], 600.0) is None
+    assert quiet_growth(kills[:4], 600.0) is None  # no kill in the second half
