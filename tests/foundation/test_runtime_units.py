@@ -25,6 +25,17 @@ def clean_env(monkeypatch):
     return monkeypatch
 
 
+@pytest.fixture
+def other_services():
+    """What ``riskfield run`` tells the runtime: the other services' keys (mapping's section below)."""
+    from riskfield.cli import every_service_settings
+    from riskfield.services.runtime.settings import know_other_services
+
+    know_other_services(every_service_settings)
+    yield
+    know_other_services(None)
+
+
 def test_defaults(clean_env):
     s = DemoSettings()
     assert s.connect == ["tcp/127.0.0.1:7447"] and s.mode == "client" and s.robot == "limo1" and s.prefix == "rf"
@@ -32,7 +43,7 @@ def test_defaults(clean_env):
 
 
 @pytest.mark.parametrize("suffix", [".yaml", ".toml"])
-def test_precedence_defaults_file_env_cli(clean_env, tmp_path, suffix):
+def test_precedence_defaults_file_env_cli(clean_env, other_services, tmp_path, suffix):
     path = tmp_path / f"cfg{suffix}"
     if suffix == ".yaml":
         path.write_text("robot: fromfile\nname: fromfile\nrate_hz: 10\n"
