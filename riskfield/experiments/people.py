@@ -11,10 +11,11 @@ walker. Pure functions of time series (no I/O), so each is unit-tested on its ow
 * **ghost time** — after people leave the robot's way (``relevant`` turns false), how long the
   safety filter keeps the command below ``GHOST_FRACTION`` of the reference: the time from the
   departure to the first filtered command at ≥ 80 % of a non-zero reference (to the end of the
-  record if it never recovers). A person is *relevant* (slowing for them is the filter's job) while
-  not behind the robot and within ``RELEVANT_GAP`` of its body: the high-risk group's CBF
-  (α = 0.6, margin 0.15 m, look-ahead 0.25 m) holds a 0.5 m/s robot below 80 % only within about
-  0.67 m of the inflated person ahead of the look-ahead point, so 1.1 m of body gap covers it.
+  record if it never recovers; time under a fail-safe brake not counted). A person is *relevant*
+  (slowing for them is the filter's job) while not behind the robot and within ``RELEVANT_GAP`` of
+  its body: the high-risk group's CBF (α = 0.6, margin 0.15 m, look-ahead 0.25 m) holds a 0.5 m/s
+  robot below 80 % only within about 0.67 m of the inflated person ahead of the look-ahead point,
+  so 1.1 m of body gap covers it.
 * **map lag** — for a map received at r (built from a frame stamped s), the map shows the
   person where they truly were at r − lag: lag = (r − s) + τ, τ the time shift that best fits the
   centroid of the map's high-risk cells near the person to the person's true track. Only while the
@@ -150,20 +151,24 @@ class Ghost:
 
 
 def ghost_time(t: np.ndarray, ratio: np.ndarray, valid: np.ndarray, relevant_mask: np.ndarray,
-               fraction: float = GHOST_FRACTION) -> Ghost:
+               excluded: np.ndarray | None = None, fraction: float = GHOST_FRACTION) -> Ghost:
     """For each departure (``relevant_mask`` True → False), the time until the filtered command is
     back at ≥ ``fraction`` of the reference (samples with a valid reference only), or until a person
     is relevant again (the hold is theirs from then on), or to the end of the record (censored);
-    the longest."""
+    the longest. Time in ``excluded`` samples (the filter's fail-safe brakes: a stale or missing
+    map holds the robot whatever the map shows) is not counted, though the hold goes on through it."""
     t = np.asarray(t, float)
     rel = np.asarray(relevant_mask, bool)
     ok = np.asarray(valid, bool) & (np.nan_to_num(np.asarray(ratio, float), nan=0.0) >= fraction)
+    skip = np.zeros(len(t), bool) if excluded is None else np.asarray(excluded, bool)
+    dt = np.diff(t, append=t[-1]) if len(t) else t
     out = Ghost()
     for i in np.flatnonzero(rel[:-1] & ~rel[1:]) + 1:
         j = i
         while j < len(t) and not ok[j] and not rel[j]:
             j += 1
-        hold, censored = (float(t[-1] - t[i]), True) if j == len(t) else (float(t[j] - t[i]), False)
+        hold = float(dt[i:j][~skip[i:j]].sum())
+        censored = j == len(t)
         out.holds.append(hold)
         if hold > out.time_s or (hold == out.time_s and censored):
             out.time_s, out.censored = hold, censored
