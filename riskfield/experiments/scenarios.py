@@ -34,6 +34,11 @@ ROBOT_START = (-3.5, -1.5, 0.0)
 TELEOP_TARGETS = [("ball", -1.4, -1.5), ("dog", -2.7, 1.5)]
 LOOP = [(0.6, -1.7), (3.3, -1.7), (3.3, 1.7), (0.6, 1.7)]
 UNSEEN = {"class": "ball", "name": "unseen_ball", "position": [1.95, -1.7]}  # on the first leg of lap 2
+#: a person who crosses the loop's first leg (y = -1.7) at 1.2 m/s while the robot drives it: spawned
+#: when the robot reaches the leg's start, waits 1.5 s (in view once the robot faces along the leg),
+#: walks from inside the loop to the south wall and stays there, 1 m off the leg
+CROSSER = {"class": "person", "name": "crosser", "position": [2.4, -0.75], "waypoints": [[2.4, -0.75], [2.4, -2.7]],
+           "waits": [1.5, 0.0], "speed": 1.2, "motion": "once"}
 #: objects whose clearance the report follows, by scene object name → risk class shown
 TRACKED = {"ball": "ball (low risk)", "dog": "dog (high risk)", "walker": "person (high risk)",
            "unseen_ball": "unseen ball (low risk)"}
