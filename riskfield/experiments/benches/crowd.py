@@ -341,6 +341,9 @@ def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "ghost_censored_cases": sum(bool(r["ghost_censored"]) for r in ok),
         "map_lag_median_s": P.percentile(lags, 50), "map_lag_p95_s": P.percentile(lags, 95),
         "map_shows_person_mean": float(np.mean(shown)) if shown else None,
+        "fail_safe_brake_steps": sum(sum(r.get("brakes", {}).values()) for r in ok),
+        "stale_map_brake_steps": sum(r.get("brakes", {}).get("stale_map", 0) for r in ok),
+        "esdf_age_ms_p50_median": P.percentile([r["esdf_age_ms_p50"] for r in ok if r.get("esdf_age_ms_p50")], 50),
         "case_wall_median_s": float(np.median([r["case_wall_s"] for r in rows if "case_wall_s" in r]))
         if any("case_wall_s" in r for r in rows) else None,
     }
@@ -359,18 +362,21 @@ def markdown(summary: dict[str, Any]) -> str:
                   "`static` variant ran (a second run of the same filter would be no comparison).", ""]
     lines += ["| Variant | Cases | At-fault contacts (samples / episodes / cases) | Person's contacts | "
               "Min clearance (m) | Progress | Ghost time p95 / max (s) | Map lag p50 / p95 (s) | "
-              "Maps showing the person |", "|---|---|---|---|---|---|---|---|---|"]
+              "Maps showing the person | Fail-safe brake steps (stale map) | ESDF age at the filter, p50 (ms) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for v, tot in summary["totals"].items():
         lines.append(f"| {v} | {tot['cases']} | {tot['at_fault_contacts']} / {tot['at_fault_episodes']} / "
                      f"{tot['cases_with_at_fault_contact']} | {tot['person_contacts']} | "
                      f"{_f(tot['min_clearance_m'])} | {_f(tot['progress_mean'])} | "
                      f"{_f(tot['ghost_time_p95_s'], 1)} / {_f(tot['ghost_time_max_s'], 1)} | "
                      f"{_f(tot['map_lag_median_s'])} / {_f(tot['map_lag_p95_s'])} | "
-                     f"{_f(tot['map_shows_person_mean'])} |")
+                     f"{_f(tot['map_shows_person_mean'])} | {tot['fail_safe_brake_steps']} "
+                     f"({tot['stale_map_brake_steps']}) | {_f(tot['esdf_age_ms_p50_median'], 0)} |")
     for v, rows in summary["cases"].items():
         lines += ["", f"## {v}", "", "| Case | Walkers | At-fault (samples / max m/s) | Person's | Min clearance (m) "
-                  "| Progress | Ghost (s) | Map lag p50 (s) | Maps showing | Wall (s) |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
+                  "| Progress | Ghost (s) | Map lag p50 (s) | Maps showing | Brake steps | ESDF age p50 (ms) "
+                  "| Wall (s) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             if "error" in r:
                 lines.append(f"| {r['name']} | {r['error']} |")
@@ -378,8 +384,12 @@ def markdown(summary: dict[str, Any]) -> str:
             lines.append(f"| {r['name']} | {r['walkers']} | {r['at_fault_contacts']} / "
                          f"{_f(r['max_at_fault_speed'])} | {r['person_contacts']} | {_f(r['min_clearance_m'])} | "
                          f"{_f(r['progress'])} | {_f(r['ghost_time_s'], 1)}{'+' if r['ghost_censored'] else ''} | "
-                         f"{_f(r['map_lag_median_s'])} | {_f(r['map_shows_person'])} | {_f(r['case_wall_s'], 0)} |")
-    lines += ["", "Ghost `+`: the robot was still held back when the case ended (the time is a lower bound)."]
+                         f"{_f(r['map_lag_median_s'])} | {_f(r['map_shows_person'])} | "
+                         f"{sum(r.get('brakes', {}).values())} | {_f(r.get('esdf_age_ms_p50'), 0)} | "
+                         f"{_f(r['case_wall_s'], 0)} |")
+    lines += ["", "Ghost `+`: the robot was still held back when the case ended (the time is a lower bound). Brake "
+              "steps: the filter's fail-safe brakes (50 Hz steps; a map older than 0.4 s is refused as stale), whose "
+              "time the ghost does not count."]
     return "\n".join(lines) + "\n"
 
 
