@@ -9,6 +9,9 @@
   ``teleop_dog`` rooms, one obstacle straight ahead of the robot.
 * **The square room** (``riskfield bench navigation``): a 7 × 7 m room, a table in the middle, a
   chair and a ball near a 4 m square of corners; the unseen ball lands on the square's first side.
+* **The crowd** (``riskfield bench crowd``): a 12 × 6 m room, a LIMO driven straight down it, people
+  spawned as the drive starts who cross, come head-on, overtake or stop and turn in its way
+  (``crowd_case``); the demo's crossing walker (``CROSSER``) is spawned the same way.
 
 Ground truth is the simulator's own geometry (open3d signed distances to the object meshes):
 *clearance* is the distance from the robot to an obstacle's surface, *a collision* an episode
