@@ -185,6 +185,11 @@ class Scenario(_Model):
     base_dir: str | None = Field(None, exclude=True)  # where relative mesh paths start
 
 
+#: people walking in a ``random`` / ``random:SEED`` room (drawn after its other objects, which stay as
+#: they were without walkers)
+RANDOM_WALKERS = 2
+
+
 def _builtin() -> dict[str, dict[str, Any]]:
     teleop = {"room": {"size": [8.0, 4.0]}, "robot": {"type": "limo", "start": [-3.0, 0.0, 0.0]}}
     return {
@@ -209,7 +214,7 @@ def _builtin() -> dict[str, dict[str, Any]]:
                 {"class": "box", "name": "unseen_box", "position": [2.0, 0.6], "appear_at_s": 15.0},
             ],
         },
-        "random": {"name": "random", "room": None, "procedural": {"seed": 0}},
+        "random": {"name": "random", "room": None, "procedural": {"seed": 0, "walkers": RANDOM_WALKERS}},
     }
 
 
@@ -217,14 +222,16 @@ BUILTIN: dict[str, dict[str, Any]] = _builtin()
 
 
 def load_scenario(source: str | Path | dict[str, Any]) -> Scenario:
-    """A scenario from a built-in name (``random:SEED`` for a procedural room), a YAML file path,
+    """A scenario from a built-in name (``random:SEED`` for a procedural room with ``RANDOM_WALKERS``
+    walkers), a YAML file path,
     or a dict. Raises ``ValueError``/``FileNotFoundError`` with the reason."""
     if isinstance(source, dict):
         return Scenario.model_validate(source)
     text = str(source)
     if text.startswith("random:"):
         seed = int(text.split(":", 1)[1])
-        return Scenario.model_validate({"name": text, "room": None, "procedural": {"seed": seed}})
+        return Scenario.model_validate({"name": text, "room": None,
+                                        "procedural": {"seed": seed, "walkers": RANDOM_WALKERS}})
     if text in BUILTIN:
         return Scenario.model_validate(BUILTIN[text])
     path = Path(text)

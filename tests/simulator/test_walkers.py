@@ -116,3 +116,16 @@ def test_world_reports_its_moving_objects_with_velocities():
     late = world.add_object({"class": "person", "name": "late", "position": [0, 0], "velocity": [0.5, 0.0],
                              "appear_at_s": 100.0})
     assert late not in [a.name for a in world.actors()]  # not present yet
+
+
+def test_random_rooms_have_walkers_and_keep_their_fixed_objects():
+    from riskfield.services.simulator.scenario import RANDOM_WALKERS, build_scene
+
+    world = World("random:3")
+    walkers = world.actors()
+    # a walker that finds no clear path of 1.5 m in a crowded room is left out, like any object
+    assert 1 <= len(walkers) <= RANDOM_WALKERS and all(a.label == ade20k.index("person") for a in walkers)
+    world.advance(1.0)
+    assert all(0.5 <= math.hypot(*a.velocity[:2]) <= 1.5 for a in world.actors())
+    still = build_scene(load_scenario({"name": "r", "room": None, "procedural": {"seed": 3}}))
+    assert [o.name for o in still.objects] == [o.name for o in world.scene.objects][:len(still.objects)]
