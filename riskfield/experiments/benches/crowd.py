@@ -334,7 +334,7 @@ def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cases_with_at_fault_contact": sum(r["at_fault_contacts"] > 0 for r in ok),
         "person_contacts": sum(r["person_contacts"] for r in ok),
         "person_episodes": sum(r["person_episodes"] for r in ok),
-        "min_clearance_m": min((r["min_clearance_m"] for r in ok), default=None),
+        "min_clearance_m": min((r["min_clearance_m"] for r in ok if r["min_clearance_m"] is not None), default=None),
         "progress_mean": float(np.mean([r["progress"] for r in ok])) if ok else None,
         "ghost_time_p95_s": P.percentile([r["ghost_time_s"] for r in ok], 95),
         "ghost_time_max_s": max((r["ghost_time_s"] for r in ok), default=None),
