@@ -168,7 +168,7 @@ def ghost_time(t: np.ndarray, ratio: np.ndarray, valid: np.ndarray, relevant_mas
         while j < len(t) and not ok[j] and not rel[j]:
             j += 1
         hold = float(dt[i:j][~skip[i:j]].sum())
-        censored = j == len(t)
+        censored = bool(j == len(t))
         out.holds.append(hold)
         if hold > out.time_s or (hold == out.time_s and censored):
             out.time_s, out.censored = hold, censored

@@ -4,6 +4,7 @@ crowd cases (each a fair conflict) and the bench's bookkeeping; a 2-case run of 
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -244,8 +245,6 @@ def test_case_metrics_from_recorded_messages():
 def test_two_crowd_cases_through_the_full_stack(tmp_path):
     """`riskfield bench crowd` end to end on two cases (one with two people): the people's ground
     truth reached the metrics, the map was compared with it, the outputs are written."""
-    import json
-
     from typer.testing import CliRunner
 
     out = tmp_path / "crowd"
@@ -300,3 +299,4 @@ def test_demo_summary_reports_the_walkers_clearance_contacts_and_ghost_time():
     # held by the filter until the robot drives on at 3.5 s: that hold is the ghost
     left = 0.5 + (1.7 + 0.11 + math.sqrt(1.32 ** 2 - 0.739 ** 2) - 0.75) / 1.2
     assert out["ghost_time_s"] == pytest.approx(3.5 - left, abs=0.03) and not out["ghost_censored"]
+    json.dumps(out)  # the demo writes it with the standard library: Python types only

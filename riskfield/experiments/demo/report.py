@@ -437,7 +437,7 @@ def people_summary(st: Streams, window: tuple[float, float]) -> dict[str, Any]:
     ghost = P.ghost_time(t[sel], ratio[sel], valid[sel], P.relevant(xy, yaw, centres, gaps)[sel], braking[sel])
     out.update(walkers=sorted(per), min_clearance_per_person_m=per, min_clearance_m=min(per.values()),
                at_fault_contacts=total.at_fault_samples, person_contacts=total.person_samples,
-               ghost_time_s=ghost.time_s, ghost_censored=ghost.censored)
+               ghost_time_s=float(ghost.time_s), ghost_censored=bool(ghost.censored))
     return out
 
 
