@@ -300,3 +300,23 @@ def test_demo_summary_reports_the_walkers_clearance_contacts_and_ghost_time():
     left = 0.5 + (1.7 + 0.11 + math.sqrt(1.32 ** 2 - 0.739 ** 2) - 0.75) / 1.2
     assert out["ghost_time_s"] == pytest.approx(3.5 - left, abs=0.03) and not out["ghost_censored"]
     json.dumps(out)  # the demo writes it with the standard library: Python types only
+
+
+def test_the_demos_walker_crosses_the_first_leg_ahead_of_the_robot_in_view():
+    """Spawned as the robot starts the loop's first leg: on the nominal drive (the navigator's 0.4 m/s
+    along the leg from the spawn, no reaction) the walker crosses the leg ahead of the robot, in the
+    camera's view for a second before, and never touches it."""
+    from riskfield.experiments.scenarios import CROSSER, LOOP, placed_object
+
+    walker = placed_object(CROSSER)
+    t = np.arange(0.0, 8.0, 0.02)
+    robot = np.column_stack([np.minimum(LOOP[0][0] + 0.4 * t, LOOP[1][0]), np.full(len(t), LOOP[0][1])])
+    yaw = np.zeros(len(t))
+    centres = np.array([walker.state_at(float(a))[0][:2, 3] for a in t])
+    gap, _ = P.rectangle_gap(robot, yaw, centres, walker.footprint_radius)
+    crossing = float(t[np.argmin(np.abs(centres[:, 1] - LOOP[0][1]))])
+    assert walker.state_at(crossing)[1][1] == pytest.approx(-1.2)  # at 1.2 m/s, southwards
+    assert robot[np.searchsorted(t, crossing), 0] < CROSSER["position"][0] - 0.5  # ahead of the robot
+    assert gap.min() > 0.3
+    view = P.in_view(robot, yaw, centres, walker.footprint_radius)
+    assert P.seen_before(t, view, crossing) >= 1.0
