@@ -85,6 +85,7 @@ class Keys:
     sim_truth = property(lambda self: self.key("sim/truth"))
     sim_spawn = property(lambda self: self.key("sim/spawn"))
     sim_actors = property(lambda self: self.key("sim/actors"))
+    sim_reset = property(lambda self: self.key("sim/reset"))
     objects = property(lambda self: self.key("map/objects"))
 
     def alive(self, service: str) -> str:

@@ -46,7 +46,7 @@ def _missing_extras_in_one_line(command: Callable[..., Any]) -> Callable[..., An
 
 #: ``riskfield bench NAME`` runs ``riskfield.experiments.benches.NAME:app``, imported only when asked for.
 BENCHES: tuple[str, ...] = ("codec", "filter", "mapping", "latency", "safety", "teleop", "navigation", "sim",
-                            "perception")
+                            "perception", "crowd")
 
 
 def _version(value: bool) -> None:

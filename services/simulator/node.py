@@ -9,6 +9,15 @@ Simulation-only keys (additive; nothing outside simulation depends on them):
 * ``{prefix}/{robot}/camera/depth`` — with ``publish_depth``: ``DepthImage/1`` (additive), the
   rendered depth (z, metres; 0 where nothing was hit) and the camera's intrinsics, stamped like
   the image: what an RGB-D camera gives the perception ``rgbd`` backend.
+* ``{prefix}/{robot}/sim/actors`` — with ``publish_actors``: ``SimActors/1``, the ground-truth
+  position and velocity of every present object that moves (walkers), computed by the ``World`` at
+  the instant the camera image shows and published with **the image's stamp** (with the state
+  instead when the camera is off), so a benchmark compares a map built from that image with the
+  truth it showed.
+* ``{prefix}/{robot}/sim/reset`` — start over: a new ``World`` (time 0, the robot at its start, the
+  objects as the scenario lists them) from an empty payload (the same scenario), a scenario name or
+  path (UTF-8), or a scenario map (msgpack or JSON). Benchmarks run many scenarios on one simulator
+  process this way instead of paying its start-up each time.
 * ``{prefix}/{robot}/sim/spawn`` — add an object while running (the unseen obstacle): a msgpack
   or JSON map in the scenario file's object format, e.g. ``{"class": "box", "position": [1, 0]}``.
 
@@ -28,7 +37,7 @@ import msgpack
 import numpy as np
 from pydantic import Field, ValidationError
 
-from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, VelocityCommand
+from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, SimActors, VelocityCommand
 from riskfield.protocol.messages import Header
 
 from ..runtime.node import Node
@@ -50,6 +59,7 @@ class SimulatorSettings(NodeSettings):
     watchdog_s: float = Field(0.2, gt=0)
     publish_truth: bool = True
     publish_depth: bool = Field(False, description="also publish camera/depth (RGB-D robots, perception rgbd)")
+    publish_actors: bool = Field(True, description="publish sim/actors: ground truth of the moving objects")
     max_step_s: float = Field(0.25, gt=0)
     map_frame: str = "map"
     camera_frame: str = "camera"
@@ -59,21 +69,52 @@ class Simulator:
     """Glue between the node and the pure ``World``: wall time → simulated time, messages."""
 
     def __init__(self, node: Node, s: SimulatorSettings):
-        scenario = load_scenario(s.scenario)
-        if s.robot_type is not None:
-            scenario = scenario.model_copy(update={"robot": scenario.robot.model_copy(update={"type": s.robot_type})})
-            load_scenario(scenario.model_dump(by_alias=True))  # validates the override
-        self.world = World(scenario, physics_dt=1.0 / s.physics_hz, watchdog_s=s.watchdog_s)
         self.node, self.s = node, s
+        self.world = self._world(s.scenario)
         self._last = time.monotonic()
         self._t0 = self._last
         self.frames = 0
         self.spawn_invalid = 0
+        self.resets = 0
+        self.reset_invalid = 0
+        scenario = self.world.scenario
         if s.camera_hz > 0:
             self.world.render()  # compiles the renderer's kernel before the first camera frame
         node.log.info("scenario %s: %d objects, robot %s, camera %dx%d", scenario.name,
                       len(self.world.scene.objects), scenario.robot.type, self.world.camera.width,
                       self.world.camera.height)
+
+    def _world(self, source: str | dict) -> World:
+        scenario = load_scenario(source)
+        if self.s.robot_type is not None:
+            robot = scenario.robot.model_copy(update={"type": self.s.robot_type})
+            scenario = scenario.model_copy(update={"robot": robot})
+            load_scenario(scenario.model_dump(by_alias=True))  # validates the override
+        return World(scenario, physics_dt=1.0 / self.s.physics_hz, watchdog_s=self.s.watchdog_s)
+
+    def on_reset(self, key: str, payload: bytes) -> None:
+        try:
+            source: str | dict = self.s.scenario
+            if payload:
+                try:
+                    data = msgpack.unpackb(payload, raw=False)
+                except Exception:
+                    text = payload.decode("utf-8")
+                    data = json.loads(text) if text.lstrip().startswith("{") else text
+                if not isinstance(data, (dict, str)):
+                    raise ValueError("the payload must be a scenario map or a scenario name/path")
+                source = data
+            world = self._world(source)
+        except (ValueError, ValidationError, UnicodeDecodeError, KeyError, OSError) as exc:
+            self.reset_invalid += 1
+            self.node.stats["reset_invalid"] = self.reset_invalid
+            self.node.ratelog(logging.WARNING, "invalid:reset", f"rejected a reset request on {key}: {exc}")
+            return
+        self.world = world
+        self._last = self._t0 = time.monotonic()
+        self.resets += 1
+        self.node.stats["resets"] = self.resets
+        self.node.log.info("reset to scenario %s", world.scenario.name)
 
     def tick(self) -> None:
         now = time.monotonic()
@@ -106,6 +147,8 @@ class Simulator:
     def publish_state(self) -> None:
         self.tick()
         st = self.world.state()
+        if self.s.publish_actors and self.s.camera_hz == 0:
+            self.publish_actors(time.time_ns())
         self.node.publish(self.node.keys.state, RobotState(
             header=Header(frame_id=self.s.map_frame), position=tuple(st.position), orientation=tuple(st.orientation),
             linear_velocity=tuple(st.linear_velocity), angular_velocity=tuple(st.angular_velocity)))
@@ -131,15 +174,23 @@ class Simulator:
             self.node.publish(self.node.keys.sim_truth, PerceptionFrame(
                 header=Header(stamp_ns=stamp, frame_id=self.s.map_frame), T_WC=frame.T_WC, points=frame.points,
                 confidence=frame.valid.astype(np.float32), labels=frame.labels, keyframe_id=self.frames))
+        if self.s.publish_actors:
+            self.publish_actors(stamp)
         self.frames += 1
         p = self.world.state().position
         self.node.stats["gt_clearance_m"] = float(self.world.clearance(np.array([[p[0], p[1], p[2] + 0.1]]))[0])
+
+    def publish_actors(self, stamp: int) -> None:
+        """The moving objects as the world holds them now (no tick: the instant ``stamp`` names)."""
+        self.node.publish(self.node.keys.sim_actors, SimActors(
+            header=Header(stamp_ns=stamp, frame_id=self.s.map_frame), actors=self.world.actors()))
 
 
 def setup(node: Node, s: SimulatorSettings) -> Simulator:
     sim = Simulator(node, s)
     node.subscribe(node.keys.cmd_safe, VelocityCommand, sim.on_command, queue="latest")
     node.subscribe(node.keys.sim_spawn, None, sim.on_spawn, queue="fifo", maxlen=64)
+    node.subscribe(node.keys.sim_reset, None, sim.on_reset, queue="fifo", maxlen=4)
     node.every(1.0 / s.physics_hz, sim.tick)
     node.every(1.0 / s.state_hz, sim.publish_state)
     if s.camera_hz > 0:

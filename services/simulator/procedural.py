@@ -1,10 +1,13 @@
 """Procedural semantic indoor scenes from a seed: a closed room (floor, ceiling, four walls) with
-furniture against the walls and boxes, balls, people and animals in the open floor.
+furniture against the walls and boxes, balls, people and animals in the open floor, and walkers:
+people going back and forth between two free spots.
 
 Deterministic: the same seed and counts give the same objects, on every machine (numpy's
 ``default_rng`` (PCG64) stream). Placement is rejection sampling of footprint circles with a
 clearance between objects and a clear disc around the robot's start, so no two objects overlap
-(which keeps the ground-truth signed distance well defined, see ``scene``).
+(which keeps the ground-truth signed distance well defined, see ``scene``). A walker's whole path
+keeps that clearance from the fixed objects and the robot's start; walkers may cross each other.
+Walkers are drawn after everything else, so adding them leaves a seed's other objects as they were.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from riskfield.protocol import ade20k
 
 from ..geometry.transforms import pose_matrix
 from . import shapes
-from .scene import LIFT, SceneObject
+from .scene import LIFT, Motion, SceneObject
 
 #: Default object dimensions (m) per class: (size_x, size_y, size_z) of the footprint box / body.
 DEFAULT_SIZES: dict[str, tuple[float, float, float]] = {
@@ -86,6 +89,8 @@ class Placement:
     y: float
     yaw: float
     size: tuple[float, float, float]
+    waypoints: tuple[tuple[float, float], ...] | None = None  # a walker's path (pingpong), from (x, y)
+    speed: float = 0.0
 
 
 def _radius(size: tuple[float, float, float]) -> float:
@@ -93,14 +98,17 @@ def _radius(size: tuple[float, float, float]) -> float:
 
 
 def random_placements(seed: int, size_x: float, size_y: float, *, furniture: int = 4, boxes: int = 2,
-                      balls: int = 1, people: int = 1, animals: int = 1,
+                      balls: int = 1, people: int = 1, animals: int = 1, walkers: int = 0,
+                      walker_speed: tuple[float, float] = (0.5, 1.5),
                       keep_clear: tuple[float, float, float] = (0.0, 0.0, 0.8), clearance: float = 0.25,
                       max_tries: int = 400) -> list[Placement]:
     """Deterministic placements for a room ``size_x × size_y`` centred on the origin.
 
     Furniture goes against a random wall (its back to the wall), the rest anywhere on the open
     floor; nothing within ``keep_clear = (x, y, radius)``. Objects that find no free spot after
-    ``max_tries`` are skipped (a crowded room gets fewer objects, never overlapping ones)."""
+    ``max_tries`` are skipped (a crowded room gets fewer objects, never overlapping ones). A walker
+    goes back and forth between two free spots at least 1.5 m apart, at a speed drawn from
+    ``walker_speed`` (m/s)."""
     rng = np.random.default_rng(seed)
     placed: list[tuple[float, float, float]] = [keep_clear]
     out: list[Placement] = []
@@ -139,6 +147,24 @@ def random_placements(seed: int, size_x: float, size_y: float, *, furniture: int
                 placed.append((x, y, r))
                 out.append(Placement(name, float(x), float(y), float(yaw), size))
                 break
+    for _ in range(walkers):
+        base = DEFAULT_SIZES["person"]
+        jitter = rng.uniform(0.85, 1.15, size=2)
+        size = (base[0] * jitter[0], base[0] * jitter[0], base[2] * jitter[1])
+        r = size[0] / 2  # a walker's footprint: its capsule's circle
+        speed = float(rng.uniform(*walker_speed))
+        for _ in range(max_tries):
+            a = [rng.uniform(-hx + r + 0.05, hx - r - 0.05), rng.uniform(-hy + r + 0.05, hy - r - 0.05)]
+            b = [rng.uniform(-hx + r + 0.05, hx - r - 0.05), rng.uniform(-hy + r + 0.05, hy - r - 0.05)]
+            length = math.hypot(b[0] - a[0], b[1] - a[1])
+            if length < 1.5:
+                continue
+            steps = np.linspace(0.0, 1.0, max(2, int(length / 0.05) + 1))
+            if all(free(a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), r) for s in steps):
+                yaw = math.atan2(b[1] - a[1], b[0] - a[0])
+                out.append(Placement("person", float(a[0]), float(a[1]), yaw, size,
+                                     ((float(a[0]), float(a[1])), (float(b[0]), float(b[1]))), speed))
+                break
     return out
 
 
@@ -148,8 +174,10 @@ def build_objects(placements: list[Placement], prefix: str = "") -> list[SceneOb
     objs = []
     for p in placements:
         n = counts[p.class_name] = counts.get(p.class_name, 0) + 1
+        motion = None if p.waypoints is None else Motion(np.asarray(p.waypoints), p.speed, "pingpong")
         objs.append(SceneObject(f"{prefix}{p.class_name}_{n}", ade20k.index(p.class_name),
-                                object_mesh(p.class_name, p.size), pose_matrix(p.x, p.y, LIFT, p.yaw)))
+                                object_mesh(p.class_name, p.size), pose_matrix(p.x, p.y, LIFT, p.yaw),
+                                motion=motion))
     return objs
 
 

@@ -4,7 +4,7 @@ A scenario is YAML (or the same structure as a dict; built-in ones are listed in
 
     name: teleop_dog
     room: {size: [8.0, 4.0], height: 2.5}        # closed room centred on the origin
-    procedural: {seed: 3, furniture: 4, boxes: 2, balls: 1, people: 0, animals: 0}   # optional
+    procedural: {seed: 3, furniture: 4, boxes: 2, balls: 1, people: 0, animals: 0, walkers: 2}   # optional
     objects:
       - class: animal                              # ADE20K name (or index)
         position: [1.0, 0.0]                       # floor x, y (m)
@@ -14,6 +14,11 @@ A scenario is YAML (or the same structure as a dict; built-in ones are listed in
         position: [0.0, -1.5]
         waypoints: [[0.0, -1.5], [0.0, 1.5]]       # walks back and forth ...
         speed: 0.6                                 # ... at 0.6 m/s
+      - class: person
+        position: [2.0, -2.0]
+        waypoints: [[2.0, -2.0], [2.0, 0.0], [2.0, -2.0]]
+        waits: [1.0, 3.0, 0.0]                     # starts after 1 s, stops 3 s, turns back
+        motion: once
       - class: box
         position: [2.0, 0.0]
         appear_at_s: 12.0                          # the unseen obstacle
@@ -73,6 +78,15 @@ class ProceduralSpec(_Model):
     balls: int = Field(1, ge=0, le=100)
     people: int = Field(1, ge=0, le=100)
     animals: int = Field(1, ge=0, le=100)
+    walkers: int = Field(0, ge=0, le=100, description="people walking back and forth between two free spots")
+    walker_speed: tuple[float, float] = Field((0.5, 1.5), description="range their speeds are drawn from (m/s)")
+
+    @field_validator("walker_speed")
+    @classmethod
+    def _speed_range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not (math.isfinite(v[0]) and math.isfinite(v[1]) and 0 <= v[0] <= v[1] <= 20):
+            raise ValueError("walker_speed must be (low, high) with 0 ≤ low ≤ high ≤ 20 m/s")
+        return v
 
 
 class ObjectSpec(_Model):
@@ -88,6 +102,7 @@ class ObjectSpec(_Model):
     shape: Literal["auto", "box", "ellipsoid", "sphere", "cylinder", "capsule"] = "auto"
     waypoints: list[tuple[float, float]] | None = None
     speed: float = Field(0.5, ge=0, le=20)
+    waits: list[float] | None = None  # seconds standing at each waypoint, one per waypoint (``scene.Motion``)
     velocity: tuple[float, float] | None = None
     motion: Literal["pingpong", "loop", "once"] = "pingpong"
     appear_at_s: float = Field(0.0, ge=0)
@@ -98,13 +113,16 @@ class ObjectSpec(_Model):
         if (self.class_ is None) == (self.mesh is None):
             raise ValueError("an object needs exactly one of 'class' or 'mesh'")
         nums = [*self.position, self.z, self.yaw, self.speed, self.appear_at_s, *(self.size or ()),
-                *(self.velocity or ()), *(c for w in self.waypoints or () for c in w)]
+                *(self.velocity or ()), *(c for w in self.waypoints or () for c in w), *(self.waits or ())]
         if not all(math.isfinite(x) for x in nums):
             raise ValueError("object numbers must be finite")
         if self.size is not None and min(self.size) <= 0:
             raise ValueError("object sizes must be positive")
         if self.waypoints is not None and len(self.waypoints) < 2:
             raise ValueError("waypoints need at least two points")
+        if self.waits is not None and (self.waypoints is None or len(self.waits) != len(self.waypoints)
+                                       or min(self.waits) < 0):
+            raise ValueError("waits need waypoints: one non-negative duration (s) per waypoint")
         return self
 
     @property
@@ -167,6 +185,11 @@ class Scenario(_Model):
     base_dir: str | None = Field(None, exclude=True)  # where relative mesh paths start
 
 
+#: people walking in a ``random`` / ``random:SEED`` room (drawn after its other objects, which stay as
+#: they were without walkers)
+RANDOM_WALKERS = 2
+
+
 def _builtin() -> dict[str, dict[str, Any]]:
     teleop = {"room": {"size": [8.0, 4.0]}, "robot": {"type": "limo", "start": [-3.0, 0.0, 0.0]}}
     return {
@@ -191,7 +214,7 @@ def _builtin() -> dict[str, dict[str, Any]]:
                 {"class": "box", "name": "unseen_box", "position": [2.0, 0.6], "appear_at_s": 15.0},
             ],
         },
-        "random": {"name": "random", "room": None, "procedural": {"seed": 0}},
+        "random": {"name": "random", "room": None, "procedural": {"seed": 0, "walkers": RANDOM_WALKERS}},
     }
 
 
@@ -199,14 +222,16 @@ BUILTIN: dict[str, dict[str, Any]] = _builtin()
 
 
 def load_scenario(source: str | Path | dict[str, Any]) -> Scenario:
-    """A scenario from a built-in name (``random:SEED`` for a procedural room), a YAML file path,
+    """A scenario from a built-in name (``random:SEED`` for a procedural room with ``RANDOM_WALKERS``
+    walkers), a YAML file path,
     or a dict. Raises ``ValueError``/``FileNotFoundError`` with the reason."""
     if isinstance(source, dict):
         return Scenario.model_validate(source)
     text = str(source)
     if text.startswith("random:"):
         seed = int(text.split(":", 1)[1])
-        return Scenario.model_validate({"name": text, "room": None, "procedural": {"seed": seed}})
+        return Scenario.model_validate({"name": text, "room": None,
+                                        "procedural": {"seed": seed, "walkers": RANDOM_WALKERS}})
     if text in BUILTIN:
         return Scenario.model_validate(BUILTIN[text])
     path = Path(text)
@@ -227,7 +252,7 @@ def object_from_spec(spec: ObjectSpec, name: str, base_dir: str | None = None) -
     motion = None
     if spec.waypoints is not None or spec.velocity is not None:
         motion = Motion(np.asarray(spec.waypoints) if spec.waypoints else None, spec.speed, spec.motion,
-                        spec.velocity or (0.0, 0.0))
+                        spec.velocity or (0.0, 0.0), None if spec.waits is None else np.asarray(spec.waits))
     if spec.mesh is not None:
         path = Path(spec.mesh)
         if not path.is_absolute() and base_dir:
@@ -258,7 +283,8 @@ def build_scene(scenario: Scenario) -> Scene:
         sx, sy, _ = scenario.robot.start
         placements = procedural.random_placements(
             proc.seed, size[0], size[1], furniture=proc.furniture, boxes=proc.boxes, balls=proc.balls,
-            people=proc.people, animals=proc.animals, keep_clear=(sx, sy, 0.8))
+            people=proc.people, animals=proc.animals, walkers=proc.walkers, walker_speed=proc.walker_speed,
+            keep_clear=(sx, sy, 0.8))
         objects += procedural.build_objects(placements, prefix="proc_")
     counts: dict[str, int] = {}
     for spec in scenario.objects:

@@ -40,55 +40,89 @@ class Motion:
     """How an object moves once it is present: along ``waypoints`` (K×2 floor positions) at
     ``speed`` m/s — back and forth (``pingpong``), around (``loop``) or once then still
     (``once``) — or, without waypoints, at a constant floor ``velocity`` (m/s) from its
-    start position. A moving object faces its direction of travel."""
+    start position. ``waits`` (K seconds, optional) is how long it stands at each waypoint
+    before leaving it, on every visit: a first wait delays the start, a middle one makes a
+    walker stop, and a path that comes back (``[a, b, a]``) a walker that stops and turns.
+    A moving object faces its direction of travel; a standing one keeps the heading it came
+    with (at the start: the heading of its first leg)."""
 
     waypoints: np.ndarray | None = None
     speed: float = 0.5
     mode: str = "pingpong"
     velocity: tuple[float, float] = (0.0, 0.0)
+    waits: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if self.waypoints is not None:
-            self.waypoints = np.asarray(self.waypoints, np.float64).reshape(-1, 2)
-            if len(self.waypoints) < 2:
-                raise ValueError("a path needs at least two waypoints")
         if self.mode not in ("pingpong", "loop", "once"):
             raise ValueError(f"motion mode {self.mode!r}: use pingpong, loop or once")
         if not np.isfinite(self.speed) or self.speed < 0:
             raise ValueError("speed must be finite and non-negative")
+        if self.waypoints is None:
+            if self.waits is not None:
+                raise ValueError("waits need waypoints")
+            return
+        self.waypoints = np.asarray(self.waypoints, np.float64).reshape(-1, 2)
+        k = len(self.waypoints)
+        if k < 2:
+            raise ValueError("a path needs at least two waypoints")
+        waits = np.zeros(k) if self.waits is None else np.asarray(self.waits, np.float64).reshape(-1)
+        if len(waits) != k or not np.isfinite(waits).all() or (waits < 0).any():
+            raise ValueError("waits need one finite, non-negative duration per waypoint")
+        self.waits = waits
+        # One period as a timeline of phases: stand at a waypoint, then walk to the next visit.
+        visits = {"once": list(range(k)), "loop": [*range(k), 0],
+                  "pingpong": [*range(k), *range(k - 2, -1, -1)]}[self.mode]
+        p = self.waypoints[visits]
+        legs = np.diff(p, axis=0)
+        lengths = np.linalg.norm(legs, axis=1)
+        walk = lengths / self.speed if self.speed > 0 else np.where(lengths > 0, np.inf, 0.0)
+        stand = waits[visits[:-1]]
+        self._from, self._legs, self._lengths = p[:-1], legs, lengths
+        # phase j: stand on [starts[2j], starts[2j+1]), walk on [starts[2j+1], starts[2j+2])
+        durations = np.column_stack([stand, walk]).reshape(-1)
+        self._starts = np.concatenate([[0.0], np.cumsum(durations)])
+        self._still = self.speed == 0 or not np.isfinite(self._starts[-1]) or self._starts[-1] == 0
 
-    def place(self, start_xy: np.ndarray, start_yaw: float, elapsed_s: float) -> tuple[np.ndarray, float]:
-        """Floor position and yaw ``elapsed_s`` after the motion started."""
+    def state(self, start_xy: np.ndarray, start_yaw: float, elapsed_s: float
+              ) -> tuple[np.ndarray, float, np.ndarray]:
+        """Floor position, yaw and floor velocity (m/s) ``elapsed_s`` after the motion started."""
         elapsed_s = max(0.0, elapsed_s)
         if self.waypoints is None:
             v = np.asarray(self.velocity, np.float64)
             yaw = float(np.arctan2(v[1], v[0])) if np.any(v) else start_yaw
-            return start_xy + v * elapsed_s, yaw
-        path = self.waypoints
-        if self.mode == "loop":
-            path = np.vstack([path, path[:1]])
-        seg = np.diff(path, axis=0)
-        lengths = np.linalg.norm(seg, axis=1)
-        total = float(lengths.sum())
-        if total == 0 or self.speed == 0:
-            return path[0].copy(), start_yaw
-        s = self.speed * elapsed_s
-        forward = True
+            return start_xy + v * elapsed_s, yaw, v.copy()
+        if self._still:
+            return self.waypoints[0].copy(), start_yaw, np.zeros(2)
+        period = float(self._starts[-1])
+        s = elapsed_s
         if self.mode == "once":
-            s = min(s, total)
-        elif self.mode == "loop":
-            s = s % total
+            if s >= period:
+                return self._from[-1] + self._legs[-1], self._heading(len(self._legs), start_yaw), np.zeros(2)
         else:
-            s = s % (2 * total)
-            if s > total:
-                s, forward = 2 * total - s, False
-        i = int(np.searchsorted(np.cumsum(lengths), s, side="right"))
-        i = min(i, len(seg) - 1)
-        s_in = s - float(lengths[:i].sum())
-        d = seg[i] / lengths[i] if lengths[i] > 0 else np.zeros(2)
-        pos = path[i] + d * s_in
-        heading = d if forward else -d
-        return pos, float(np.arctan2(heading[1], heading[0]))
+            s = s % period
+        phase = min(int(np.searchsorted(self._starts, s, side="right")) - 1, len(self._starts) - 2)
+        j, walking = divmod(phase, 2)
+        if not walking:
+            return self._from[j].copy(), self._heading(j, start_yaw), np.zeros(2)
+        if self._lengths[j] == 0:
+            return self._from[j].copy(), self._heading(j, start_yaw), np.zeros(2)
+        d = self._legs[j] / self._lengths[j]
+        pos = self._from[j] + d * self.speed * (s - float(self._starts[phase]))
+        return pos, float(np.arctan2(d[1], d[0])), d * self.speed
+
+    def _heading(self, j: int, start_yaw: float) -> float:
+        """Heading when standing at visit ``j``: of the leg that arrived there (the first leg's at the
+        start), the nearest non-empty one; ``start_yaw`` if every leg is empty."""
+        order = range(j - 1, -1, -1) if j > 0 else range(len(self._legs))
+        for i in order:
+            if self._lengths[i] > 0:
+                return float(np.arctan2(self._legs[i][1], self._legs[i][0]))
+        return start_yaw
+
+    def place(self, start_xy: np.ndarray, start_yaw: float, elapsed_s: float) -> tuple[np.ndarray, float]:
+        """Floor position and yaw ``elapsed_s`` after the motion started."""
+        pos, yaw, _ = self.state(start_xy, start_yaw, elapsed_s)
+        return pos, yaw
 
 
 @dataclass
@@ -133,16 +167,31 @@ class SceneObject:
         return t >= self.appear_at_s
 
     def pose_at(self, t: float) -> np.ndarray:
+        return self.state_at(t)[0]
+
+    def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The 4x4 pose and the floor velocity (m/s, x and y) at time ``t``."""
         if self.motion is None:
-            return self.pose
+            return self.pose, np.zeros(2)
         yaw0 = float(np.arctan2(self.pose[1, 0], self.pose[0, 0]))
-        xy, yaw = self.motion.place(self.pose[:2, 3], yaw0, t - self.appear_at_s)
+        xy, yaw, v = self.motion.state(self.pose[:2, 3], yaw0, t - self.appear_at_s)
         c, s = np.cos(yaw), np.sin(yaw)
         T = np.eye(4)
         T[:2, :2] = [[c, -s], [s, c]]
         T[:2, 3] = xy
         T[2, 3] = self.pose[2, 3]
-        return T
+        return T, v if self.present(t) else np.zeros(2)
+
+    @property
+    def footprint_radius(self) -> float:
+        """Horizontal radius (m) of the upright cylinder about the object's origin that holds its mesh."""
+        v = self.mesh[0]
+        return float(np.hypot(v[:, 0], v[:, 1]).max())
+
+    @property
+    def height(self) -> float:
+        """Top of the mesh above the object's origin (m)."""
+        return float(self.mesh[0][:, 2].max())
 
     def world_mesh(self, t: float = 0.0) -> Mesh:
         return transform(self.mesh, self.pose_at(t))

@@ -12,12 +12,12 @@ import math
 
 import numpy as np
 
-from riskfield.protocol import ade20k
+from riskfield.protocol import SimActor, ade20k
 
 from .camera import Render, Renderer
 from .robots import KinematicState, Robot, make_robot
 from .scenario import ObjectSpec, Scenario, build_scene, load_scenario, object_from_spec
-from .scene import Scene, Snapshot
+from .scene import LIFT, Scene, Snapshot
 
 #: Labels that are free space for a robot, never obstacles (ground-truth clearance ignores them).
 _FREE = {ade20k.index("floor"), ade20k.index("ceiling"), ade20k.index("rug")}
@@ -93,6 +93,20 @@ class World:
 
     def snapshot(self) -> Snapshot:
         return self.scene.at(self.t)
+
+    def actors(self) -> list[SimActor]:
+        """Ground truth of the present objects that move (``motion``): footprint centre at floor
+        height, floor velocity, the radius and height of the upright cylinder holding the mesh."""
+        out = []
+        for o in self.scene.objects:
+            if o.motion is None or not o.present(self.t):
+                continue
+            T, v = o.state_at(self.t)
+            out.append(SimActor(name=o.name, label=int(o.label), position=(float(T[0, 3]), float(T[1, 3]),
+                                                                           float(T[2, 3] - LIFT)),
+                                velocity=(float(v[0]), float(v[1]), 0.0), radius=o.footprint_radius,
+                                height=o.height))
+        return out
 
     def render(self) -> Render:
         return self.renderer.render(self.snapshot(), self.T_WC())

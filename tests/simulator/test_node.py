@@ -7,6 +7,7 @@ from pathlib import Path
 
 import msgpack
 import numpy as np
+import pytest
 
 from riskfield.protocol import Image, NodeStatus, PerceptionFrame, RobotState, VelocityCommand, ade20k
 from riskfield.testing import (
@@ -123,3 +124,45 @@ def test_simulator_publishes_depth_stamped_like_the_image(router_endpoint):
         assert sim.stop(signal.SIGTERM) == 0, sim.output
         depths.close()
         truths.close()
+
+
+def test_simulator_publishes_actors_stamped_like_the_image_and_starts_over_on_reset(router_endpoint):
+    from riskfield.protocol import SimActors
+
+    robot = "t_sim_actors"
+    with ServiceProcess("simulator", router_endpoint, _args(robot)) as sim, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/simulator"), sim.output
+        images = Collector(s, f"rf/{robot}/camera/image", Image)
+        actors = Collector(s, f"rf/{robot}/sim/actors", SimActors)
+        states = Collector(s, f"rf/{robot}/state", RobotState)
+        put(s, f"rf/{robot}/sim/spawn", msgpack.packb({"class": "person", "name": "walker", "position": [-0.5, -1.5],
+                                                       "waypoints": [[-0.5, -1.5], [-0.5, 1.5]], "speed": 1.2}))
+        assert wait_until(lambda: any("walker" in [a.name for a in m.actors] for m in list(actors.items)), 20)
+        images.wait(len(images.items) + 3, 20)
+        stamps = {m.header.stamp_ns: m for m in actors.items}
+        paired = [stamps[i.header.stamp_ns] for i in images.items if i.header.stamp_ns in stamps]
+        assert len(paired) >= 2  # every image has the actors of its instant, same stamp
+        walking = [next(a for a in m.actors if a.name == "walker") for m in paired
+                   if "walker" in [a.name for a in m.actors]]
+        assert [a.name for a in paired[-1].actors] == ["dog", "walker"]
+        w0, w1 = walking[0], walking[-1]
+        assert w1.position[1] > w0.position[1] and w1.velocity == pytest.approx((0.0, 1.2, 0.0))
+        assert w0.radius == pytest.approx(0.22, abs=1e-3)
+        # the walker moved as far as its speed allows between the two images' stamps
+        dt = (paired[-1].header.stamp_ns - paired[0].header.stamp_ns) / 1e9
+        assert w1.position[1] - w0.position[1] <= 1.2 * dt + 0.15
+        # Drive away, then start over: the robot is back at its start, the spawned walker gone.
+        forward = VelocityCommand(linear=(0.4, 0, 0), angular=(0, 0, 0), source="test")
+        assert wait_until(lambda: (put(s, f"rf/{robot}/cmd/safe", forward),
+                                   states.items[-1].position[0] > -1.2)[1], 10.0, period_s=0.05)
+        put(s, f"rf/{robot}/sim/reset", b"")
+        put(s, f"rf/{robot}/sim/reset", b"\xff\xfe not a scenario")
+        assert wait_until(lambda: abs(states.items[-1].position[0] + 1.5) < 1e-9, 10)
+        n = len(actors.items)
+        assert wait_until(lambda: len(actors.items) > n + 1, 10)
+        assert [a.name for a in actors.items[-1].actors] == ["dog"]
+        assert sim.alive()
+        assert sim.stop() == 0
+        assert "rejected a reset request" in sim.output
+        for c in (images, actors, states):
+            c.close()

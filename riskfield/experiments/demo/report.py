@@ -19,6 +19,11 @@ saved run: ``riskfield demo --report-only --out DIR``. The metrics are the exper
   arrival age = at each ``cmd/safe``, its receive time minus the receive time of the newest ESDF
   before it (how long the filter has held the map). Stamps and receive times are both wall clock
   of this machine;
+- people (``people_summary``): the simulator's ground truth of the walking people (``sim/actors``)
+  against the robot's body, as ``riskfield bench crowd`` measures it (``riskfield.experiments.people``):
+  the smallest clearance between the LIMO rectangle and a person's cylinder, contacts at fault (the
+  robot moving towards the person) or the person's, and the ghost time after the crossing walker
+  left the robot's way (fail-safe brakes not counted);
 - per stage (``pipeline_stages``): a camera frame's stamp travels unchanged through the image,
   ``perception/frame`` and the ESDF built from it; the time from the stamp to the first arrival
   of each, and how many camera frames never reached it (perception or mapping skipped them as
@@ -38,10 +43,20 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from riskfield.protocol import DecodeError, EsdfGrid, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
+from riskfield.protocol import (
+    DecodeError,
+    EsdfGrid,
+    NodeStatus,
+    RobotState,
+    SafetyStatus,
+    SimActors,
+    VelocityCommand,
+    decode,
+)
 from riskfield.services.recorder.mcap_io import iter_mcap, raw_key, read_records
 from riskfield.services.simulator.scene import Scene
 
+from .. import people as P
 from ..latency import STAGES, command_latency_ms, latency_summary, latency_table
 from ..navigation import polyline_distance
 from ..scenarios import LOOP, TELEOP_TARGETS, TRACKED, UNSEEN, clearance_series, collisions, scenario, scene_objects
@@ -59,6 +74,10 @@ class Streams:
     state_t: list[float] = field(default_factory=list)
     xy: list[tuple[float, float]] = field(default_factory=list)
     yaw: list[float] = field(default_factory=list)
+    velocity: list[tuple[float, float]] = field(default_factory=list)  # world frame
+    omega: list[float] = field(default_factory=list)
+    actors_t: list[float] = field(default_factory=list)
+    actors: list[SimActors] = field(default_factory=list)
     status_t: list[float] = field(default_factory=list)
     status: list[SafetyStatus] = field(default_factory=list)
     ref_t: list[float] = field(default_factory=list)
@@ -95,6 +114,11 @@ def load_streams(mcap_path: str | Path, root: str) -> Streams:
                 s.state_t.append(t)
                 s.xy.append((m.position[0], m.position[1]))
                 s.yaw.append(m.yaw)
+                s.velocity.append((m.linear_velocity[0], m.linear_velocity[1]))
+                s.omega.append(m.angular_velocity[2])
+            elif rel == "sim/actors":
+                s.actors_t.append(t)
+                s.actors.append(decode(rec.payload, SimActors))
             elif rel == "safety/status":
                 s.status_t.append(t)
                 s.status.append(decode(rec.payload, SafetyStatus))
@@ -225,6 +249,7 @@ def make_report(cfg: DemoConfig, console: Console) -> dict:
         "command_latency_ms": timing_stats(latency), "fallbacks": fallbacks,
         "robot_radius_m": cfg.robot_radius,
     })
+    summary["people"] = people_summary(st, (ph.get("walker_crossing", nav[0]), nav[1]))
     # camera_to_cmd_safe_ms, esdf_content_age_ms, esdf_arrival_age_ms, esdf_age_ms, stages, work_ms
     summary.update(latency_summary(st.stamped, st.safe_t, ages, st.node_extra))
     _print(summary, console)
@@ -234,6 +259,49 @@ def make_report(cfg: DemoConfig, console: Console) -> dict:
     except Exception as exc:  # a plot must never lose the numbers
         console.print(f"[yellow]plots skipped: {exc}[/yellow]")
     return summary
+
+
+def people_summary(st: Streams, window: tuple[float, float]) -> dict[str, Any]:
+    """The walking people against the robot over the whole run (clearance, contacts) and, within
+    ``window`` (the crossing, to the end of navigation), the ghost time (``people`` module)."""
+    from riskfield.protocol import ade20k
+
+    t = np.asarray(st.state_t)
+    out: dict[str, Any] = {"walkers": [], "min_clearance_m": None, "at_fault_contacts": 0, "person_contacts": 0,
+                           "ghost_time_s": None, "ghost_censored": False}
+    tracks: dict[str, list[tuple[float, Any]]] = {}
+    for ta, msg in zip(st.actors_t, st.actors, strict=True):
+        for a in msg.actors:
+            if a.label == ade20k.index("person"):
+                tracks.setdefault(a.name, []).append((ta, a))
+    if not tracks or t.size == 0:
+        return out
+    xy, yaw = np.asarray(st.xy).reshape(-1, 2), np.asarray(st.yaw)
+    vel, omega = np.asarray(st.velocity).reshape(-1, 2), np.asarray(st.omega)
+    centres, gaps, total = [], [], P.Contacts()
+    per: dict[str, float] = {}
+    for name, items in tracks.items():
+        tr = P.Track(np.array([a for a, _ in items]), np.array([m.position[:2] for _, m in items]),
+                     radius=items[-1][1].radius)
+        c = tr.at(t)
+        gap, point = P.rectangle_gap(xy, yaw, c, tr.radius)
+        gap = np.where(tr.present(t), gap, np.inf)
+        total = total + P.contacts(gap, P.approach_speed(xy, vel, omega, point, c))
+        centres.append(c)
+        gaps.append(gap)
+        per[name] = float(gap.min())
+    ratio, valid = P.command_ratio(t, np.asarray(st.ref_t), np.array([c.linear[0] for c in st.ref]),
+                                   np.asarray(st.safe_t), np.array([c.linear[0] for c in st.safe]))
+    status_t = np.asarray(st.status_t)
+    i = np.searchsorted(status_t, t, side="right") - 1
+    brakes = np.array([x.fallback is not None for x in st.status] or [False])
+    braking = np.where(i >= 0, brakes[np.clip(i, 0, len(brakes) - 1)], False)
+    sel = (t >= window[0]) & (t <= window[1])
+    ghost = P.ghost_time(t[sel], ratio[sel], valid[sel], P.relevant(xy, yaw, centres, gaps)[sel], braking[sel])
+    out.update(walkers=sorted(per), min_clearance_per_person_m=per, min_clearance_m=min(per.values()),
+               at_fault_contacts=total.at_fault_samples, person_contacts=total.person_samples,
+               ghost_time_s=float(ghost.time_s), ghost_censored=bool(ghost.censored))
+    return out
 
 
 def _print(summary: dict, console: Console) -> None:
@@ -254,6 +322,13 @@ def _print(summary: dict, console: Console) -> None:
     t3.add_column("value")
     t3.add_row("collisions (episodes of clearance < 0)", str(summary["collisions"]))
     t3.add_row("minimum clearance over the run", f(summary["min_clearance_m"], " m"))
+    ppl = summary.get("people") or {}
+    if ppl.get("walkers"):
+        t3.add_row("people: min clearance (LIMO rectangle ↔ person)", f(ppl["min_clearance_m"], " m"))
+        t3.add_row("people: contacts at fault / the person's (samples)",
+                   f"{ppl['at_fault_contacts']} / {ppl['person_contacts']}")
+        t3.add_row("people: ghost time after the crossing",
+                   f(ppl["ghost_time_s"], " s", 1) + (" (to the end)" if ppl["ghost_censored"] else ""))
     for key in ("camera/image", "perception/frame", "map/esdf", "state", "cmd/ref", "cmd/safe"):
         t3.add_row(f"rate {key}", f(summary["rates_hz"].get(key), " Hz", 1))
     for key, unit, label in (("esdf_age_ms", " ms", "ESDF content age at the filter (its status)"),

@@ -17,7 +17,7 @@ from riskfield.protocol import Keys, RobotState, SafetyStatus, decode
 from riskfield.services.runtime.processes import ProcessRunner, client_session, free_port, wait_until
 
 from ..navigation import drive, place_unseen
-from ..scenarios import LOOP, TELEOP_TARGETS, UNSEEN, navigation_waypoints, scenario
+from ..scenarios import CROSSER, LOOP, TELEOP_TARGETS, UNSEEN, navigation_waypoints, scenario
 from ..stack import recording
 from ..teleop import operator_args, wait_operator_done
 from .config import DemoConfig
@@ -113,8 +113,13 @@ class Demo:
         # -- navigation: a loop round the table, then an unseen ball on the path -------------------
         wps = navigation_waypoints(c.laps)
         placed: list[bool] = []
+        crossing: list[bool] = []
 
         def on_reached(n: int) -> None:
+            if not crossing and n >= 1:  # on the first leg: a person crosses it (scenarios.CROSSER)
+                place_unseen(s, self.keys, CROSSER)
+                crossing.append(True)
+                self._mark("walker_crossing")
             if not placed and n >= len(LOOP):
                 place_unseen(s, self.keys, UNSEEN)
                 placed.append(True)
