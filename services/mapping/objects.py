@@ -204,14 +204,26 @@ class ObjectTracker:
         self.stamp_ns = 0
         self._next_id = 0
 
+    @classmethod
+    def warmed(cls, params: ObjectParams | None = None) -> ObjectTracker:
+        """A tracker whose kernel is compiled (or loaded from numba's cache): for a node, before serving."""
+        g = np.ones((3, 3, 1), np.uint8)
+        lab = np.full((3, 3, 1), NO_LABEL, np.uint16)
+        lab[1, 1, 0] = 12
+        f = np.zeros((3, 3, 1), np.float32)
+        lut = np.ones(65536, np.uint8)
+        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, ObjectParams(movable_labels=("person",)), f, f)
+        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, ObjectParams(movable_labels=("person",)))
+        return cls(params)
+
     def reset(self) -> None:
         """Forget every track (ids keep counting up: never reused by one publisher)."""
         self.tracks.clear()
         self.stamp_ns = 0
 
-    def update_map(self, mapper: object, occupancy: np.ndarray) -> list[TrackedObject]:
+    def update_map(self, mapper: object, occupancy: np.ndarray, stamp_ns: int | None = None) -> list[TrackedObject]:
         """One map update of ``mapper`` (a ``Mapper``), whose semantic occupancy is ``occupancy``:
-        the movable objects of its height band, tracked, at the map's stamp."""
+        the movable objects of its height band, tracked, at the map's stamp (or ``stamp_ns``)."""
         volume = mapper.volume  # type: ignore[attr-defined]
         if volume is None:
             return []
@@ -219,7 +231,7 @@ class ObjectTracker:
         m: Any = mapper
         dets = detect(occupancy, m.semantic.label, (k_lo, k_hi), volume.origin, volume.voxel_size, m.label_to_group,
                       self.params, m.tsdf.tsdf, m.tsdf.weight, m.config.min_weight)
-        return self.update(mapper.stamp_ns, dets, mapper.label_to_group)  # type: ignore[attr-defined]
+        return self.update(m.stamp_ns if stamp_ns is None else stamp_ns, dets, m.label_to_group)
 
     def update(self, stamp_ns: int, detections: list[Detection],
                label_to_group: np.ndarray | None = None) -> list[TrackedObject]:
