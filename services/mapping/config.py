@@ -188,9 +188,10 @@ class ObjectParams(BaseModel):
     movable_labels: tuple[str, ...] = ("person", "animal")
     """ADE20K class names of obstacles that move by themselves: only their voxels make tracked
     objects (furniture, walls and other labels never do)."""
-    object_merge_gap: Annotated[float, Field(ge=0, le=2.0, allow_inf_nan=False)] = 0.15
-    """Footprint parts closer than about this (m) are one object: a person's two legs in the height
-    band are one person, two people side by side closer than this are one object."""
+    object_merge_gap: Annotated[float, Field(ge=0, le=2.0, allow_inf_nan=False)] = 0.2
+    """Footprint parts up to this far apart (m; along the grid axes, rounded up to an even number of
+    voxels; diagonally a little less) are one object: a person's two legs in the height band are one
+    person, and so are two people side by side this close."""
     object_min_area: NonNeg = 0.01
     """Smaller footprints (m², 4 voxels of 5 cm) are left out as label noise."""
     object_max_count: Annotated[int, Field(ge=1, le=1000)] = 32

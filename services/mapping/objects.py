@@ -13,8 +13,8 @@ objects, so furniture and walls never do, whatever their group.
 **2-D footprints.** Only the ESDF slice's height band (``band``, ``Mapper.band_indices``) is
 looked at, projected onto the ground: a ground robot's barrier sees obstacles in that band, people
 and animals move on the floor, and a footprint's centre is steadier than a 3-D centroid whose
-height depends on how much of the body the camera saw. Footprint cells whose faces are within
-``object_merge_gap`` are one object (a person's legs). An object's position is the centre of its
+height depends on how much of the body the camera saw. Footprint parts up to
+``object_merge_gap`` apart are one object (a person's legs). An object's position is the centre of its
 voxels in the band, each weighted by its inside fraction: 1 for the interior and the
 never-observed fill, clip(½ − tsdf / voxel, 0, 1) for an observed surface voxel (the TSDF is the
 distance to the surface, so this is the part of the voxel behind it). Counted whole, binary cells
@@ -130,11 +130,11 @@ def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], ori
                                                 float(min_weight), float(voxel_size), use_tsdf)
     if not seeds.any():
         return []
-    # Cells whose faces are within the merge gap join: a disc of radius (gap + voxel) / 2 around
-    # every cell (Euclidean, so diagonal neighbours are not joined from farther than straight ones).
-    radius = 0.5 * (params.object_merge_gap / voxel_size + 1.0)
-    grow = math.floor(radius + 1e-9)
-    disc = np.add.outer(np.arange(-grow, grow + 1) ** 2, np.arange(-grow, grow + 1) ** 2) <= radius * radius + 1e-9
+    # Every cell grows by a disc of half the merge gap (whole voxels, rounded up) and touching
+    # growths join: along the grid axes, parts up to 2 × grow voxels apart (a disc, not a square,
+    # so diagonal parts do not join from farther).
+    grow = math.ceil(params.object_merge_gap / voxel_size / 2 - 1e-9)
+    disc = np.add.outer(np.arange(-grow, grow + 1) ** 2, np.arange(-grow, grow + 1) ** 2) <= grow * grow
     # Components over the box around the movable columns only (and the dilation's reach).
     bi, bj = np.nonzero(body.any(axis=1))[0], np.nonzero(body.any(axis=0))[0]
     i0, j0 = max(0, int(bi[0]) - grow - 1), max(0, int(bj[0]) - grow - 1)

@@ -10,8 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.protocol import RiskConfig, TrackedObject, ade20k
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import render
+from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig, ObjectParams
 from riskfield.services.mapping.layers import NO_LABEL
+from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.objects import Detection, ObjectTracker, detect
 
 V = 0.05
@@ -178,6 +182,20 @@ def test_a_persons_two_legs_are_one_object_and_two_people_apart_are_two():
     assert len(s.detect()) == 2
 
 
+@pytest.mark.parametrize("gap", [1, 2, 3, 4, 5, 6])
+def test_parts_up_to_the_merge_gap_apart_are_one_object(gap: int):
+    """Two 0.5 m squares ``gap`` voxels apart along x, then along the diagonal (Euclidean: a corner
+    gap of (g, g) voxels is √2 g apart)."""
+    for diagonal in (False, True):
+        s = Scene()
+        s.groups[40:50, 40:50, :], s.labels[40:50, 40:50, :] = HIGH, PERSON
+        j = slice(50 + gap, 60 + gap) if diagonal else slice(40, 50)
+        s.groups[50 + gap:60 + gap, j, :], s.labels[50 + gap:60 + gap, j, :] = HIGH, PERSON
+        apart = gap * V * (math.sqrt(2) if diagonal else 1.0)
+        n = len(s.detect(tsdf=False))
+        assert n == (1 if apart <= ObjectParams().object_merge_gap + 1e-9 else 2), (gap, diagonal, n)
+
+
 def test_a_person_and_their_dog_get_their_own_labels():
     s = Scene().box((0.0, 0.0), (0.4, 0.3), 0.0, PERSON).box((1.0, 0.0), (0.5, 0.25), 0.0, ANIMAL)
     dets = s.detect()
@@ -299,3 +317,22 @@ def test_the_parameters_are_composed_into_the_mapper_config_and_strict():
     # only persons movable: an animal is an obstacle but makes no object
     s = Scene().box((0.0, 0.0), (0.4, 0.3), 0.0, PERSON).box((1.0, 0.0), (0.5, 0.25), 0.0, ANIMAL)
     assert [d.label for d in s.detect(m.objects)] == [PERSON]
+
+
+def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero(room: list):
+    """The mapper's own occupancy: as a swaying camera sees more of a standing person, the footprint
+    grows and its centre drifts by millimetres; the velocity stays exactly zero and the chair beside
+    them is no object."""
+    cam = PinholeCamera.centred(128, 96, 100.0)
+    mapper = Mapper(MapperConfig())
+    mapper.set_robot_position(np.zeros(3))
+    tracker = ObjectTracker(mapper.config.objects)
+    for n, a in enumerate(np.linspace(-0.6, 0.6, 20)):
+        T = look_at(np.array([0.0, 0.3 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
+        pts, conf, lab = render(room, T, cam)
+        mapper.integrate(pts, conf, lab, T, stamp_ns=10**18 + n * STEP_NS, intrinsics=(cam.fx, cam.fy, cam.cx, cam.cy))
+        update = mapper.update_esdf()
+        assert update is not None and update.occupancy is not None
+        obj = only(tracker.update_map(mapper, update.occupancy))
+        assert obj.label == PERSON and obj.id == 0 and obj.velocity == (0.0, 0.0, 0.0)
+        assert 0.8 <= obj.position[0] <= 1.3 and -0.75 <= obj.position[1] <= -0.35  # the box: x 0.8–1.0, y −0.7–−0.4
