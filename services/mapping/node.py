@@ -144,12 +144,12 @@ class MappingNode:
             self.node.stats["esdf_content_age_ms"] = (time.time_ns() - self.mapper.stamp_ns) / 1e6
         if update.slice2d is not None and update.grid3d is not None:
             self.node.publish(self.esdf3d_key, update.grid3d)
-        self.publish_objects(update)
         self.updates += 1
         st = self.node.stats
         st["esdf_updates"] = self.updates
         for name, ms in update.timings_ms.items():
             st[f"{name}_ms"] = ms
+        self.publish_objects(update)  # last: the ESDF and its counters are done whatever happens here
 
     # -- tracked objects (objects.py): after each ESDF, with its header ---------------------------
     def publish_objects(self, update: MapUpdate) -> None:
