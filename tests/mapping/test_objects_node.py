@@ -47,7 +47,8 @@ def test_node_publishes_a_walking_persons_velocity_stamped_like_the_esdf(router_
         sent = walking(9, time.time_ns())
         for f in sent:
             # The next frame goes once this one is in the map: its ESDF or its objects have arrived
-            # (under load a publication can be dropped on the way: Zenoh's default congestion control).
+            # (under load a publication can be dropped on the way: the runtime's publishers keep
+            # zenoh-python's default, ``CongestionControl.DEFAULT = DROP`` in ``zenoh/__init__.pyi``).
             def arrived(stamp: int = f.header.stamp_ns) -> bool:
                 return any(m.header.stamp_ns >= stamp for m in [*grids.items, *objects.items])
 
