@@ -3,7 +3,8 @@
 As in nvblox (``nvblox/mapper/mapper_params.h``: ``MapperParams`` holds the
 ``ProjectiveIntegratorParams``, ``OccupancyIntegratorParams``, ``EsdfIntegratorParams``, ...),
 each stage has its own parameter struct — ``VolumeParams``, ``TsdfParams``,
-``OccupancyParams``, ``EsdfParams`` — and ``MapperConfig`` composes them. The composition is
+``OccupancyParams``, ``EsdfParams``, ``ObjectParams`` (the tracker of moving people and animals,
+``objects.py``) — and ``MapperConfig`` composes them. The composition is
 flat (``MapperConfig`` is each of them), so a setting keeps one short name everywhere
 (``--set truncation=0.2``, ``RISKFIELD_TRUNCATION``, ``config.truncation``); ``config.tsdf``
 etc. give one stage its own struct, and ``MapperConfig.compose`` builds one from the parts.
@@ -17,7 +18,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from riskfield.protocol import ade20k
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -186,10 +189,61 @@ REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
                 "(MapperConfig(esdf_edt='edt'))",
 }
 
+
+class ObjectParams(BaseModel):
+    """The tracker of movable obstacles (``objects.py``): which labels move, how their footprints are
+    segmented, associated across map updates and turned into velocities (``map/objects``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    object_tracking: bool = True
+    """Track movable obstacles after each map update and publish them on ``map/objects``."""
+    movable_labels: tuple[str, ...] = ("person", "animal")
+    """ADE20K class names of obstacles that move by themselves: only their voxels make tracked
+    objects (furniture, walls and other labels never do)."""
+    object_merge_gap: Annotated[float, Field(ge=0, le=2.0, allow_inf_nan=False)] = 0.2
+    """Footprint parts up to this far apart (m; along the grid axes, rounded up to an even number of
+    voxels; diagonally a little less) are one object: a person's two legs in the height band are one
+    person, and so are two people side by side this close."""
+    object_min_area: NonNeg = 0.01
+    """Smaller footprints (m², 4 voxels of 5 cm) are left out as label noise."""
+    object_max_count: Annotated[int, Field(ge=1, le=1000)] = 32
+    """At most this many objects (the largest footprints) per update: the output stays bounded."""
+    object_gate: NonNeg = 0.3
+    """A footprint continues a track of the same label if its centre is within this (m) plus
+    ``object_max_speed`` × the time since the track was last seen of the track's last position
+    (no faster object can be farther); the nearest (to the constant-velocity prediction) wins."""
+    object_window_s: Pos = 0.5
+    """Velocity: least squares over the track's centres of the last this many seconds (frame stamps)."""
+    object_min_samples: Annotated[int, Field(ge=2, le=100)] = 3
+    """A track's velocity stays zero until it has this many observations in the window."""
+    object_max_speed: Pos = 3.0
+    """Estimated speeds are capped at this (m/s): faster than a running person is a segmentation or
+    association error, not motion."""
+    object_deadband: NonNeg = 0.1
+    """Speeds below this (m/s) read zero: a static person's footprint jitter (a voxel over the window
+    is 0.1 m/s) is not motion, so a static scene has ∂h/∂t = 0."""
+    object_expire_s: Pos = 1.0
+    """A track unobserved for longer than this (s) is dropped; until then it is published with its
+    last position and velocity and a growing ``age_ms``."""
+
+    @field_validator("movable_labels")
+    @classmethod
+    def _ade20k_names(cls, names: tuple[str, ...]) -> tuple[str, ...]:
+        for name in names:
+            if name not in ade20k.INDEX:
+                raise ValueError(f"{name!r} is not an ADE20K class name")
+        return names
+
+    @property
+    def movable_indices(self) -> list[int]:
+        return [ade20k.index(n) for n in self.movable_labels]
+
+
 P = TypeVar("P", bound=BaseModel)
 
 
-class MapperConfig(EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
+class MapperConfig(ObjectParams, EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
     """Everything that shapes the map: the stages' parameter structs, composed (see the module
     doc). Group names, labels and margins come from the ``RiskConfig`` instead (hot-reloadable),
     not from here."""
@@ -198,8 +252,9 @@ class MapperConfig(EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
 
     @classmethod
     def compose(cls, volume: VolumeParams | None = None, tsdf: TsdfParams | None = None,
-                occupancy: OccupancyParams | None = None, esdf: EsdfParams | None = None) -> MapperConfig:
-        parts = (volume, tsdf, occupancy, esdf)
+                occupancy: OccupancyParams | None = None, esdf: EsdfParams | None = None,
+                objects: ObjectParams | None = None) -> MapperConfig:
+        parts = (volume, tsdf, occupancy, esdf, objects)
         return cls.model_validate({k: v for p in parts if p is not None for k, v in p.model_dump().items()})
 
     def part(self, params: type[P]) -> P:
@@ -210,6 +265,7 @@ class MapperConfig(EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
     tsdf = property(lambda self: self.part(TsdfParams), doc="The ``TsdfParams`` part.")
     occupancy = property(lambda self: self.part(OccupancyParams), doc="The ``OccupancyParams`` part.")
     esdf = property(lambda self: self.part(EsdfParams), doc="The ``EsdfParams`` part.")
+    objects = property(lambda self: self.part(ObjectParams), doc="The ``ObjectParams`` part.")
 
     @property
     def surface_band(self) -> float:

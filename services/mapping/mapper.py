@@ -54,6 +54,8 @@ class MapUpdate:
     slice2d: EsdfGrid | None = None
     grid3d: EsdfGrid | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    occupancy: np.ndarray | None = None
+    """The semantic occupancy the grids were built from (per-voxel risk group; the tracker's input)."""
 
     @property
     def primary(self) -> EsdfGrid:
@@ -217,6 +219,7 @@ class Mapper:
         groups = self.occupancy()
         t1 = time.perf_counter()
         out.timings_ms["occupancy"] = (t1 - t0) * 1e3
+        out.occupancy = groups
         header = Header(stamp_ns=self.stamp_ns, frame_id=self.frame_id)  # 0: no data integrated yet
         common = dict(voxel_size=self.volume.voxel_size, groups=self.risk.group_names, max_distance=c.max_distance,
                       unknown_is_occupied=c.unknown_is_occupied)

@@ -8,6 +8,8 @@ Publishes, at most ``esdf_rate_hz`` and only after new data (frame, recentring, 
 right after a frame when the rate allows, else as soon as it does
     ``{prefix}/{robot}/map/esdf``          EsdfGrid: the 2-D slice (``output`` 2d or both) or the 3-D grid (3d)
     ``{prefix}/{robot}/map/esdf3d``        EsdfGrid: the 3-D grid when ``output = both`` (additive key)
+    ``{prefix}/{robot}/map/objects``       TrackedObjects: people and animals with velocities, after each
+                                           ESDF and with its header (``objects.py``; ``object_tracking``)
 Serves
     ``{prefix}/{robot}/map/esdf/query``    DistanceQuery → DistanceReply (with ``in_map``), from the
                                            grid published on ``map/esdf``
@@ -27,14 +29,24 @@ import time
 
 import numpy as np
 
-from riskfield.protocol import DistanceQuery, DistanceReply, Header, Limits, PerceptionFrame, RiskConfig, RobotState
+from riskfield.protocol import (
+    DistanceQuery,
+    DistanceReply,
+    Header,
+    Limits,
+    PerceptionFrame,
+    RiskConfig,
+    RobotState,
+    TrackedObjects,
+)
 
 from ..runtime.memory import keep_freed_heap
 from ..runtime.node import Node
 from ..runtime.rate import TokenBucket
 from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
-from .mapper import FrameRejected, Mapper
+from .mapper import FrameRejected, Mapper, MapUpdate
+from .objects import ObjectTracker
 from .settings import MappingSettings
 
 MAX_QUERY_POINTS = 1_000_000
@@ -51,6 +63,7 @@ class MappingNode:
         keep_freed_heap(settings.heap_keep_mb)  # before the warm-up's first large arrays
         self.mapper = Mapper(settings.mapper_config(), risk)
         self.mapper.warm_up()
+        self.tracker = ObjectTracker.warmed(self.mapper.config.objects) if settings.object_tracking else None
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)
         self.rejected = 0
         self.updates = 0
@@ -136,6 +149,17 @@ class MappingNode:
         st["esdf_updates"] = self.updates
         for name, ms in update.timings_ms.items():
             st[f"{name}_ms"] = ms
+        self.publish_objects(update)  # last: the ESDF and its counters are done whatever happens here
+
+    # -- tracked objects (objects.py): after each ESDF, with its header ---------------------------
+    def publish_objects(self, update: MapUpdate) -> None:
+        if self.tracker is None or update.occupancy is None:
+            return
+        t0 = time.perf_counter()
+        objects = self.tracker.update_map(self.mapper, update.occupancy)
+        self.node.publish(self.node.keys.objects, TrackedObjects(header=update.primary.header.model_copy(),
+                                                                 objects=objects))
+        self.node.stats.update(objects=len(objects), objects_ms=(time.perf_counter() - t0) * 1e3)
 
     def on_query(self, query: DistanceQuery) -> DistanceReply:
         if query.points.shape[0] > MAX_QUERY_POINTS:
