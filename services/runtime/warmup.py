@@ -126,7 +126,9 @@ def importers(files: dict[str, Path]) -> dict[str, set[str]]:
                     anchor = package.split(".")
                     anchor = anchor[:len(anchor) - node.level + 1]
                     base = ".".join([*anchor, *([base] if base else [])])
-                targets = [base, *(f"{base}.{a.name}" for a in node.names)]
+                # ``from pkg import mod`` reads mod, not the rest of pkg/__init__; ``from m import X``, m.
+                subs = [f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in names]
+                targets = subs + ([base] if len(subs) < len(node.names) else [])
             for target in targets:
                 if target in names and target != name:
                     out[target].add(name)

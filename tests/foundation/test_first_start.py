@@ -156,3 +156,18 @@ def test_warmup_stamp_records_what_it_compiled_for():
 def test_warmup_command_refuses_an_unknown_service(argv):
     r = subprocess.run([sys.executable, "-m", "riskfield", *argv], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "unknown service" in r.stderr, r.stderr
+
+
+def test_importers_of_a_package_submodule_are_the_submodules_only(tmp_path):
+    """``from pkg import mod`` depends on mod, not on everything pkg/__init__ imports."""
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    files = {}
+    for name, text in {"__init__": "from .big import Y\n", "big": "Y = 2\n", "mod": "X = 1\n",
+                       "user": "from . import mod\n", "other": "from pkg import Y\n"}.items():
+        (pkg / f"{name}.py").write_text(text)
+        files["pkg" if name == "__init__" else f"pkg.{name}"] = pkg / f"{name}.py"
+    graph = importers(files)
+    assert graph["pkg.mod"] == {"pkg.user"} and graph["pkg"] == {"pkg.other"}
+    assert stale_modules({n: "h" for n in files}, {**{n: "h" for n in files}, "pkg.big": "h2"}, files) == {
+        "pkg.big", "pkg", "pkg.other"}
