@@ -145,10 +145,10 @@ def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_
     (``logs.StartupReport``), each kernel numba compiles (``jit.CompileWatch``), and the node's
     "up" line with the seconds since spawn."""
     log = setup_logging(name)
-    log.info("%s starting (pid %d, %.1f s after spawn)", name, os.getpid(), process_age_s())
     with StartupReport(log, compiling=_compiling):
-        spec = load_service(name)
+        spec = load_service(name)  # a missing extra: one line from the caller, nothing before it
         settings = build_settings(spec, overrides)
+        log.info("%s starting (pid %d, %.1f s after spawn)", name, os.getpid(), process_age_s())
         compile_watch()  # registered before setup, where kernels load (or, on a cold cache, compile)
         # A stop asked for while the session is still opening (a router being dialled) is honoured
         # as soon as the node exists, with the same clean exit as later on.
