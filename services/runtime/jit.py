@@ -82,9 +82,9 @@ def kernels() -> list[Any]:
 
 def kernel_name(dispatcher: Any) -> str:
     """``mapping.esdf_kernels.sweep`` for a dispatcher of ``riskfield.services.mapping.esdf_kernels``."""
-    fn = dispatcher.py_func
-    module = fn.__module__.removeprefix("riskfield.").removeprefix("services.")
-    return f"{module}.{fn.__qualname__}"
+    fn = getattr(dispatcher, "py_func", None)
+    module = (getattr(fn, "__module__", None) or "?").removeprefix("riskfield.").removeprefix("services.")
+    return f"{module}.{getattr(fn, '__qualname__', None) or repr(fn)}"
 
 
 def cache_misses() -> int:
@@ -119,7 +119,7 @@ class CompileWatch:
         return (ours[0][0], time.monotonic() - ours[0][1]) if ours else None
 
     def _start(self, dispatcher: Any) -> None:
-        ours = getattr(dispatcher.py_func, "__module__", "").startswith("riskfield.")
+        ours = (getattr(getattr(dispatcher, "py_func", None), "__module__", None) or "").startswith("riskfield.")
         name = kernel_name(dispatcher)
         now = time.monotonic()
         with self._lock:
@@ -141,6 +141,8 @@ class CompileWatch:
 
     def _end(self) -> None:
         with self._lock:
+            if not self._open:
+                return
             name, t0, ours = self._open.pop()
             took = time.monotonic() - t0
             if ours and not any(o for _, _, o in self._open):
@@ -164,11 +166,18 @@ def watch_compiles() -> CompileWatch | None:
         watch = CompileWatch()
 
         class _Listener(event.Listener):
+            # Runs inside numba's compilation: a failure here must never fail the compile.
             def on_start(self, ev: Any) -> None:
-                watch._start(ev.data["dispatcher"])
+                try:
+                    watch._start((ev.data or {}).get("dispatcher"))
+                except Exception:
+                    watch.log.debug("compile event not understood: %r", ev, exc_info=True)
 
             def on_end(self, ev: Any) -> None:
-                watch._end()
+                try:
+                    watch._end()
+                except Exception:
+                    watch.log.debug("compile event not understood: %r", ev, exc_info=True)
 
         event.register("numba:compile", _Listener())
         _WATCH = watch

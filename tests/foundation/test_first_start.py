@@ -171,3 +171,33 @@ def test_importers_of_a_package_submodule_are_the_submodules_only(tmp_path):
     assert graph["pkg.mod"] == {"pkg.user"} and graph["pkg"] == {"pkg.other"}
     assert stale_modules({n: "h" for n in files}, {**{n: "h" for n in files}, "pkg.big": "h2"}, files) == {
         "pkg.big", "pkg", "pkg.other"}
+
+
+def test_compile_watch_counts_riskfield_kernels_not_numbas_helpers(caplog):
+    """numba's own helpers compiled inside one of ours are neither counted nor logged; the outermost
+    kernel of ours is what a start-up report names; an event it cannot read breaks nothing."""
+    import logging
+    import types
+
+    from riskfield.services.runtime.jit import CompileWatch
+
+    def fake(module: str, name: str) -> types.SimpleNamespace:
+        fn = types.SimpleNamespace(__module__=module, __qualname__=name)
+        return types.SimpleNamespace(py_func=fn, overloads={})
+
+    watch = CompileWatch(logging.getLogger("test-kernels"))
+    with caplog.at_level(logging.INFO, logger="test-kernels"):
+        watch._start(fake("riskfield.services.mapping.esdf_kernels", "scan"))
+        watch._start(fake("numba.cpython.builtins", "ol_max.<locals>.impl"))
+        assert watch.current() is not None and watch.current()[0] == "mapping.esdf_kernels.scan"
+        watch._end()
+        watch._start(fake("riskfield.services.mapping.raycast", "ray_voxels"))
+        watch._end()
+        watch._end()
+        watch._end()  # unbalanced: ignored
+        watch._start(None)  # not a dispatcher: named "?", not ours
+        watch._end()
+    assert watch.compiled == 2 and watch.current() is None and watch.seconds >= 0
+    lines = [r.getMessage() for r in caplog.records if "compiling kernel" in r.getMessage()]
+    assert len(lines) == 2 and "mapping.esdf_kernels.scan (1 of " in lines[0], lines
+    assert "mapping.raycast.ray_voxels (2 of " in lines[1], lines
