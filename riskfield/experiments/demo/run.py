@@ -154,7 +154,15 @@ class Demo:
         statuses: list[SafetyStatus] = []
         sub = s.declare_subscriber(self.keys.safety_status, lambda smp: statuses.append(decode(smp.payload.to_bytes())))
         if not wait_until(lambda: any(st.esdf_age_ms >= 0 for st in statuses[-5:]), 60):
-            self.console.print("[red]no ESDF reached the safety filter[/red]")
+            refused = max((st.esdf_refused for st in statuses), default=0)
+            if refused:  # they came, too old: the filter brakes on a stale map, as it must
+                load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+                self.console.print(f"[red]the safety filter refused all {refused} ESDFs it got (fallback "
+                                   f"{statuses[-1].fallback}): the camera → map path is slower than the map "
+                                   f"timeout on this machine (load average {load:.1f}); see "
+                                   f"{c.out / 'stack.log'}[/red]")
+            else:
+                self.console.print("[red]no ESDF reached the safety filter[/red]")
             return False
         sub.undeclare()
         deadline = time.monotonic() + c.budget_s
