@@ -148,6 +148,7 @@ def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_
     with StartupReport(log, compiling=_compiling):
         spec = load_service(name)  # a missing extra: one line from the caller, nothing before it
         settings = build_settings(spec, overrides)
+        setup_logging(name, settings.log_level)  # the level asked for, from the first line on
         log.info("%s starting (pid %d, %.1f s after spawn)", name, os.getpid(), process_age_s())
         compile_watch()  # registered before setup, where kernels load (or, on a cold cache, compile)
         # A stop asked for while the session is still opening (a router being dialled) is honoured
