@@ -1,4 +1,5 @@
-# The two commands of the README. Both do all set-up first (scripts/setup.sh).
+# The two commands of the README. Both do all set-up first (scripts/setup.sh: system packages,
+# .venv, and the nodes' compiled kernels, `riskfield warmup`; each step skipped when done).
 .PHONY: setup demo test check lint bench
 
 setup:

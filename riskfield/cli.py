@@ -46,7 +46,7 @@ def _missing_extras_in_one_line(command: Callable[..., Any]) -> Callable[..., An
 
 #: ``riskfield bench NAME`` runs ``riskfield.experiments.benches.NAME:app``, imported only when asked for.
 BENCHES: tuple[str, ...] = ("codec", "filter", "mapping", "latency", "safety", "teleop", "navigation", "sim",
-                            "perception", "crowd")
+                            "perception", "crowd", "startup")
 
 
 def _version(value: bool) -> None:
@@ -363,6 +363,27 @@ def demo(
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         raise typer.Exit(0)
     raise typer.Exit(Demo(cfg, console).run())
+
+
+@app.command()
+def warmup(
+    services: Annotated[list[str] | None, typer.Argument(
+        help="Services whose kernels to compile (default: every service that has kernels).", show_default=False)
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Start every service's set-up even when the cache "
+                                        "stamp says it is done.")] = False,
+) -> None:
+    """Compile the numba kernels the nodes load at start, once, into the cache they load them from
+    (NUMBA_CACHE_DIR, else __pycache__ next to the sources): a node's first start is then as fast as
+    its second. Cheap when already done; `make setup` runs it, and so can a Dockerfile."""
+    from riskfield.services.runtime import ServiceUnavailable
+    from riskfield.services.runtime.warmup import warm_up
+
+    try:
+        warm_up(services, force=force, say=lambda line: console.print(escape(line)))
+    except ServiceUnavailable as exc:
+        console.print(f"[red]{escape(str(exc))}[/red]")
+        raise typer.Exit(2) from None
 
 
 @app.command()

@@ -2,7 +2,9 @@
 # Everything a fresh machine needs: system libraries (open3d wants libgomp1 and libusb;
 # fault-injection tests want iproute2; deployment tests want openssl and docker-compose to
 # validate the compose file), then a virtualenv in .venv with riskfield and its
-# extras. Re-running is cheap: each step is skipped when already done.
+# extras, then the nodes' compiled kernels (numba) into the cache the nodes load them from, so that
+# no node compiles at its first start. Re-running is cheap: each step is skipped when already done
+# (the warm-up by a stamp of the sources, numba and the CPU it compiled for).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -25,3 +27,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stam
   .venv/bin/python -m pip install -q -e ".[all,dev]"
   touch "$stamp"
 fi
+
+# Tens of seconds to minutes the first time (once per checkout, and again for the kernels whose
+# sources changed); a second or two when done. NUMBA_CACHE_DIR, if set, must be the nodes' too.
+.venv/bin/riskfield warmup

@@ -20,23 +20,15 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "riskfield"))
 
 @pytest.fixture(scope="session", autouse=True)
 def _warm_compiled_kernels() -> None:
-    """Nodes compile their numba kernels in their setup when numba's on-disk cache is cold (a fresh
-    checkout, as in CI): the filter's ~20 s, mapping's ~24 s here. Several nodes of a stack test
-    compiling at once on two cores could outlast the test's readiness wait, so the cache is filled
-    once, in this process, before the first test."""
+    """Nodes load their numba kernels in their setup, compiled there when numba's on-disk cache is
+    cold (a fresh checkout, as in CI): tens of seconds each, several at once in a stack test, which
+    could outlast the test's readiness wait. So the cache is filled first, by the warm-up `make setup`
+    runs (``riskfield warmup``): the nodes' own setups, in this process; a no-op when it is done."""
     try:
-        from riskfield.services.safety_filter.filter import SafetyFilter
-    except ImportError:  # an install without the robot extra
-        pass
-    else:
-        SafetyFilter()
-    try:
-        from riskfield.services.mapping.mapper import Mapper
-        from riskfield.services.mapping.settings import MappingSettings
-    except ImportError:  # an install without the mapping extra
+        from riskfield.services.runtime.warmup import warm_up
+    except ImportError:  # pragma: no cover - an install without the runtime's dependencies
         return
-    for output in ("2d", "3d"):
-        Mapper(MappingSettings(output=output).mapper_config(), None).warm_up()
+    warm_up(say=lambda line: print(line, flush=True))
 
 
 @pytest.fixture(scope="session")

@@ -1,14 +1,29 @@
-"""numba where it is installed: the one optional import behind the compiled kernels.
+"""numba where it is installed: the one optional import behind the compiled kernels, and what a
+node says while numba compiles.
 
 The filter's compiled step (``fields.compiled``, ``safety_filter.compiled``) and the simulated
 camera path's kernels (``perception.kernels``, ``simulator.kernels``) run compiled when numba is
 there and fall back to their numpy reference paths (same results, tested) when an install left
 it out (``pip install ".[robot]"`` on a platform without a numba wheel). Mapping needs numba and
 imports it directly.
+
+Every kernel is ``cache=True``: numba keeps its machine code on disk and a later process loads it
+instead of compiling. Where (numba/core/caching.py, ``CacheImpl._locator_classes``, first that
+fits): ``$NUMBA_CACHE_DIR/<folder>_<sha1 of the folder path>/`` when that variable is set
+(``UserProvidedCacheLocator``), else ``__pycache__`` next to the source when it is writable
+(``InTreeCacheLocator``: the checkout itself for ``pip install -e``), else the user's cache folder
+(``UserWideCacheLocator``, ``~/.cache/numba``). An entry is used only for the same source file
+(``_SourceFileBackedLocatorMixin.get_source_stamp``: a hash of the file), argument types, numba
+version and CPU (``Cache._index_key``, ``CPUCodegen.magic_tuple``). ``riskfield warmup``
+(``warmup.py``) fills it once at set-up; :func:`watch_compiles` makes a cold start say so.
 """
 
 from __future__ import annotations
 
+import logging
+import sys
+import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -25,7 +40,12 @@ except ImportError:  # pragma: no cover - exercised on installs without numba
     njit = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "njit", "numba", "threads"]
+__all__ = ["HAVE_NUMBA", "CompileWatch", "kernels", "njit", "numba", "threads", "watch_compiles"]
+
+#: The logger (and log-line name) of compile progress; ``COMPILING`` starts each such line, which
+#: is what a launcher reading a node's output looks for (``processes.Child.compiling``).
+LOGGER = "kernels"
+COMPILING = "compiling kernel"
 
 
 @contextmanager
@@ -42,3 +62,127 @@ def threads(n: int) -> Iterator[None]:
         yield
     finally:
         numba.set_num_threads(before)
+
+
+def kernels() -> list[Any]:
+    """The numba dispatchers (``@njit`` functions) defined by the riskfield modules loaded now."""
+    if "numba" not in sys.modules:  # never import numba just to find there is nothing compiled
+        return []
+    from numba.core.dispatcher import Dispatcher
+
+    found: dict[int, Any] = {}
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("riskfield.") or module is None:
+            continue
+        for value in list(vars(module).values()):
+            if isinstance(value, Dispatcher) and getattr(value.py_func, "__module__", None) == name:
+                found[id(value)] = value
+    return list(found.values())
+
+
+def kernel_name(dispatcher: Any) -> str:
+    """``mapping.esdf_kernels.sweep`` for a dispatcher of ``riskfield.services.mapping.esdf_kernels``."""
+    fn = getattr(dispatcher, "py_func", None)
+    module = (getattr(fn, "__module__", None) or "?").removeprefix("riskfield.").removeprefix("services.")
+    return f"{module}.{getattr(fn, '__qualname__', None) or repr(fn)}"
+
+
+def cache_misses() -> int:
+    """Signatures the loaded riskfield kernels compiled in this process because numba's on-disk cache
+    did not have them (numba/core/dispatcher.py, ``Dispatcher.compile``: ``_cache_misses``)."""
+    return sum(sum(d.stats.cache_misses.values()) for d in kernels())
+
+
+class CompileWatch:
+    """Logs every riskfield kernel numba compiles in this process (a cache miss: a cached one is
+    loaded silently) with which kernel, how many so far of how many are loaded, and the time spent;
+    counts them (signatures) for the node's status. One per process (:func:`watch_compiles`).
+
+    numba broadcasts ``numba:compile`` around each compilation only, after its cache lookup missed
+    (numba/core/dispatcher.py, ``Dispatcher.compile``; numba/core/event.py, ``register``). A kernel
+    calling another one compiles the callee inside the caller's event: both are counted.
+    """
+
+    def __init__(self, log: logging.Logger | None = None):
+        self.log = log or logging.getLogger(LOGGER)
+        self.compiled = 0
+        self.seconds = 0.0
+        self._names: set[str] = set()
+        self._open: list[tuple[str, float, bool]] = []  # (kernel, start, ours) of compilations in progress
+        self._first: float | None = None
+        self._lock = threading.Lock()
+
+    def current(self) -> tuple[str, float] | None:
+        """(kernel, seconds) of the outermost riskfield kernel being compiled, or None."""
+        with self._lock:
+            ours = [(name, t0) for name, t0, o in self._open if o]
+        return (ours[0][0], time.monotonic() - ours[0][1]) if ours else None
+
+    def _start(self, dispatcher: Any) -> None:
+        ours = (getattr(getattr(dispatcher, "py_func", None), "__module__", None) or "").startswith("riskfield.")
+        name = kernel_name(dispatcher)
+        now = time.monotonic()
+        with self._lock:
+            self._open.append((name, now, ours))
+            if not ours:  # numba's own helpers, compiled inside one of ours (and cached with it)
+                return
+            first = self._first is None
+            if first:
+                self._first = now
+            self.compiled += 1
+            self._names.add(name)
+            n = len(self._names)
+        if first:
+            self.log.info("numba's cache has no %s for this process: compiling (once; `riskfield warmup` "
+                          "does it ahead of start)", name)
+        # Of the kernels loaded now: those compiled plus those not called yet (more modules may load).
+        pending = sum(1 for d in kernels() if not d.overloads and kernel_name(d) not in self._names)
+        self.log.info("%s %s (%d of %d, %.1f s so far)", COMPILING, name, n, n + pending, now - self._first)
+
+    def _end(self) -> None:
+        with self._lock:
+            if not self._open:
+                return
+            name, t0, ours = self._open.pop()
+            took = time.monotonic() - t0
+            if ours and not any(o for _, _, o in self._open):
+                self.seconds += took
+        if ours:
+            self.log.debug("compiled kernel %s in %.1f s", name, took)
+
+
+_WATCH: CompileWatch | None = None
+
+
+def watch_compiles() -> CompileWatch | None:
+    """The process's :class:`CompileWatch`, registered with numba on first call; None when numba is
+    not loaded (a node without kernels must not pay numba's import for this)."""
+    global _WATCH
+    if "numba" not in sys.modules:
+        return None
+    if _WATCH is None:
+        from numba.core import event
+
+        watch = CompileWatch()
+
+        class _Listener(event.Listener):
+            # Runs inside numba's compilation: a failure here must never fail the compile.
+            def on_start(self, ev: Any) -> None:
+                try:
+                    watch._start((ev.data or {}).get("dispatcher"))
+                except Exception:
+                    watch.log.debug("compile event not understood: %r", ev, exc_info=True)
+
+            def on_end(self, ev: Any) -> None:
+                try:
+                    watch._end()
+                except Exception:
+                    watch.log.debug("compile event not understood: %r", ev, exc_info=True)
+
+        event.register("numba:compile", _Listener())
+        _WATCH = watch
+    return _WATCH
+
+
+if HAVE_NUMBA:  # kernel modules import this one before any kernel runs: compiles are seen from the first
+    watch_compiles()

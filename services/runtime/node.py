@@ -13,6 +13,7 @@ import heapq
 import itertools
 import logging
 import os
+import sys
 import threading
 import time
 from collections import deque
@@ -25,7 +26,7 @@ import zenoh
 from riskfield.protocol import ENCODING, DecodeError, Keys, Limits, Message, NodeStatus, decode, encode
 
 from .inbox import Inbox, QueueKind, Slot
-from .logs import RateLimitedLog, setup_logging
+from .logs import RateLimitedLog, process_age_s, setup_logging
 from .memory import HeapTrimmer
 from .session import open_session
 from .settings import NodeSettings
@@ -47,6 +48,16 @@ class _Sub:
         self.key, self.slot, self.msg_type, self.handler, self.limits = key, slot, msg_type, handler, limits
         self.invalid = 0
         self.foreign = 0  # samples dropped because their key is not one this subscription serves
+
+
+def compile_watch() -> Any:
+    """The process's ``jit.CompileWatch`` once numba is loaded, else None: importing ``jit`` loads
+    numba, which a node without kernels (router, operator, bridges) must not pay for."""
+    if "numba" not in sys.modules:
+        return None
+    from . import jit
+
+    return jit.watch_compiles()
 
 
 def serves(sub_key: str, sample_key: str) -> bool:
@@ -225,8 +236,8 @@ class Node:
         end = None if duration_s is None else time.monotonic() + duration_s
         if self._token is None:
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
-        self.log.info("%s up as %s on %s (robot %s)", self.service, self.settings.mode,
-                      ", ".join(self.settings.connect or self.settings.listen), self.settings.robot)
+        self.log.info("%s up as %s on %s (robot %s), %.1f s after spawn", self.service, self.settings.mode,
+                      ", ".join(self.settings.connect or self.settings.listen), self.settings.robot, process_age_s())
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -317,6 +328,9 @@ class Node:
         # Wildcard (or otherwise foreign-keyed) puts dropped by the runtime, all subscriptions.
         extra["wildcard_dropped"] = extra.get("wildcard_dropped", 0.0) + sum(s.foreign for s in self._subs)
         extra["heap_trimmed_kb"] = float(self._heap.released_kb)
+        watch = compile_watch()
+        if watch is not None:  # kernels compiled in this process: 0 after `riskfield warmup`
+            extra["kernels_compiled"] = float(watch.compiled)
         return NodeStatus(
             service=self.service,
             pid=os.getpid(),

@@ -202,11 +202,13 @@ class Child:
         self.streak = 0  # restarts in a row without a healthy run between them
         self.restart_at: float | None = None  # when a pending restart is due (time.monotonic())
         self.pids: list[int] = []  # one per start, oldest first
+        self.last_line = ""  # the last line printed (what a node that is starting says it is doing)
+        self.last_line_at = 0.0  # its time.monotonic()
 
     def start(self) -> Child:
         if self.proc is not None:
             raise RuntimeError(f"{self.label} was started already")
-        self.started_at = time.monotonic()
+        self.started_at = self.last_line_at = time.monotonic()
         self.proc = subprocess.Popen(
             self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=self.env,
             start_new_session=True,  # a terminal's Ctrl-C reaches us only; we stop children in order
@@ -232,6 +234,7 @@ class Child:
             line = raw.decode(errors="replace").rstrip("\n")
             with self._lock:
                 self._lines.append(line)
+                self.last_line, self.last_line_at = line, time.monotonic()
             if self._on_line is not None:
                 self._on_line(self, line)
 
@@ -370,18 +373,33 @@ class ProcessRunner:
         seen = alive_services(session, self.keys.key("alive/*"))
         return {label for label in (labels or self.children) if self.alive_key(label) in seen}
 
-    def wait_ready(self, session: zenoh.Session, labels: Sequence[str] | None = None, timeout_s: float = 60.0) -> bool:
-        """Wait until every child of ``labels`` (default all) is alive on the network; False on
-        timeout or as soon as one of them exits."""
+    def wait_ready(self, session: zenoh.Session, labels: Sequence[str] | None = None, timeout_s: float = 60.0, *,
+                   quiet_s: float | None = None, progress: Callable[[dict[str, Child], float], None] | None = None,
+                   progress_every_s: float = 5.0) -> bool:
+        """Wait until every child of ``labels`` (default all) is alive on the network; False after
+        ``timeout_s`` or as soon as one of them exits. With ``quiet_s``, also False as soon as a child
+        not alive yet has printed nothing for that long: a node that is starting says what it does
+        every few seconds (``logs.StartupReport``: the kernel it compiles, say), so a long start goes
+        on as long as it makes itself heard, up to ``timeout_s``. ``progress(late, elapsed)`` is called
+        every ``progress_every_s`` with the children not alive yet."""
         want = list(labels or self.children)
-        end = time.monotonic() + timeout_s
+        t0 = time.monotonic()
+        end, told = t0 + timeout_s, t0
         while True:
             if any(self.children[label].returncode is not None for label in want):
                 return False
-            if self.ready(session, want) == set(want):
+            up = self.ready(session, want)
+            if up == set(want):
                 return True
-            if time.monotonic() >= end:
+            now = time.monotonic()
+            late = {label: self.children[label] for label in want if label not in up}
+            if now >= end:
                 return False
+            if quiet_s is not None and any(now - c.last_line_at > quiet_s for c in late.values()):
+                return False
+            if progress is not None and now - told >= progress_every_s:
+                told = now
+                progress(late, now - t0)
             time.sleep(0.1)  # poll period of the liveliness query
 
     def exited(self) -> list[Child]:

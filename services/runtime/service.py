@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from .node import Node
+from .logs import StartupReport, process_age_s, setup_logging
+from .node import Node, compile_watch
 from .settings import NodeSettings
 from .signals import catch_stop_signals
 
@@ -135,22 +138,37 @@ def build_settings(spec: ServiceSpec, overrides: dict[str, Any] | None = None) -
 
 
 def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_s: float | None = None) -> int:
-    """Start one service in this process and serve until a signal; the exit code."""
-    spec = load_service(name)
-    settings = build_settings(spec, overrides)
-    # A stop asked for while the session is still opening (a router being dialled) is honoured
-    # as soon as the node exists, with the same clean exit as later on.
-    early = threading.Event()
-    restore = catch_stop_signals(lambda _name: early.set())
-    try:
-        node = Node(spec.name, settings)
-    finally:
-        restore()
-    try:
-        handle = spec.setup(node, settings)
-    except BaseException:
-        node.close()
-        raise
+    """Start one service in this process and serve until a signal; the exit code.
+
+    Start-up (imports, session, the service's setup: where kernels load or compile) is reported:
+    a line when it begins, one every few seconds saying what it is doing while it lasts
+    (``logs.StartupReport``), each kernel numba compiles (``jit.CompileWatch``), and the node's
+    "up" line with the seconds since spawn."""
+    log = setup_logging(name)
+    with StartupReport(log, compiling=_compiling):
+        spec = load_service(name)  # a missing extra: one line from the caller, nothing before it
+        settings = build_settings(spec, overrides)
+        setup_logging(name, settings.log_level)  # the level asked for, from the first line on
+        log.info("%s starting (pid %d, %.1f s after spawn)", name, os.getpid(), process_age_s())
+        compile_watch()  # registered before setup, where kernels load (or, on a cold cache, compile)
+        # A stop asked for while the session is still opening (a router being dialled) is honoured
+        # as soon as the node exists, with the same clean exit as later on.
+        early = threading.Event()
+        restore = catch_stop_signals(lambda _name: early.set())
+        try:
+            node = Node(spec.name, settings)
+        finally:
+            restore()
+        try:
+            handle = spec.setup(node, settings)
+        except BaseException:
+            node.close()
+            raise
+    watch = compile_watch()  # numba may have been imported by setup only
+    if watch is not None and watch.compiled:
+        node.log.warning("compiled %d kernel signature(s) in %.1f s at start: numba's cache was cold or stale; "
+                         "`riskfield warmup` (make setup) compiles them once, ahead of start", watch.compiled,
+                         watch.seconds)
     if early.is_set():
         node.stop("signal during start-up")
     try:
@@ -159,3 +177,14 @@ def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_
         close = getattr(handle, "close", None)
         if callable(close):
             close()
+
+
+def _compiling() -> str:
+    """What a start-up report says while numba compiles a kernel, else ``""``. Runs on the report's
+    thread: reads the watch if there is one, never imports (numba may be half-imported right now)."""
+    jit = sys.modules.get("riskfield.services.runtime.jit")
+    watch = getattr(jit, "_WATCH", None)
+    now = watch.current() if watch is not None else None
+    if now is None:
+        return ""
+    return f"compiling kernel {now[0]} for {now[1]:.0f} s ({watch.compiled} compiled so far)"

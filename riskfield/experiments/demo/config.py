@@ -15,6 +15,9 @@ class DemoConfig:
     teleop_push_s: float = 6.0
     laps: float = 1.5
     budget_s: float = 100.0  # the two experiments together, after start-up
+    ready_timeout_s: float = 900.0  # the longest start-up waited for, while the services report progress
+    quiet_s: float = 120.0  # a service still starting that printed nothing for this long is stuck
+    warm_up: bool = True  # compile the services' kernels before starting them (cheap when done)
     robot_radius: float = 0.15
     verbose: bool = False
     perception: str = "sim"  # or "rgbd": the simulator publishes depth, perception poses it by odometry

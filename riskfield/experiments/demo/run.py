@@ -8,13 +8,18 @@ run too (``riskfield.experiments.teleop`` and ``.navigation``), in the demo's ro
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import time
 
 import yaml
 from rich.console import Console
+from rich.markup import escape
 
 from riskfield.protocol import Keys, RobotState, SafetyStatus, decode
-from riskfield.services.runtime.processes import ProcessRunner, client_session, free_port, wait_until
+from riskfield.services.runtime.processes import Child, ProcessRunner, client_session, free_port, wait_until
+from riskfield.services.runtime.warmup import KERNEL_SERVICES
 
 from ..navigation import drive, place_unseen
 from ..scenarios import CROSSER, LOOP, TELEOP_TARGETS, UNSEEN, navigation_waypoints, scenario
@@ -73,6 +78,8 @@ class Demo:
         self.t0 = time.monotonic()
         runner = self._runner()
         ok = False
+        if c.warm_up and not self._warm_up(runner):
+            return 1
         try:
             runner.start()
             self._mark("stack_started")
@@ -91,9 +98,36 @@ class Demo:
         (c.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         return 0 if ok and not dead and summary["collisions"] == 0 else 1
 
+    def _warm_up(self, runner: ProcessRunner) -> bool:
+        """``riskfield warmup`` for the demo's services with kernels, in a process of its own (as the
+        nodes load them: this one stays light), its lines shown as they come."""
+        services = sorted({child.service for child in runner.children.values()} & set(KERNEL_SERVICES))
+        if not services:
+            return True
+        proc = subprocess.Popen([sys.executable, "-m", "riskfield", "warmup", *services], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            self.console.print(f"[dim]{escape(line.rstrip())}[/dim]")
+        if proc.wait() != 0:
+            self.console.print(f"[red]riskfield warmup {' '.join(services)} failed (exit code {proc.returncode})[/red]")
+            return False
+        self._mark("kernels_ready")
+        return True
+
+    def _waiting(self, late: dict[str, Child], elapsed: float) -> None:
+        """One line per service still starting, with what it last said (the kernel it compiles)."""
+        for label, child in late.items():
+            said = child.last_line.split(": ", 1)[-1] if child.last_line else "(nothing yet)"
+            self.console.print(f"[dim]{elapsed:6.1f} s  waiting for {label}: {escape(said[:160])}[/dim]")
+
     def _experiments(self, s, runner: ProcessRunner) -> bool:
         c = self.cfg
-        if not runner.wait_ready(s, None, 120):
+        # As long as the services take to start, while each says what it does (every 5 s while it
+        # starts, logs.StartupReport), up to ready_timeout_s: a cold numba cache on a busy machine
+        # takes minutes, a node that went silent is stuck.
+        if not runner.wait_ready(s, None, c.ready_timeout_s, quiet_s=c.quiet_s, progress=self._waiting,
+                                 progress_every_s=10.0):
             late = [label for label in runner.children if label not in runner.ready(s)]
             self.console.print(f"[red]{', '.join(late)} did not come up (see {c.out / 'stack.log'})[/red]")
             return False
@@ -101,7 +135,15 @@ class Demo:
         statuses: list[SafetyStatus] = []
         sub = s.declare_subscriber(self.keys.safety_status, lambda smp: statuses.append(decode(smp.payload.to_bytes())))
         if not wait_until(lambda: any(st.esdf_age_ms >= 0 for st in statuses[-5:]), 60):
-            self.console.print("[red]no ESDF reached the safety filter[/red]")
+            refused = max((st.esdf_refused for st in statuses), default=0)
+            if refused:  # they came, too old: the filter brakes on a stale map, as it must
+                load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+                self.console.print(f"[red]the safety filter refused all {refused} ESDFs it got (fallback "
+                                   f"{statuses[-1].fallback}): the camera → map path is slower than the map "
+                                   f"timeout on this machine (load average {load:.1f}); see "
+                                   f"{c.out / 'stack.log'}[/red]")
+            else:
+                self.console.print("[red]no ESDF reached the safety filter[/red]")
             return False
         sub.undeclare()
         deadline = time.monotonic() + c.budget_s
