@@ -220,6 +220,9 @@ class SimBackend:
             if self._needs_keyframe(kf, m, T_WC_true):
                 m = None
         if self.config.publish == "updates":
+            if m is not None:
+                assert kf is not None
+                self._forget_gone(kf, points, valid, T_WC_true)
             return self._updates(kf, m, obs, points, T_WC_true, stamp_ns)
         if m is None:
             kf = self.keyframe = self._new_keyframe(obs, points, T_WC_true)
@@ -228,6 +231,29 @@ class SimBackend:
             assert kf is not None
             self._fuse(kf, m, obs, T_WC_true)
         return [self._message(kf, obs, m, T_WC_true, stamp_ns)]
+
+    def _forget_gone(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray,
+                     T_WC_true: np.ndarray) -> int:
+        """No keyframe outlives what it shows: a keyframe pixel whose surface this frame sees
+        *through* (its pixel here sees farther than the keyframe's point, beyond the occlusion
+        tolerance: a person who walked away) is dropped from the keyframe (confidence 0, no longer
+        matched), so its next ``keyframe_update`` takes the ghost out of the map. A keyframe point
+        hidden behind something nearer is only occluded and stays. Returns the pixels dropped."""
+        pc = transform_points(_inv(T_WC_true), kf.world_true)
+        z = pc[:, 2]
+        front = kf.valid & (z > 1e-6)
+        h, w = truth_valid.shape
+        uv, _ = self._camera.project(np.where(front[:, None], pc, [0.0, 0.0, 1.0]))
+        u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        idx = np.where(inside, v * w + u, 0)
+        tol = self.config.depth_tol_abs + self.config.depth_tol_rel * z
+        gone = inside & truth_valid.reshape(-1)[idx] & (truth_points.reshape(-1, 3)[idx, 2] > z + tol)
+        n = int(gone.sum())
+        if n:
+            kf.valid[gone] = False
+            kf.fusion.C[gone] = 0.0
+        return n
 
     def _fuse(self, kf: _Keyframe, m: Matches, obs: Observation, T_WC_true: np.ndarray) -> None:
         T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate

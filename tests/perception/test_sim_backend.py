@@ -146,3 +146,25 @@ def test_each_frame_publishes_its_own_pose_and_what_it_sees_now(publish: str) ->
     # put on this pixel: the same surface, off by the pixel's footprint on sloped faces
     assert np.percentile(depth_err[valid], 99) < (0.05 if publish == "keyframe" else 1e-3)
     assert (f.labels[30:60, 50:80] == 12).mean() > 0.9
+
+
+def test_no_keyframe_outlives_what_it_shows() -> None:
+    """``publish = updates``: a person in the keyframe walks away while the camera stands still (no
+    new keyframe): the keyframe drops the pixels the frames now see through, and its next update
+    carries the wall behind, not the person."""
+    world = World(load_scenario(SMALL))
+    b = SimBackend(SimBackendConfig(DegradationConfig(noise_a=0, noise_b=0, p_boundary=0, p_confuse=0, p_salt=0),
+                                    publish="updates", update_every=2))
+    t0, pts = truth_of(world)
+    near = pts.copy()
+    near[30:60, 50:80] *= 0.5  # a person in the keyframe
+    first = b.process(None, t0.model_copy(update={"points": near}), 1)
+    assert [f.kind for f in first] == ["keyframe_new"]
+    assert (first[0].confidence[30:60, 50:80] > 0).all()
+    out = []
+    for i in range(2, 5):  # they left: the same view without them
+        out += b.process(None, t0, i)
+    assert b.n_keyframes == 1
+    update = [f for f in out if f.kind == "keyframe_update"][-1]
+    assert (update.confidence[30:60, 50:80] == 0).all()  # the ghost is out of the keyframe
+    assert (update.confidence[:30] > 0).mean() > 0.9  # the rest stays
