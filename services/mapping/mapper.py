@@ -61,7 +61,7 @@ from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import MapperConfig
 from .esdf_integrator import EsdfIntegrator
 from .keyframes import KeyframeMap
-from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer
+from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
 from .projective_integrator import ProjectiveIntegrator
@@ -122,6 +122,7 @@ class Mapper:
         self.present: TsdfLayer | None = None
         self.present_semantic: SemanticLayer | None = None
         self._composite: tuple[TsdfLayer, SemanticLayer] | None = None
+        self.overlaid = 0  # voxels the present layer decided in the last occupancy
         self.present_clears = 0
         # Frame time on the layers' ``hit`` clock: ms since the first frame (int32 spans 24 days).
         self.epoch_ns: int | None = None
@@ -263,11 +264,12 @@ class Mapper:
         if self.present is not None and self.present_semantic is not None:
             layers.append((self.present, self.present_semantic))
         for tsdf, sem in layers:
-            stale = self._dynamic[sem.label]
-            stale &= tsdf.hit < oldest
-            stale &= tsdf.weight > 0
-            stale &= tsdf.tsdf <= self.config.surface_band  # only what makes an obstacle: keep free space
-            k = int(np.count_nonzero(stale))
+            # Obstacle voxels first (a few % of the volume), then their labels and times: only
+            # what makes an obstacle decays, free space is kept.
+            cand = np.flatnonzero((tsdf.tsdf.reshape(-1) <= self.config.surface_band) & (tsdf.weight.reshape(-1) > 0))
+            cand = cand[self._dynamic[sem.label.reshape(-1)[cand]] & (tsdf.hit.reshape(-1)[cand] < oldest)]
+            stale = np.unravel_index(cand, tsdf.tsdf.shape)
+            k = int(cand.size)
             if k:
                 tsdf.tsdf[stale] = tsdf.truncation
                 tsdf.weight[stale] = 0.0
@@ -290,13 +292,13 @@ class Mapper:
         if self._composite is None or self._composite[0].tsdf.shape != self.tsdf.tsdf.shape:
             self._composite = (TsdfLayer(self.shape, self.config.truncation), SemanticLayer(self.shape))
         ct, cs = self._composite
-        use = self.overlay_mask()
-        for out, base, top in ((ct.tsdf, self.tsdf.tsdf, p.tsdf), (ct.weight, self.tsdf.weight, p.weight),
-                               (cs.label, self.semantic.label, ps.label), (cs.vote, self.semantic.vote, ps.vote)):
-            np.copyto(out, base)
-            np.copyto(out, top, where=use)
-        np.copyto(ct.view, self.tsdf.view)
-        np.copyto(ct.view, p.view, where=use[..., None])
+        t, sem, c = self.tsdf, self.semantic, self.config
+        n = t.tsdf.size
+        self.overlaid = overlay(t.tsdf.reshape(n), t.weight.reshape(n), t.view.reshape(n, 3), sem.label.reshape(n),
+                                sem.vote.reshape(n), p.tsdf.reshape(n), p.weight.reshape(n), p.view.reshape(n, 3),
+                                ps.label.reshape(n), ps.vote.reshape(n), max(c.min_weight, 1e-12), c.surface_band,
+                                ct.tsdf.reshape(n), ct.weight.reshape(n), ct.view.reshape(n, 3), cs.label.reshape(n),
+                                cs.vote.reshape(n))
         return ct, cs
 
     def overlay_mask(self) -> np.ndarray:

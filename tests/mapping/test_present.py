@@ -134,3 +134,27 @@ def test_people_out_of_view_persist_for_T_then_decay_furniture_stays(protocol: b
     for _ in range(30):  # 30 s more, a frame a second: the chair stays
         feed.frame(ROOM, AWAY, dt_ns=10 * STEP)
     assert feed.at(0.9, 0.45)[0] < 0.1 and feed.at(0.9, 0.45)[1] != 1
+
+
+def test_the_compiled_overlay_equals_its_array_definition() -> None:
+    """``Mapper.layers`` (one compiled pass) against ``Mapper.overlay_mask`` (array operations)."""
+    from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
+
+    rng = np.random.default_rng(3)
+    m = Mapper(MapperConfig(half_extent=(0.5, 0.5, 0.5)))
+    m.set_robot_position(np.zeros(3))
+    m.present, m.present_semantic = TsdfLayer(m.shape, 0.15), SemanticLayer(m.shape)
+    for t, s in ((m.tsdf, m.semantic), (m.present, m.present_semantic)):
+        t.tsdf[...] = rng.uniform(-0.15, 0.15, m.shape)
+        t.weight[...] = rng.choice([0.0, 0.3, 1.0, 20.0], m.shape)
+        t.view[...] = rng.integers(-127, 128, (*m.shape, 3))
+        s.label[...] = rng.integers(0, 150, m.shape)
+        s.vote[...] = rng.uniform(0, 5, m.shape)
+    use = m.overlay_mask()
+    ct, cs = m.layers()
+    assert 0 < m.overlaid == use.sum() < use.size
+    for out, base, top in ((ct.tsdf, m.tsdf.tsdf, m.present.tsdf), (ct.weight, m.tsdf.weight, m.present.weight),
+                           (cs.label, m.semantic.label, m.present_semantic.label),
+                           (cs.vote, m.semantic.vote, m.present_semantic.vote)):
+        np.testing.assert_array_equal(out, np.where(use, top, base))
+    np.testing.assert_array_equal(ct.view, np.where(use[..., None], m.present.view, m.tsdf.view))
