@@ -3,8 +3,9 @@
 As in nvblox (``nvblox/mapper/mapper_params.h``: ``MapperParams`` holds the
 ``ProjectiveIntegratorParams``, ``OccupancyIntegratorParams``, ``EsdfIntegratorParams``, ...),
 each stage has its own parameter struct — ``VolumeParams``, ``TsdfParams``,
-``OccupancyParams``, ``EsdfParams``, ``ObjectParams`` (the tracker of moving people and animals,
-``objects.py``) — and ``MapperConfig`` composes them. The composition is
+``OccupancyParams``, ``EsdfParams``, ``DynamicParams`` (how people and animals decay),
+``ObjectParams`` (the tracker of moving people and animals, ``objects.py``) — and ``MapperConfig``
+composes them. The composition is
 flat (``MapperConfig`` is each of them), so a setting keeps one short name everywhere
 (``--set truncation=0.2``, ``RISKFIELD_TRUNCATION``, ``config.truncation``); ``config.tsdf``
 etc. give one stage its own struct, and ``MapperConfig.compose`` builds one from the parts.
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from riskfield.protocol import ade20k
 
@@ -64,7 +65,12 @@ class TsdfParams(BaseModel):
     truncation: Pos = 0.15
     """TSDF truncation distance (m); the band updated around each observed surface point."""
     max_weight: Pos = 50.0
-    """Cap of a voxel's accumulated weight, so the map can still follow moving people and pets."""
+    """Cap of a voxel's accumulated weight, so the map can still follow moving people and pets:
+    the TSDF is a running mean over the last few frames' worth of confidence. A person who stood
+    3 s clears 2–9 frames after leaving at confidence 10–1.5 (``tests/mapping/test_present.py``).
+    20 clears in 1–4 but lets the carving rays of the ray integrators (frames without intrinsics,
+    e.g. ``mast3r``) erode surfaces seen up close. Under the keyframe protocol it caps the present
+    layer; the keyframes' own sums are uncapped (``keyframes.py``)."""
     min_confidence: NonNeg = 0.1
     """Pixels whose confidence is below this are skipped."""
     min_depth: NonNeg = 0.05
@@ -89,6 +95,13 @@ class TsdfParams(BaseModel):
     """``ray`` integration only: every n-th pixel carves."""
     carve_weight: Annotated[float, Field(gt=0, le=100.0)] = 1.0
     """Weight of a free-space observation relative to its pixel's confidence."""
+    max_free_weight: Pos = 3.0
+    """Free-space observations raise a voxel's weight only up to this (a surface observation up to
+    ``max_weight``). A surface appearing in space long seen free is then not drowned: its mean
+    crosses into the surface band once its weight is about 3× this (the band is a quarter of the
+    truncation). Measured (``tests/mapping/test_present.py``, 10 Hz frames): a person appears in
+    2 frames at the ``sim`` backend's confidence ≈ 7 of a fresh keyframe, 3 at 4, 5 at 2 (with 50,
+    the cap of surfaces then, 2 s at 7: issue 23). Lower shows single-frame outliers as obstacles."""
     max_pixels: Annotated[int, Field(gt=0)] = 4_000_000
     """Frames with more pixels than this are rejected as absurd."""
 
@@ -177,6 +190,43 @@ class EsdfParams(BaseModel):
         return self
 
 
+class DynamicParams(BaseModel):
+    """How the map follows a changing world: the present layer of the keyframe protocol and the
+    decay of people and animals (see ``mapper.py``, "The map shows the present")."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    dynamic_labels: tuple[str, ...] = ("person", "animal")
+    """ADE20K classes that move by themselves: their voxels decay once no current frame has seen
+    them at a surface for ``dynamic_persist_s``; other classes (furniture, walls) never decay."""
+    dynamic_persist_s: NonNeg = 3.0
+    """T: how long a person or animal stays in the map after a current frame last saw it (out of
+    view, occluded). 3 s: a LIMO at its 1 m/s passes a person beside it (where the forward camera
+    does not look) within 1.5 s and turns 90° in about 2 s, so a person it just saw stays while it
+    could still turn or back into them; a walker at 1.5 m/s has moved 4.5 m by then, so a longer
+    memory mostly keeps a ghost."""
+    repose_tolerance: Pos = 0.025
+    """A ``keyframe_update`` whose pose moved more than this (m at the camera, or the angle times
+    ``max_depth``) re-poses the world the present layer was built in: the present layer is cleared
+    and rebuilt from the next frames (default: half a 5 cm voxel)."""
+
+    @model_validator(mode="after")
+    def _labels(self) -> DynamicParams:
+
+        for name in self.dynamic_labels:
+            try:
+                ade20k.index(name)
+            except KeyError as exc:
+                raise ValueError(f"dynamic_labels: {exc.args[0]}") from None
+        return self
+
+    @property
+    def dynamic_indices(self) -> list[int]:
+        """ADE20K indices of ``dynamic_labels``."""
+
+        return [ade20k.index(n) for n in self.dynamic_labels]
+
+
 #: ``EsdfParams`` fields that choose a reference implementation, kept so the tests and the bench can
 #: compare against it: core parameters (``MapperConfig(esdf_kernel="numpy")``), not node settings
 #: (``MappingSettings.REFERENCE_ONLY``: setting one is an error saying this). ``esdf_incremental``
@@ -191,16 +241,13 @@ REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
 
 
 class ObjectParams(BaseModel):
-    """The tracker of movable obstacles (``objects.py``): which labels move, how their footprints are
-    segmented, associated across map updates and turned into velocities (``map/objects``)."""
+    """The tracker of movable obstacles (``objects.py``; which labels move is ``DynamicParams.dynamic_labels``):
+    how their footprints are segmented, associated across map updates and turned into velocities (``map/objects``)."""
 
     model_config = ConfigDict(extra="forbid")
 
     object_tracking: bool = True
     """Track movable obstacles after each map update and publish them on ``map/objects``."""
-    movable_labels: tuple[str, ...] = ("person", "animal")
-    """ADE20K class names of obstacles that move by themselves: only their voxels make tracked
-    objects (furniture, walls and other labels never do)."""
     object_merge_gap: Annotated[float, Field(ge=0, le=2.0, allow_inf_nan=False)] = 0.2
     """Footprint parts up to this far apart (m; along the grid axes, rounded up to an even number of
     voxels; diagonally a little less) are one object: a person's two legs in the height band are one
@@ -227,23 +274,11 @@ class ObjectParams(BaseModel):
     """A track unobserved for longer than this (s) is dropped; until then it is published with its
     last position and velocity and a growing ``age_ms``."""
 
-    @field_validator("movable_labels")
-    @classmethod
-    def _ade20k_names(cls, names: tuple[str, ...]) -> tuple[str, ...]:
-        for name in names:
-            if name not in ade20k.INDEX:
-                raise ValueError(f"{name!r} is not an ADE20K class name")
-        return names
-
-    @property
-    def movable_indices(self) -> list[int]:
-        return [ade20k.index(n) for n in self.movable_labels]
-
 
 P = TypeVar("P", bound=BaseModel)
 
 
-class MapperConfig(ObjectParams, EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
+class MapperConfig(ObjectParams, DynamicParams, EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
     """Everything that shapes the map: the stages' parameter structs, composed (see the module
     doc). Group names, labels and margins come from the ``RiskConfig`` instead (hot-reloadable),
     not from here."""
@@ -253,8 +288,8 @@ class MapperConfig(ObjectParams, EsdfParams, OccupancyParams, TsdfParams, Volume
     @classmethod
     def compose(cls, volume: VolumeParams | None = None, tsdf: TsdfParams | None = None,
                 occupancy: OccupancyParams | None = None, esdf: EsdfParams | None = None,
-                objects: ObjectParams | None = None) -> MapperConfig:
-        parts = (volume, tsdf, occupancy, esdf, objects)
+                dynamic: DynamicParams | None = None, objects: ObjectParams | None = None) -> MapperConfig:
+        parts = (volume, tsdf, occupancy, esdf, dynamic, objects)
         return cls.model_validate({k: v for p in parts if p is not None for k, v in p.model_dump().items()})
 
     def part(self, params: type[P]) -> P:
@@ -265,6 +300,7 @@ class MapperConfig(ObjectParams, EsdfParams, OccupancyParams, TsdfParams, Volume
     tsdf = property(lambda self: self.part(TsdfParams), doc="The ``TsdfParams`` part.")
     occupancy = property(lambda self: self.part(OccupancyParams), doc="The ``OccupancyParams`` part.")
     esdf = property(lambda self: self.part(EsdfParams), doc="The ``EsdfParams`` part.")
+    dynamic = property(lambda self: self.part(DynamicParams), doc="The ``DynamicParams`` part.")
     objects = property(lambda self: self.part(ObjectParams), doc="The ``ObjectParams`` part.")
 
     @property

@@ -5,7 +5,13 @@ A ``PerceptionFrame`` with ``kind`` set follows the map-update protocol (see the
 
 * ``keyframe_new``    — integrate the keyframe and remember its contribution;
 * ``keyframe_update`` — subtract the contribution it made last time, integrate the new one;
-* ``tracking``        — no geometry; its stamp says the map is current.
+* ``tracking``        — the current frame: into the mapper's present layer (``mapper.py``), not
+                        attributed to a keyframe.
+
+``keyframe_new`` is a current frame too and also reaches the present layer. A ``keyframe_update``
+whose pose moved (over ``repose_tolerance``) clears the present layer: it was built in the old
+frame of reference. Only current frames advance the map's stamp (a ``keyframe_update`` re-sends
+refined, not new, data).
 
 The TSDF update of the integrator is a weighted running mean, so one frame's effect on a voxel is
 a pair (d_k, w_k): the weighted mean of the truncated distances its rays wrote there and their
@@ -147,8 +153,10 @@ class ContributionIntegrator:
         return self.wsum
 
     def apply(self, volume: Volume, layer: TsdfLayer, c: Contribution, sign: float,
-              semantic: SemanticLayer | None = None) -> int:
-        """Add (``sign`` = +1) or subtract (−1) a contribution; returns the voxels inside the volume."""
+              semantic: SemanticLayer | None = None, hit_ms: int | None = None) -> int:
+        """Add (``sign`` = +1) or subtract (−1) a contribution; returns the voxels inside the volume.
+        Adding with ``hit_ms`` (when the keyframe's frame was seen) stamps its surface voxels'
+        ``hit`` (the decay of people, ``mapper.py``) unless a later frame did."""
         wsum = self._sums(volume, layer)
         ijk, inside = self._local(volume, c.index)
         d, w = c.d[inside].astype(np.float64), c.w[inside].astype(np.float64)
@@ -171,6 +179,10 @@ class ContributionIntegrator:
             layer.tsdf[ijk] = np.where(gone, tau, D1)
         wsum[ijk] = W1
         layer.weight[ijk] = np.minimum(W1, self.config.max_weight)
+        if sign > 0 and hit_ms is not None:
+            surface = d < tau * (1.0 - 1e-6)  # some ray of the keyframe ended near this voxel
+            sel = tuple(a[surface] for a in ijk)
+            layer.hit[sel] = np.maximum(layer.hit[sel], np.int32(hit_ms))
         view = getattr(layer, "view", None)
         if view is not None and c.view is not None and self.vsum is not None:
             # The direction behind a surface: the weight-averaged direction of the keyframes that
@@ -236,6 +248,8 @@ class KeyframeMap:
         self.max_keyframes, self.max_bytes = max_keyframes, max_bytes
         self.integrator = ContributionIntegrator(config)
         self.records: OrderedDict[int, Contribution] = OrderedDict()
+        self.poses: dict[int, np.ndarray] = {}  # the pose each record was integrated at
+        self.seen_ms: dict[int, int] = {}  # when each keyframe's own frame was seen (mapper clock)
         self.frozen: set[int] = set()
         self.nbytes = 0
         self.counts = {NEW: 0, UPDATE: 0, TRACKING: 0, "frozen_updates": 0, "evicted": 0}
@@ -253,36 +267,54 @@ class KeyframeMap:
         shifted = False
         if mapper.robot_position is None:
             shifted = mapper._follow(np.asarray(frame.T_WC, dtype=np.float64)[:3, 3])
+        assert mapper.volume is not None
+        T_WC = np.asarray(frame.T_WC, dtype=np.float64)
+        stamp = int(frame.header.stamp_ns)
         rays = votes = 0
+        current = kind != UPDATE  # new keyframes and tracked frames show the camera's present view
         if kind == UPDATE and kid in self.frozen:
             self.counts["frozen_updates"] += 1
         elif kind in (NEW, UPDATE):
-            assert mapper.volume is not None
+            now = mapper.clock(stamp or time.time_ns())
             old = self.records.pop(kid, None) if kind == UPDATE else None
             if old is not None:
                 self.nbytes -= old.nbytes
                 self.integrator.apply(mapper.volume, mapper.tsdf, old, -1.0, mapper.semantic)
+                if self._reposed(self.poses[kid], T_WC, mapper.volume.voxel_size):
+                    mapper.clear_present()
             elif kind == NEW and kid in self.records:  # an id reused (a restarted sender): keep both
                 self.nbytes -= self.records.pop(kid).nbytes
+            if kind == NEW or kid not in self.seen_ms:
+                self.seen_ms[kid] = now
             contrib, rays, votes = self.integrator.contribution(mapper.volume, frame.points, frame.confidence,
                                                                 frame.labels, frame.T_WC)
-            self.integrator.apply(mapper.volume, mapper.tsdf, contrib, +1.0, mapper.semantic)
+            self.integrator.apply(mapper.volume, mapper.tsdf, contrib, +1.0, mapper.semantic, self.seen_ms[kid])
             self.records[kid] = contrib
+            self.poses[kid] = T_WC.copy()
             self.frozen.discard(kid)
             self.nbytes += contrib.nbytes
             self._bound()
-            mapper.frames += 1
+            mapper.dirty = True
+            if kind == UPDATE:
+                mapper.frames += 1
+        if current:
+            rays, votes = mapper.integrate_present(frame)
+            mapper.changed(stamp if rays > 0 else None, frame.header.frame_id)
         self.counts[kind if kind in self.counts else TRACKING] += 1
-        # Every kind stamps the map: a tracked frame confirms it is current (the ESDF's age).
-        mapper.dirty = True
-        mapper.stamp_ns = int(frame.header.stamp_ns)
-        if frame.header.frame_id:
-            mapper.frame_id = frame.header.frame_id
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
+
+    def _reposed(self, before: np.ndarray, after: np.ndarray, voxel_size: float) -> bool:
+        """Did a keyframe's pose move enough to re-pose the world (``repose_tolerance``)?"""
+        rel = np.linalg.inv(before) @ after
+        angle = float(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+        moved = max(float(np.linalg.norm(rel[:3, 3])), angle * self.config.max_depth)
+        return moved > self.config.repose_tolerance
 
     def _bound(self) -> None:
         while len(self.records) > 1 and (len(self.records) > self.max_keyframes or self.nbytes > self.max_bytes):
             kid, c = self.records.popitem(last=False)
+            self.poses.pop(kid, None)
+            self.seen_ms.pop(kid, None)
             self.nbytes -= c.nbytes
             self.frozen.add(kid)
             self.counts["evicted"] += 1

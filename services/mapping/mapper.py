@@ -14,6 +14,37 @@ Before any state arrives it follows the camera of the incoming frames instead, a
 2-D slice's height band is measured from z = 0.
 
 The mapper has no I/O; it is driven by the mapping node, the benchmark and the tests.
+
+**The map shows the present** (issue 23). Every frame that carries the camera's current view —
+a frame without ``kind``, a ``tracking`` frame, a ``keyframe_new`` — reaches the map, as the
+authors' release integrates every current frame:
+
+* Frames without ``kind`` are integrated into the TSDF (``tsdf``/``semantic``) as before.
+* Under the keyframe protocol (``keyframes.py``) the keyframes' contributions stay exact and
+  removable in ``tsdf``, and every current frame is *also* integrated into the **present layer**
+  (``present``/``present_semantic``): a running mean capped at ``max_weight``, i.e. the last few
+  frames (the keyframes' own sums are uncapped, so they could not follow). Where the two disagree
+  on whether a voxel is an obstacle (a person who came or left), or only the present layer has
+  seen it, the occupancy reads the present layer; elsewhere the keyframes' exact, re-posable map.
+  A tracked frame's geometry is thus attributed to no keyframe: it *decays* as newer frames
+  overwrite it (the cap), and a ``keyframe_update`` that re-poses the world (pose moved over
+  ``repose_tolerance``) clears the present layer, which the next frames rebuild in the corrected
+  frame of reference.
+* Free-space observations raise a voxel's weight only up to ``max_free_weight``, so a surface
+  that appears in space long seen free shows within a few frames.
+* People and animals (``dynamic_labels``) decay: a voxel of theirs at or behind a surface that no
+  current frame has seen so (``TsdfLayer.hit``) for ``dynamic_persist_s`` is cleared (checked
+  every 0.1 s of frame time); furniture and walls never decay. nvblox does the same with time:
+  its ``FreespaceIntegrator`` keeps per voxel when it was last seen occupied (dynablox; objects
+  moving into long-free space are dynamic) and its dynamic (human) occupancy layer and, optionally,
+  the TSDF decay every update (``OccupancyDecayIntegrator``, ``TsdfDecayIntegrator``:
+  ``nvblox/include/nvblox/integrators/{freespace,occupancy_decay,tsdf_decay}_integrator.h``). Here the
+  decay is by label (one camera gives labels, not a second depth-masked layer) and after a fixed
+  time, so a person's persistence does not depend on how often they were seen.
+
+The ESDF's stamp is the newest frame whose geometry changed the map: a frame that integrates
+nothing (every pixel unusable), a ``keyframe_update`` (a re-sent keyframe: refined content whose
+data the tracked frames already stamped) or an ignored update never advances it.
 """
 
 from __future__ import annotations
@@ -24,13 +55,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig
+from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig, ade20k
 
 from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import MapperConfig
 from .esdf_integrator import EsdfIntegrator
 from .keyframes import KeyframeMap
-from .layers import SemanticLayer, TsdfLayer
+from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
 from .projective_integrator import ProjectiveIntegrator
@@ -89,6 +120,20 @@ class Mapper:
         self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
         self.keyframes = KeyframeMap(self.config)  # the keyframe map-update protocol (keyframes.py)
+        # The present layer (module doc): made on the first current frame of the keyframe protocol.
+        self.present: TsdfLayer | None = None
+        self.present_semantic: SemanticLayer | None = None
+        self._composite: tuple[TsdfLayer, SemanticLayer] | None = None
+        self.overlaid = 0  # voxels the present layer decided in the last occupancy
+        self.present_clears = 0
+        # Frame time on the layers' ``hit`` clock: ms since the first frame (int32 spans 24 days).
+        self.epoch_ns: int | None = None
+        self.now_ms = 0
+        self._decayed_ms = NEVER
+        self.decayed_voxels = 0
+        self._dynamic = np.zeros(NO_LABEL + 1, bool)
+        for name in c.dynamic_labels:
+            self._dynamic[ade20k.index(name)] = True
 
     # -- inputs ---------------------------------------------------------------------------------
     def set_risk_config(self, risk: RiskConfig) -> None:
@@ -126,6 +171,9 @@ class Mapper:
             return False
         self.tsdf.shift(delta)
         self.semantic.shift(delta)
+        if self.present is not None and self.present_semantic is not None:
+            self.present.shift(delta)
+            self.present_semantic.shift(delta)
         self.esdf_integrator.shift(delta)
         self.shifts += 1
         self._last3d = None
@@ -146,21 +194,128 @@ class Mapper:
         shifted = False
         if self.robot_position is None:
             shifted = self._follow(np.asarray(T_WC, dtype=np.float64)[:3, 3])
+        # An unstamped pointmap counts as data of now (its integration), never of a later rebuild.
+        stamp = int(stamp_ns) if stamp_ns is not None else time.time_ns()
+        rays, votes = self._integrate_into(self.tsdf, self.semantic, self._integrators(), points, confidence,
+                                           labels, T_WC, intrinsics, self.clock(stamp or time.time_ns()))
+        self.changed(stamp if rays > 0 else None, frame_id)
+        return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
+
+    def _integrators(self) -> tuple[TsdfIntegrator, SemanticIntegrator, ProjectiveIntegrator]:
+        return self.tsdf_integrator, self.semantic_integrator, self.projective_integrator
+
+    def _integrate_into(self, tsdf: TsdfLayer, semantic: SemanticLayer,
+                        integrators: tuple[TsdfIntegrator, SemanticIntegrator, ProjectiveIntegrator],
+                        points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray,
+                        intrinsics: tuple[float, float, float, float] | None, now_ms: int) -> tuple[int, int]:
         assert self.volume is not None
+        ray, sem, proj = integrators
         if intrinsics is not None and self.config.integration == "projective":
-            rays, votes = self.projective_integrator.integrate(self.volume, self.tsdf, self.semantic, points,
-                                                               confidence, labels, T_WC, intrinsics)
-        else:
-            rays = self.tsdf_integrator.integrate(self.volume, self.tsdf, points, confidence, T_WC)
-            votes = self.semantic_integrator.integrate(self.volume, self.semantic, points, confidence, labels, T_WC)
+            return proj.integrate(self.volume, tsdf, semantic, points, confidence, labels, T_WC, intrinsics,
+                                  now_ms)
+        rays = ray.integrate(self.volume, tsdf, points, confidence, T_WC, now_ms)
+        return rays, sem.integrate(self.volume, semantic, points, confidence, labels, T_WC)
+
+    def clock(self, stamp_ns: int) -> int:
+        """The frame time ``stamp_ns`` on the layers' ``hit`` clock (ms since the first frame);
+        also the mapper's ``now_ms`` when it is the newest yet."""
+        if self.epoch_ns is None:
+            self.epoch_ns = int(stamp_ns)
+        ms = int(np.clip((int(stamp_ns) - self.epoch_ns) // 1_000_000, NEVER + 1, np.iinfo(np.int32).max))
+        self.now_ms = max(self.now_ms, ms)
+        return ms
+
+    def changed(self, stamp_ns: int | None, frame_id: str | None = None) -> None:
+        """The map changed; with data of ``stamp_ns`` (None: no new data, e.g. a re-sent keyframe,
+        so the ESDF keeps the stamp of the newest data it shows)."""
+        if stamp_ns is None:
+            return
         self.frames += 1
         self.dirty = True
-        # The ESDF's stamp is the newest integrated data's, kept across re-publications; an
-        # unstamped pointmap counts as data of now (its integration), never of a later rebuild.
-        self.stamp_ns = int(stamp_ns) if stamp_ns is not None else time.time_ns()
+        self.stamp_ns = int(stamp_ns)
         if frame_id:
             self.frame_id = frame_id
-        return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
+
+    def integrate_present(self, frame: PerceptionFrame) -> tuple[int, int]:
+        """A current frame under the keyframe protocol → the present layer (module doc)."""
+        assert self.volume is not None
+        if self.present is None or self.present_semantic is None:
+            self.present = TsdfLayer(self.shape, self.config.truncation)
+            self.present_semantic = SemanticLayer(self.shape)
+        stamp = int(frame.header.stamp_ns) or time.time_ns()
+        return self._integrate_into(self.present, self.present_semantic, self._integrators(), frame.points,
+                                    frame.confidence, frame.labels, frame.T_WC, frame.intrinsics, self.clock(stamp))
+
+    def clear_present(self) -> None:
+        """The keyframes were re-posed: the present layer was built in the old frame of reference."""
+        if self.present is not None and self.present_semantic is not None:
+            self.present.clear()
+            self.present_semantic.clear()
+            self.present_clears += 1
+            self.dirty = True
+
+    def decay(self) -> int:
+        """Clear people's and animals' voxels no current frame has seen at a surface for
+        ``dynamic_persist_s`` (module doc); at most every 0.1 s of frame time. Returns the count."""
+        if self.now_ms - self._decayed_ms < 100:
+            return 0
+        self._decayed_ms = self.now_ms
+        oldest = self.now_ms - round(self.config.dynamic_persist_s * 1e3)
+        n = 0
+        layers = [(self.tsdf, self.semantic)]
+        if self.present is not None and self.present_semantic is not None:
+            layers.append((self.present, self.present_semantic))
+        for tsdf, sem in layers:
+            # Obstacle voxels first (a few % of the volume), then their labels and times: only
+            # what makes an obstacle decays, free space is kept.
+            cand = np.flatnonzero((tsdf.tsdf.reshape(-1) <= self.config.surface_band) & (tsdf.weight.reshape(-1) > 0))
+            cand = cand[self._dynamic[sem.label.reshape(-1)[cand]] & (tsdf.hit.reshape(-1)[cand] < oldest)]
+            stale = np.unravel_index(cand, tsdf.tsdf.shape)
+            k = int(cand.size)
+            if k:
+                tsdf.tsdf[stale] = tsdf.truncation
+                tsdf.weight[stale] = 0.0
+                tsdf.view[stale] = 0
+                tsdf.hit[stale] = NEVER
+                sem.label[stale] = NO_LABEL
+                sem.vote[stale] = 0.0
+                n += k
+        if n:
+            self.decayed_voxels += n
+            self.dirty = True
+        return n
+
+    def layers(self) -> tuple[TsdfLayer, SemanticLayer]:
+        """What the occupancy reads: the keyframes' TSDF, overlaid by the present layer where the
+        two disagree (module doc)."""
+        p, ps = self.present, self.present_semantic
+        if p is None or ps is None:
+            return self.tsdf, self.semantic
+        if self._composite is None or self._composite[0].tsdf.shape != self.tsdf.tsdf.shape:
+            self._composite = (TsdfLayer(self.shape, self.config.truncation), SemanticLayer(self.shape))
+        ct, cs = self._composite
+        t, sem, c = self.tsdf, self.semantic, self.config
+        n = t.tsdf.size
+        self.overlaid = overlay(t.tsdf.reshape(n), t.weight.reshape(n), t.view.reshape(n, 3), sem.label.reshape(n),
+                                sem.vote.reshape(n), p.tsdf.reshape(n), p.weight.reshape(n), p.view.reshape(n, 3),
+                                ps.label.reshape(n), ps.vote.reshape(n), max(c.min_weight, 1e-12), c.surface_band,
+                                ct.tsdf.reshape(n), ct.weight.reshape(n), ct.view.reshape(n, 3), cs.label.reshape(n),
+                                cs.vote.reshape(n))
+        return ct, cs
+
+    def overlay_mask(self) -> np.ndarray:
+        """Voxels where the present layer's verdict replaces the keyframes': it has observed the
+        voxel (weight ≥ ``min_weight``) and the keyframes have not, or they disagree on whether it
+        is an obstacle (surface band or behind it). Where both agree the keyframes' exact,
+        re-posable map stands, so a correction's result does not depend on the last few frames."""
+        assert self.present is not None
+        c, p, t = self.config, self.present, self.tsdf
+        mw = max(c.min_weight, 1e-12)
+        seen_p = p.weight >= mw
+        seen_t = t.weight >= mw
+        occ_p = seen_p & (p.tsdf <= c.surface_band)
+        occ_t = seen_t & (t.tsdf <= c.surface_band)
+        return seen_p & (~seen_t | (occ_p != occ_t))
 
     def integrate_frame(self, frame: PerceptionFrame) -> FrameResult:
         if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
@@ -194,7 +349,9 @@ class Mapper:
     def occupancy(self) -> np.ndarray:
         """Per-voxel obstacle risk group (0 = not an obstacle) of the current map."""
         c = self.config
-        return semantic_occupancy(self.tsdf, self.semantic, self.label_to_group, c.min_weight, c.surface_band,
+        self.decay()
+        tsdf, semantic = self.layers()
+        return semantic_occupancy(tsdf, semantic, self.label_to_group, c.min_weight, c.surface_band,
                                   self.unknown_group_id if c.unknown_is_occupied else 0,
                                   interior=c.obstacle_interior, fill_steps=c.fill_steps,
                                   support_steps=c.support_steps)

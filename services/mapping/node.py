@@ -14,8 +14,9 @@ Serves
     ``{prefix}/{robot}/map/esdf/query``    DistanceQuery → DistanceReply (with ``in_map``), from the
                                            grid published on ``map/esdf``
 
-The ESDF header carries the stamp of the newest integrated frame, also when the grid is only
-re-published (a risk config, a recentring): its content age seen by the safety filter includes
+The ESDF header carries the stamp of the newest frame that changed the map (a re-sent keyframe or a
+frame with no usable pixel does not), also when the grid is only re-published (a risk config, a
+recentring, a keyframe update, people decaying): its content age seen by the safety filter includes
 perception latency and keeps growing while perception is silent. A rejected frame (non-rigid pose, absurd size)
 is counted (``rejected_frames``) and logged at most once per period; the node keeps serving.
 A risk file (``risk_file``, see ``runtime.risk_file``) is loaded at start and re-read when it
@@ -63,7 +64,7 @@ class MappingNode:
         keep_freed_heap(settings.heap_keep_mb)  # before the warm-up's first large arrays
         self.mapper = Mapper(settings.mapper_config(), risk)
         self.mapper.warm_up()
-        self.tracker = ObjectTracker.warmed(self.mapper.config.objects) if settings.object_tracking else None
+        self.tracker = ObjectTracker.warmed(self.mapper.config) if settings.object_tracking else None
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)
         self.rejected = 0
         self.updates = 0
@@ -111,7 +112,9 @@ class MappingNode:
         st["shifts"] = self.mapper.shifts
         if frame.kind is not None:  # the keyframe protocol's counters (keyframes.py)
             kf = self.mapper.keyframes
-            st.update({f"kf_{k}": v for k, v in kf.counts.items()}, kf_bytes=kf.nbytes)
+            st.update({f"kf_{k}": v for k, v in kf.counts.items()}, kf_bytes=kf.nbytes,
+                      present_clears=self.mapper.present_clears)
+        st["decayed_voxels"] = self.mapper.decayed_voxels  # people and animals unseen for dynamic_persist_s
         self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
 
     def on_state(self, state: RobotState) -> None:

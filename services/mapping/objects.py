@@ -4,7 +4,7 @@ After each map update, the mapper's semantic occupancy is cut into movable objec
 associated with a track across updates, whose velocity is estimated from the frames' stamps.
 
 **Which voxels.** A voxel belongs to a movable object when it is occupied (the occupancy's risk
-group > 0) in a group of a movable label (``movable_labels``, ADE20K names, default person and
+group > 0) in a group of a movable label (``dynamic_labels``, ADE20K names, default person and
 animal), and its fused label is movable — or it has no label of its own (the solid interior and
 the never-observed fill behind a surface carry none; ``occupancy.py`` gives them the group of
 their nearest labelled surface). Only parts that hold at least one movable-labelled voxel become
@@ -56,7 +56,7 @@ from scipy import ndimage
 
 from riskfield.protocol import TrackedObject
 
-from .config import ObjectParams
+from .config import MapperConfig
 from .layers import NO_LABEL
 
 _EIGHT = np.ones((3, 3), dtype=bool)
@@ -107,12 +107,12 @@ def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: n
 
 
 def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], origin: np.ndarray,
-           voxel_size: float, label_to_group: np.ndarray, params: ObjectParams, tsdf: np.ndarray | None = None,
+           voxel_size: float, label_to_group: np.ndarray, params: MapperConfig, tsdf: np.ndarray | None = None,
            weight: np.ndarray | None = None, min_weight: float = 0.5) -> list[Detection]:
     """The movable objects of one semantic occupancy (``groups``, the mapper's per-voxel risk group)
     with the semantic layer's ``labels``, in the height band ``k_range`` = [k_lo, k_hi) of z voxels.
     With the TSDF layer (``tsdf``, ``weight``), observed voxels count by their inside fraction."""
-    movable = np.asarray(params.movable_indices, dtype=np.int64)
+    movable = np.asarray(params.dynamic_indices, dtype=np.int64)
     k_lo, k_hi = max(0, k_range[0]), min(groups.shape[2], k_range[1])
     if movable.size == 0 or k_hi <= k_lo:
         return []
@@ -198,22 +198,22 @@ class Track:
 class ObjectTracker:
     """Footprints of movable objects → tracks with velocities, across map updates (module doc)."""
 
-    def __init__(self, params: ObjectParams | None = None):
-        self.params = params or ObjectParams()
+    def __init__(self, params: MapperConfig | None = None):
+        self.params = params or MapperConfig()
         self.tracks: list[Track] = []
         self.stamp_ns = 0
         self._next_id = 0
 
     @classmethod
-    def warmed(cls, params: ObjectParams | None = None) -> ObjectTracker:
+    def warmed(cls, params: MapperConfig | None = None) -> ObjectTracker:
         """A tracker whose kernel is compiled (or loaded from numba's cache): for a node, before serving."""
         g = np.ones((3, 3, 1), np.uint8)
         lab = np.full((3, 3, 1), NO_LABEL, np.uint16)
         lab[1, 1, 0] = 12
         f = np.zeros((3, 3, 1), np.float32)
         lut = np.ones(65536, np.uint8)
-        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, ObjectParams(movable_labels=("person",)), f, f)
-        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, ObjectParams(movable_labels=("person",)))
+        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, MapperConfig(dynamic_labels=("person",)), f, f)
+        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, MapperConfig(dynamic_labels=("person",)))
         return cls(params)
 
     def reset(self) -> None:

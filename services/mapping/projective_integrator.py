@@ -22,7 +22,9 @@ by 1/cos θ at incidence θ, which leaves holes in the surface band of obliquely
 floor, the top of a box), where the ray integrators are saved by evaluating every voxel on the ray
 through its own hit point. q' = q in the surface band (sdf ≤ τ) and q' = ``carve_weight``·q in front of it (free
 space: every voxel between the camera and the band is carved in the same pass, at no extra
-cost, where the ray integrators walk a second, long ray). Points beyond ``max_depth`` carve up
+cost, where the ray integrators walk a second, long ray). A free-space observation raises W only
+up to ``max_free_weight`` (``TsdfParams``), so that a surface appearing in long-seen free space
+shows within a few frames. Voxels in the band or behind it get ``hit = now``. Points beyond ``max_depth`` carve up
 to ``max_depth − τ`` only; pixels below ``min_confidence`` or ``min_depth`` are skipped.
 Voxels seen behind the surface (sdf < 0) store the viewing direction in ``view`` (×127, int8),
 which the occupancy's solid fill marches along. Semantic votes take the same pass: a voxel with
@@ -109,7 +111,8 @@ def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, px: 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarray, R: np.ndarray, o: np.ndarray,
                           origin: np.ndarray, vs: float, K: np.ndarray, tsdf: np.ndarray, weight: np.ndarray,
-                          view: np.ndarray, lab: np.ndarray, votes: np.ndarray, trunc: float, w_max: float,
+                          view: np.ndarray, hit: np.ndarray, now: int, free_max: float, lab: np.ndarray,
+                          votes: np.ndarray, trunc: float, w_max: float,
                           q_min: float, r_min: float, r_max: float, band: float, carve: bool, carve_scale: float,
                           block: int, far: float, vote_labels: bool, counts: np.ndarray) -> None:
     """Integrate one frame; ``counts[b] = (voxels updated, votes)`` of block b (see the module doc)."""
@@ -176,11 +179,13 @@ def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarr
                         sdf = r - t
                     if sdf < -trunc:
                         continue
-                    if sdf > trunc:
+                    free = sdf > trunc
+                    if free:
                         if not carve or t < r_min or t > carve_to:
                             continue
                         d, qq = trunc, q * carve_scale
                     else:
+                        hit[i, j, k] = now
                         sdf = _point_to_plane(points, conf, iv, iu, px, py, pz, r, x, y, z, q_min, trunc, 1.5 * vs,
                                               sdf)
                         d, qq = sdf, q
@@ -195,8 +200,9 @@ def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarr
                             n_votes += 1
                     wv = weight[i, j, k]
                     tsdf[i, j, k] = (wv * tsdf[i, j, k] + qq * d) / (wv + qq)
+                    cap = min(w_max, max(wv, free_max)) if free else w_max  # tsdf_integrator._update
                     wv += qq
-                    weight[i, j, k] = w_max if wv > w_max else wv
+                    weight[i, j, k] = cap if wv > cap else wv
                     n_upd += 1
         counts[b, 0] = n_upd
         counts[b, 1] = n_votes
@@ -210,8 +216,9 @@ class ProjectiveIntegrator:
 
     def integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer | None, points: np.ndarray,
                   confidence: np.ndarray, labels: np.ndarray | None, T_WC: np.ndarray,
-                  intrinsics: tuple[float, float, float, float] | np.ndarray) -> tuple[int, int]:
-        """Fuse one frame; returns (voxels updated, label votes). ``semantic=None``: TSDF only."""
+                  intrinsics: tuple[float, float, float, float] | np.ndarray, now_ms: int = 0) -> tuple[int, int]:
+        """Fuse one frame seen at ``now_ms`` (the mapper's clock, for ``tsdf.hit``); returns (voxels
+        updated, label votes). ``semantic=None``: TSDF only."""
         c = self.config
         K = np.asarray(intrinsics, dtype=np.float64).reshape(4)
         if not (np.isfinite(K).all() and K[0] > 0 and K[1] > 0):
@@ -220,10 +227,11 @@ class ProjectiveIntegrator:
         pts = np.asarray(points, dtype=np.float32)
         conf = np.asarray(confidence, dtype=np.float32)
         with threads(c.integration_threads):
-            return self._integrate(volume, tsdf, semantic, pts, conf, labels, T, K)
+            return self._integrate(volume, tsdf, semantic, pts, conf, labels, T, K, int(now_ms))
 
     def _integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer | None, pts: np.ndarray,
-                   conf: np.ndarray, labels: np.ndarray | None, T: np.ndarray, K: np.ndarray) -> tuple[int, int]:
+                   conf: np.ndarray, labels: np.ndarray | None, T: np.ndarray, K: np.ndarray,
+                   now_ms: int) -> tuple[int, int]:
         c = self.config
         far = float(_far_range(pts, conf, c.min_confidence, c.min_depth, c.max_depth))
         if far < 0.0:
@@ -238,8 +246,8 @@ class ProjectiveIntegrator:
         counts = np.zeros((nb, 2), np.int64)
         _integrate_projective(pts, conf, lab, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
                               volume.origin.astype(np.float64), volume.voxel_size, K, tsdf.tsdf, tsdf.weight,
-                              tsdf.view, sem_lab, sem_w, tsdf.truncation, c.max_weight, c.min_confidence,
-                              c.min_depth, c.max_depth, c.surface_band, c.carve, c.carve_weight, c.block_size, far,
-                              vote_labels, counts)
+                              tsdf.view, tsdf.hit, now_ms, c.max_free_weight, sem_lab, sem_w, tsdf.truncation,
+                              c.max_weight, c.min_confidence, c.min_depth, c.max_depth, c.surface_band, c.carve,
+                              c.carve_weight, c.block_size, far, vote_labels, counts)
         total = counts.sum(axis=0)
         return int(total[0]), int(total[1])

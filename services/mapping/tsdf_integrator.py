@@ -37,23 +37,29 @@ from .volume import Volume
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _update(tsdf: np.ndarray, weight: np.ndarray, i: int, j: int, k: int, d: float, q: float, w_max: float) -> None:
+def _update(tsdf: np.ndarray, weight: np.ndarray, i: int, j: int, k: int, d: float, q: float, w_max: float,
+            free: bool, free_max: float) -> None:
+    """One observation; a free-space one (``free``) raises the weight only up to ``free_max`` (or
+    keeps it, if already above): old free space must not drown a surface that appears in it."""
     w = weight[i, j, k]
     tsdf[i, j, k] = (w * tsdf[i, j, k] + q * d) / (w + q)
+    cap = w_max
+    if free:
+        cap = min(w_max, max(w, free_max))
     w += q
-    weight[i, j, k] = w_max if w > w_max else w
+    weight[i, j, k] = cap if w > cap else w
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _ray(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, o: np.ndarray, dw: np.ndarray, di: np.ndarray,
-         vs: float, r: float, t0: float, t1: float, q: float, trunc: float, w_max: float, shape: np.ndarray,
-         buf: np.ndarray) -> int:
+def _ray(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, hit: np.ndarray, now: int, free_max: float,
+         o: np.ndarray, dw: np.ndarray, di: np.ndarray, vs: float, r: float, t0: float, t1: float, q: float,
+         trunc: float, w_max: float, shape: np.ndarray, buf: np.ndarray) -> int:
     """Update the voxels the ray ``o + t·dw`` crosses for t in [t0, t1], surface at range ``r``.
 
     ``o`` is the camera centre in index units, ``dw`` the unit direction (world) and
     ``di = dw / vs``; t is in metres. Voxels behind the surface (sdf < 0) keep the ray's
     direction in ``view`` (×127, int8): the occupancy's fill of never-observed space behind
-    surfaces marches along it.
+    surfaces marches along it. Voxels in the band or behind it get ``hit = now``.
     """
     n = ray_voxels(o, di, t0, t1, shape, buf)
     for m in range(n):
@@ -62,20 +68,23 @@ def _ray(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, o: np.ndarray, 
         sdf = r - tc
         if sdf < -trunc:
             continue
-        if sdf > trunc:
+        free = sdf > trunc
+        if free:
             sdf = trunc
-        elif sdf < 0.0:
-            for a in range(3):
-                view[i, j, k, a] = np.int8(np.rint(127.0 * dw[a]))
-        _update(tsdf, weight, i, j, k, sdf, q, w_max)
+        else:
+            hit[i, j, k] = now
+            if sdf < 0.0:
+                for a in range(3):
+                    view[i, j, k, a] = np.int8(np.rint(127.0 * dw[a]))
+        _update(tsdf, weight, i, j, k, sdf, q, w_max, free, free_max)
     return n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _integrate(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.ndarray, origin: np.ndarray,
-               vs: float, tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, trunc: float, w_max: float,
-               q_min: float, r_min: float, r_max: float, stride: int, carve: bool, carve_stride: int,
-               carve_scale: float) -> int:
+               vs: float, tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, hit: np.ndarray, now: int,
+               free_max: float, trunc: float, w_max: float, q_min: float, r_min: float, r_max: float, stride: int,
+               carve: bool, carve_stride: int, carve_scale: float) -> int:
     """Per-pixel rays: every ``stride``-th pixel updates its band, every ``carve_stride``-th carves."""
     h, w = conf.shape
     shape = np.array(tsdf.shape, dtype=np.int64)
@@ -98,14 +107,14 @@ def _integrate(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.
                 if pass_ == 0:
                     if r > r_max:
                         continue
-                    n = _ray(tsdf, weight, view, o, dw, di, vs, r, r - trunc, r + trunc, q, trunc, w_max, shape,
-                             buf)
+                    n = _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r - trunc, r + trunc, q, trunc,
+                             w_max, shape, buf)
                 else:
                     t1 = min(r, r_max) - trunc
                     if t1 <= r_min:
                         continue
-                    n = _ray(tsdf, weight, view, o, dw, di, vs, r, r_min, t1, q * carve_scale, trunc, w_max, shape,
-                             buf)
+                    n = _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r_min, t1, q * carve_scale,
+                             trunc, w_max, shape, buf)
                 if n > 0:
                     used += 1
     return used
@@ -114,7 +123,7 @@ def _integrate(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.
 @njit(cache=True, nogil=True, error_model="numpy")
 def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.ndarray,
                       origin: np.ndarray, vs: float, tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray,
-                      trunc: float,
+                      hit: np.ndarray, now: int, free_max: float, trunc: float,
                       w_max: float, q_min: float, r_min: float, r_max: float, stride: int, carve: bool,
                       carve_scale: float, acc_q: np.ndarray, acc_n: np.ndarray, acc_p: np.ndarray,
                       touched: np.ndarray) -> int:
@@ -148,12 +157,12 @@ def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_wor
                     di[a] = dw[a] / vs
                 n = 0
                 if r <= r_max:
-                    n += _ray(tsdf, weight, view, o, dw, di, vs, r, r - trunc, r + trunc, q, trunc, w_max, shape,
-                              buf)
+                    n += _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r - trunc, r + trunc, q, trunc,
+                              w_max, shape, buf)
                 t1 = min(r, r_max) - trunc
                 if carve and t1 > r_min:
-                    n += _ray(tsdf, weight, view, o, dw, di, vs, r, r_min, t1, q * carve_scale, trunc, w_max, shape,
-                              buf)
+                    n += _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r_min, t1, q * carve_scale,
+                              trunc, w_max, shape, buf)
                 if n > 0:
                     used += 1
                 continue
@@ -189,12 +198,13 @@ def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_wor
         for a in range(3):
             dw[a] /= r
             di[a] = dw[a] / vs
-        n = _ray(tsdf, weight, view, o, dw, di, vs, r, r - trunc, r + trunc, qs, trunc, w_max, shape, buf)
+        n = _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r - trunc, r + trunc, qs, trunc, w_max,
+                 shape, buf)
         t1 = r - trunc
         if carve and t1 > r_min:
             # One free-space observation per merged ray, of the pixels' mean confidence.
-            n += _ray(tsdf, weight, view, o, dw, di, vs, r, r_min, t1, qs / cnt * carve_scale, trunc, w_max, shape,
-                      buf)
+            n += _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r_min, t1, qs / cnt * carve_scale,
+                      trunc, w_max, shape, buf)
         if n > 0:
             used += cnt
     return used
@@ -215,13 +225,15 @@ class TsdfIntegrator:
         return s
 
     def integrate(self, volume: Volume, layer: TsdfLayer, points: np.ndarray, confidence: np.ndarray,
-                  T_WC: np.ndarray) -> int:
-        """Fuse one frame; returns the number of pixels whose rays reached the volume."""
+                  T_WC: np.ndarray, now_ms: int = 0) -> int:
+        """Fuse one frame seen at ``now_ms`` (the mapper's clock, for ``layer.hit``); returns the
+        number of pixels whose rays reached the volume."""
         c = self.config
         T = np.asarray(T_WC, dtype=np.float64)
         args = (np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32),
                 np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), volume.origin.astype(np.float64),
-                volume.voxel_size, layer.tsdf, layer.weight, layer.view, layer.truncation, c.max_weight,
+                volume.voxel_size, layer.tsdf, layer.weight, layer.view, layer.hit, int(now_ms), c.max_free_weight,
+                layer.truncation, c.max_weight,
                 c.min_confidence, c.min_depth, c.max_depth, c.pixel_stride, c.carve)
         if c.integration == "ray":
             return int(_integrate(*args, c.carve_stride, c.carve_weight))

@@ -13,11 +13,17 @@ Per frame:
    turned too far; otherwise fuse: the frame's noisy points, moved into the keyframe frame, into
    the keyframe pointmap by eq. (2), and its labels through ``idx_f2k`` by the vote rule
    (eq. 7–8), both over trusted matches (``valid_match_k & Qk > Q_conf``);
-4. publish the fused keyframe (``publish = "keyframe"``: pose of the keyframe, its id) or the
-   current frame with the keyframe's fused labels carried back onto matched pixels
-   (``publish = "frame"``), or follow the keyframe map-update protocol (``publish = "updates"``,
-   see the README): ``keyframe_new`` once per keyframe, ``keyframe_update`` (full pointmap) every
-   ``update_every`` fused frames and when the next keyframe starts, ``tracking`` otherwise.
+4. publish the current frame — its own pose and pointmap, as MASt3R-SLAM's tracker leaves them on
+   the frame (``mast3r_slam/tracker.py``, ``FrameTracker.track``: ``frame.update_pointmap(Xff,
+   Cff)``) — with the keyframe's fused labels carried back onto trusted matches; with
+   ``publish = "keyframe"`` (default) also the keyframe's fused points there (eq. 2's denoised
+   geometry, moved into the current camera), with ``publish = "frame"`` the frame's own points
+   everywhere. Or follow the keyframe map-update protocol (``publish = "updates"``, see the
+   README): ``keyframe_new`` once per keyframe, ``keyframe_update`` (full pointmap) every
+   ``update_every`` fused frames and when the next keyframe starts, ``tracking`` (the current
+   frame's own pointmap and pose) otherwise. Until issue 23, ``keyframe`` re-sent the keyframe's
+   fused pointmap and pose under each new frame's stamp: the map showed the keyframe's moment as
+   the present (a person 1.5 m from where they were, a departed one kept as a ghost).
 
 **Drift and correction** (``publish = "updates"``, ``correct_every`` = n > 0): with pose drift on
 (``drift_t``, ``drift_yaw``), every n-th new keyframe triggers a simulated loop closure: the drift is
@@ -46,7 +52,7 @@ from .kernels import HAVE_NUMBA
 @dataclass(frozen=True)
 class SimBackendConfig:
     degradation: DegradationConfig = field(default_factory=DegradationConfig)
-    publish: str = "keyframe"  # or "frame"
+    publish: str = "keyframe"  # or "frame", "updates" (module doc, step 4)
     kf_min_overlap: float = 0.6  # fraction of the keyframe's valid pixels still matched
     kf_max_translation: float = 1.0  # m
     kf_max_rotation_deg: float = 30.0
@@ -214,6 +220,9 @@ class SimBackend:
             if self._needs_keyframe(kf, m, T_WC_true):
                 m = None
         if self.config.publish == "updates":
+            if m is not None:
+                assert kf is not None
+                self._forget_gone(kf, points, valid, T_WC_true)
             return self._updates(kf, m, obs, points, T_WC_true, stamp_ns)
         if m is None:
             kf = self.keyframe = self._new_keyframe(obs, points, T_WC_true)
@@ -221,7 +230,30 @@ class SimBackend:
         else:
             assert kf is not None
             self._fuse(kf, m, obs, T_WC_true)
-        return [self._message(kf, obs, m, stamp_ns)]
+        return [self._message(kf, obs, m, T_WC_true, stamp_ns)]
+
+    def _forget_gone(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray,
+                     T_WC_true: np.ndarray) -> int:
+        """No keyframe outlives what it shows: a keyframe pixel whose surface this frame sees
+        *through* (its pixel here sees farther than the keyframe's point, beyond the occlusion
+        tolerance: a person who walked away) is dropped from the keyframe (confidence 0, no longer
+        matched), so its next ``keyframe_update`` takes the ghost out of the map. A keyframe point
+        hidden behind something nearer is only occluded and stays. Returns the pixels dropped."""
+        pc = transform_points(_inv(T_WC_true), kf.world_true)
+        z = pc[:, 2]
+        front = kf.valid & (z > 1e-6)
+        h, w = truth_valid.shape
+        uv, _ = self._camera.project(np.where(front[:, None], pc, [0.0, 0.0, 1.0]))
+        u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        idx = np.where(inside, v * w + u, 0)
+        tol = self.config.depth_tol_abs + self.config.depth_tol_rel * z
+        gone = inside & truth_valid.reshape(-1)[idx] & (truth_points.reshape(-1, 3)[idx, 2] > z + tol)
+        n = int(gone.sum())
+        if n:
+            kf.valid[gone] = False
+            kf.fusion.C[gone] = 0.0
+        return n
 
     def _fuse(self, kf: _Keyframe, m: Matches, obs: Observation, T_WC_true: np.ndarray) -> None:
         T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate
@@ -290,18 +322,24 @@ class SimBackend:
                                points=obs.points, confidence=obs.confidence, labels=obs.labels,
                                keyframe_id=kf.fusion.id, kind="tracking")
 
-    def _message(self, kf: _Keyframe, obs: Observation, m: Matches | None, stamp_ns: int) -> PerceptionFrame:
+    def _message(self, kf: _Keyframe, obs: Observation, m: Matches | None, T_WC_true: np.ndarray,
+                 stamp_ns: int) -> PerceptionFrame:
+        """The current frame (module doc, step 4): never the keyframe's moment under a new stamp."""
         f = kf.fusion
         header = Header(stamp_ns=stamp_ns, frame_id=self.config.frame_id)
         cam = self._camera  # the keyframe's pixel grid is the camera's: the same intrinsics
         K = (cam.fx, cam.fy, cam.cx, cam.cy)
-        if self.config.publish == "keyframe":
-            return PerceptionFrame(header=header, T_WC=kf.T_WK, points=f.X.reshape(f.height, f.width, 3),
-                                   confidence=f.C.reshape(f.height, f.width),
-                                   labels=f.labels.reshape(f.height, f.width), keyframe_id=f.id, intrinsics=K)
-        labels = obs.labels
+        labels, points = obs.labels, obs.points
         if m is not None:
             trusted = m.valid_match_k & (m.Qk > self.config.Q_conf)
             labels = scatter_to_frame(f.labels, m.idx_f2k, trusted, obs.labels)
-        return PerceptionFrame(header=header, T_WC=obs.T_WC, points=obs.points, confidence=obs.confidence,
+            if self.config.publish == "keyframe":
+                # The fused keyframe points where the frame still sees them (a trusted match passed
+                # the occlusion test against this frame's depth), in this camera's frame.
+                T_CK = _inv(T_WC_true) @ kf.T_WK_true
+                X = transform_points(T_CK, f.X.reshape(-1, 3)[trusted], np.float32)
+                flat = np.array(obs.points, np.float32).reshape(-1, 3)
+                flat[m.idx_f2k.reshape(-1)[trusted]] = X
+                points = flat.reshape(obs.points.shape)
+        return PerceptionFrame(header=header, T_WC=obs.T_WC, points=points, confidence=obs.confidence,
                                labels=labels, keyframe_id=f.id, intrinsics=K)

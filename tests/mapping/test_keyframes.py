@@ -1,5 +1,5 @@
 """The keyframe map-update protocol: new keyframes integrate once, updates replace their previous
-contribution (de-integration), tracking frames only stamp the map, memory stays bounded."""
+contribution (de-integration), tracking frames reach the present layer, memory stays bounded."""
 
 from __future__ import annotations
 
@@ -59,6 +59,11 @@ def test_a_correction_reaches_the_esdf_within_one_voxel(room: list, small_camera
     d_drift = m.update_esdf().grid3d.distance  # type: ignore[union-attr]
     assert np.abs(d_drift - d_ref)[observed].max() > 2 * V  # the drift is visible in the map
     m.integrate_frame(frame(room, small_camera, Ts[2], Ts[2], 2, "keyframe_update"))
+    # The re-pose cleared the present layer (built in the drifted frame of reference): the map is
+    # the keyframes' until the next frames, so the reference is too.
+    assert m.present_clears == 1
+    ref.clear_present()
+    d_ref = ref.update_esdf().grid3d.distance  # type: ignore[union-attr]
     d_fixed = m.update_esdf().grid3d.distance  # type: ignore[union-attr]
     assert np.abs(d_fixed - d_ref)[observed].max() <= V
     assert m.keyframes.counts["keyframe_update"] == 1 and len(m.keyframes) == 3
@@ -94,7 +99,9 @@ def test_contribution_equals_the_mappers_own_integration(room: list, small_camer
     """Merging (d_k, w_k) gives what the integrator's ray-by-ray updates give (below the cap)."""
     T = poses()[1]
     direct = mapper()
-    direct.integrate(*render(room, T, small_camera), T)
+    # The same confidence as ``frame``: with free space's own weight cap the mean is no longer
+    # invariant to scaling every confidence.
+    direct.integrate(*render(room, T, small_camera, confidence=2.0), T)
     via = mapper()
     via.integrate_frame(frame(room, small_camera, T, T, 0, "keyframe_new"))
     w_direct, w_via = direct.tsdf.weight, via.tsdf.weight
@@ -106,16 +113,29 @@ def test_contribution_equals_the_mappers_own_integration(room: list, small_camer
     assert np.abs(via.tsdf.view.astype(int) - direct.tsdf.view.astype(int)).max() <= 1
 
 
-def test_tracking_frames_stamp_the_map_without_integrating(room: list, small_camera: Camera) -> None:
+def test_tracked_frames_reach_the_present_layer_and_only_new_data_stamps(room: list, small_camera: Camera) -> None:
+    """A tracked frame's geometry goes to the present layer (not to any keyframe's contribution)
+    and stamps the map; a re-sent keyframe and a frame with no usable pixel change no stamp."""
     m = mapper()
     T = poses()[0]
     m.integrate_frame(frame(room, small_camera, T, T, 0, "keyframe_new", stamp=10))
     w = m.tsdf.weight.copy()
     m.update_esdf()
-    assert not m.dirty
+    assert not m.dirty and m.stamp_ns == 10
+    assert m.present is not None
+    p = m.present.weight.copy()
     m.integrate_frame(frame(room, small_camera, poses()[1], poses()[1], 0, "tracking", stamp=20))
-    np.testing.assert_array_equal(m.tsdf.weight, w)
+    np.testing.assert_array_equal(m.tsdf.weight, w)  # no keyframe's contribution changed
+    assert (m.present.weight != p).any()
     assert m.dirty and m.stamp_ns == 20 and m.keyframes.counts["tracking"] == 1
+    m.update_esdf()
+    m.integrate_frame(frame(room, small_camera, T, T, 0, "keyframe_update", stamp=30))  # re-sent: no new data
+    assert m.stamp_ns == 20 and m.present_clears == 0
+    blind = frame(room, small_camera, T, T, 0, "tracking", stamp=40)
+    blind = blind.model_copy(update={"confidence": np.zeros_like(blind.confidence)})
+    m.update_esdf()
+    m.integrate_frame(blind)
+    assert m.stamp_ns == 20 and not m.dirty
 
 
 def test_memory_is_bounded_and_frozen_keyframes_ignore_updates(room: list, small_camera: Camera) -> None:

@@ -18,19 +18,22 @@ from riskfield.protocol import (
     DistanceQuery,
     DistanceReply,
     EsdfGrid,
+    Header,
     Keys,
     NodeStatus,
     PerceptionFrame,
     RiskConfig,
     RobotState,
     VelocityCommand,
+    ade20k,
     decode,
     encode,
     to_map,
 )
+from riskfield.services.fields import EsdfField, answer_query
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, render
-from riskfield.services.geometry.transforms import orbit
+from riskfield.services.geometry.transforms import look_at, orbit
 from riskfield.testing import Collector, ServiceProcess, StatusWatch, client_session, put, wait_alive, wait_until
 
 CAM = PinholeCamera.centred(160, 120, 125.0)
@@ -268,7 +271,7 @@ def test_bad_settings_fail_fast_with_a_clear_message(router_endpoint: str, value
 
 def test_node_follows_the_keyframe_protocol_without_dropping_updates(router_endpoint: str) -> None:
     """A burst of new keyframes, a re-posed keyframe and tracking frames, sent back to back: the FIFO
-    keeps every one, the update replaces its keyframe's contribution, tracking frames only stamp."""
+    keeps every one, the update replaces its keyframe's contribution, the tracked frame reaches the map."""
     keys = Keys("t_map_kf")
     args = ["--robot", keys.robot, "--set", "esdf_rate_hz=20", "--set", "status_period_s=0.2"]
     with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
@@ -292,7 +295,7 @@ def test_node_follows_the_keyframe_protocol_without_dropping_updates(router_endp
             return ex.get("kf_keyframe_new") == 4 and ex.get("kf_keyframe_update") == 1 and ex.get("kf_tracking") == 1
 
         assert wait_until(counted, 20), status.items[-1].extra if status.items else proc.output
-        assert status.items[-1].extra["frames"] == 5  # four new + one update integrated
+        assert status.items[-1].extra["frames"] == 6  # four new, one update and the tracked frame integrated
         assert wait_until(lambda: any(g.header.stamp_ns == 123456789 for g in grids.items), 10)
         reply = ask(s, keys, IN_FRONT)  # the person is where the corrected keyframes put it
         assert np.all(np.abs(reply.distance - (0.8 - IN_FRONT[:, 0] - 0.15)) <= 0.075)
@@ -350,3 +353,102 @@ def test_plain_frames_keep_latest_value_semantics_behind_the_fifo(router_endpoin
         assert wait_until(settled, 20), status.items[-1].extra if status.items else proc.output
         newest = burst[-1].header.stamp_ns
         assert wait_until(lambda: any(g.header.stamp_ns == newest for g in grids.items), 10)
+
+
+# -- the map shows the present (issue 23) ------------------------------------------------------------
+
+NOW_ROOM = [Plane((1, 0, 0), 2.5, ade20k.index("wall")), Plane((0, 0, 1), 0.0, ade20k.index("floor"))]
+NOW_PERSON = Box((1.5, -0.2, 0.0), (1.8, 0.2, 1.7), ade20k.index("person"))
+NOW_T = look_at(np.array([0.0, 0.0, 0.3]), np.array([2.0, 0.0, 0.3]))
+NOW_PROBE = np.array([[1.3, 0.0, 0.3]])  # 0.2 m in front of the person's face: inside the 0.15 m margin
+STEP_NS = 100_000_000  # 10 Hz
+
+
+def field_at(grid: EsdfGrid, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    sample = answer_query(EsdfField.from_grid(grid), points)
+    return sample.distance, sample.risk_group
+
+
+def shows_person(grid: EsdfGrid) -> bool:
+    d, g = field_at(grid, NOW_PROBE)
+    return bool(d[0] < 0.1 and g[0] == 1)
+
+
+def send_and_wait(s: zenoh.Session, keys: Keys, grids: Collector, f: PerceptionFrame) -> EsdfGrid:
+    """Send one frame (10 Hz camera: the next waits for this one's map) and return the first ESDF
+    stamped at or after it."""
+    stamp = f.header.stamp_ns
+    put(s, keys.perception_frame, f)
+    assert wait_until(lambda: any(g.header.stamp_ns >= stamp for g in grids.items), 20)
+    return next(g for g in grids.items if g.header.stamp_ns >= stamp)
+
+
+def now_frame(scene: list, stamp: int, q: float, kind: str | None) -> PerceptionFrame:
+    pts, conf, lab = render(scene, NOW_T, CAM, confidence=q)
+    return PerceptionFrame(header=Header(stamp_ns=stamp), T_WC=NOW_T, points=pts, confidence=conf, labels=lab,
+                           keyframe_id=0, kind=kind, intrinsics=(CAM.fx, CAM.fy, CAM.cx, CAM.cy))
+
+
+def test_tracked_frames_show_a_new_object_by_the_third_and_its_ghost_clears(router_endpoint: str) -> None:
+    """Keyframe protocol: one ``keyframe_new`` of an empty room, then ``tracking`` frames in which a
+    person stands 1.5 m ahead (confidence 7, the ``sim`` backend's for a fresh keyframe): the first
+    ESDF stamped at or after the third shows them; once they left, the space clears within 1 s of
+    frames while the camera does not move (no new keyframe)."""
+    keys = Keys("t_map_now_kf")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=20"]
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        t = 1_000_000_000
+        g = send_and_wait(s, keys, grids, now_frame(NOW_ROOM, t, 10.0, "keyframe_new"))
+        assert not shows_person(g)
+        for i in range(1, 4):
+            g = send_and_wait(s, keys, grids, now_frame([*NOW_ROOM, NOW_PERSON], t + i * STEP_NS, 7.0, "tracking"))
+        assert g.header.stamp_ns == t + 3 * STEP_NS and shows_person(g), field_at(g, NOW_PROBE)
+        for _ in range(7):  # the person stands 0.7 s more
+            t += STEP_NS
+            send_and_wait(s, keys, grids, now_frame([*NOW_ROOM, NOW_PERSON], t + 3 * STEP_NS, 7.0, "tracking"))
+        cleared = None
+        for i in range(1, 11):
+            g = send_and_wait(s, keys, grids, now_frame(NOW_ROOM, t + (3 + i) * STEP_NS, 7.0, "tracking"))
+            if field_at(g, NOW_PROBE)[0][0] > 0.5:
+                cleared = i
+                break
+        assert cleared is not None and cleared <= 10, proc.output  # within 1 s at 10 Hz
+        grids.close()
+        assert proc.stop() == 0
+
+
+def test_default_perception_mode_shows_an_object_appearing_between_keyframes(router_endpoint: str) -> None:
+    """The ``sim`` backend in its default mode (``publish = keyframe``, degraded pointmaps) feeds
+    the node: a person who steps in after the keyframe started (the frames keep its id) is in the
+    first ESDF stamped at or after the third frame that shows them."""
+    from riskfield.services.perception.sim_backend import SimBackend
+
+    backend = SimBackend()
+    keys = Keys("t_map_now_default")
+    args = ["--robot", keys.robot, "--set", "esdf_rate_hz=20"]
+
+    def perceive(scene: list, stamp: int) -> PerceptionFrame:
+        pts, conf, lab = render(scene, NOW_T, CAM)
+        truth = PerceptionFrame(header=Header(stamp_ns=stamp), T_WC=NOW_T, points=pts, confidence=conf, labels=lab,
+                                keyframe_id=0)
+        (f,) = backend.process(None, truth, stamp)
+        assert f.kind is None and f.keyframe_id == 0  # the default mode, one keyframe throughout
+        return f
+
+    with ServiceProcess("mapping", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("mapping")) and ready(s, keys), proc.output
+        grids = Collector(s, keys.esdf, EsdfGrid)
+        put(s, keys.state, state())
+        t = 1_000_000_000
+        for i in range(10):
+            g = send_and_wait(s, keys, grids, perceive(NOW_ROOM, t + i * STEP_NS))
+        assert not shows_person(g)
+        t += 10 * STEP_NS
+        for i in range(3):
+            g = send_and_wait(s, keys, grids, perceive([*NOW_ROOM, NOW_PERSON], t + i * STEP_NS))
+        assert g.header.stamp_ns == t + 2 * STEP_NS and shows_person(g), field_at(g, NOW_PROBE)
+        grids.close()
+        assert proc.stop() == 0

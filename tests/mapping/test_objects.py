@@ -13,7 +13,7 @@ from riskfield.protocol import RiskConfig, TrackedObject, ade20k
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import render
 from riskfield.services.geometry.transforms import look_at
-from riskfield.services.mapping.config import MapperConfig, ObjectParams
+from riskfield.services.mapping.config import DynamicParams, MapperConfig, ObjectParams
 from riskfield.services.mapping.layers import NO_LABEL
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.objects import Detection, ObjectTracker, detect
@@ -61,9 +61,9 @@ class Scene:
         self.labels[inside & (d >= -band), :height] = label
         return self
 
-    def detect(self, params: ObjectParams | None = None, lut: np.ndarray = LUT, tsdf: bool = True) -> list[Detection]:
+    def detect(self, params: MapperConfig | None = None, lut: np.ndarray = LUT, tsdf: bool = True) -> list[Detection]:
         extra = dict(tsdf=self.tsdf, weight=self.weight, min_weight=0.5) if tsdf else {}
-        return detect(self.groups, self.labels, BAND, ORIGIN, V, lut, params or ObjectParams(), **extra)
+        return detect(self.groups, self.labels, BAND, ORIGIN, V, lut, params or MapperConfig(), **extra)
 
 
 def run(tracker: ObjectTracker, scenes: list[Scene], t0_ns: int = 10**18) -> list[list[TrackedObject]]:
@@ -139,7 +139,7 @@ def test_a_static_scene_has_zero_velocity(x, y, heading, seed):
 @given(label=st.sampled_from(NOT_MOVABLE), group=st.sampled_from(["high", "mid", "low"]),
        speed=st.floats(0.0, 1.5), heading=st.floats(0.0, 2 * math.pi))
 def test_labels_that_are_not_movable_never_make_objects(label, group, speed, heading):
-    """Furniture, walls, anything not in ``movable_labels`` — moving or not, and even in the people's
+    """Furniture, walls, anything not in ``dynamic_labels`` — moving or not, and even in the people's
     risk group — never becomes a tracked object; nor does an unlabelled interior of theirs."""
     names = RISK.group_names
     risk = RiskConfig(groups=[g.model_copy(update={"labels": [x for x in g.labels if x != label]
@@ -263,7 +263,7 @@ def test_two_people_on_any_crossing_paths_keep_their_ids(ha, hb, sa, sb, delay, 
 
 
 def test_a_person_leaving_view_ages_then_expires():
-    p = ObjectParams()
+    p = MapperConfig()
     tracker = ObjectTracker(p)
     scenes = [Scene().box((-0.5 + 1.0 * 0.1 * n, 0.0), (0.3, 0.45), 0.0, PERSON) for n in range(6)]
     last = run(tracker, scenes)[-1]
@@ -300,7 +300,7 @@ def test_a_person_unseen_for_a_few_maps_keeps_their_track():
 
 
 def test_young_tracks_report_no_velocity_until_enough_samples():
-    p = ObjectParams(object_min_samples=3)
+    p = MapperConfig(object_min_samples=3)
     tracker = ObjectTracker(p)
     out = run(tracker, [Scene().box((0.1 * n, 0.0), (0.3, 0.45), 0.0, PERSON) for n in range(4)])
     assert [o[0].velocity[0] for o in out[:2]] == [0.0, 0.0]
@@ -312,7 +312,7 @@ def test_young_tracks_report_no_velocity_until_enough_samples():
 @given(seed=st.integers(0, 2**32 - 1), jump=st.floats(0.0, 0.6))
 def test_velocity_is_bounded_and_finite_whatever_the_centres_do(seed, jump):
     """Centres that jump (segmentation noise, a merge) never give a speed over the cap."""
-    p = ObjectParams()
+    p = MapperConfig()
     rng = np.random.default_rng(seed)
     tracker = ObjectTracker(p)
     pos = np.zeros(3)
@@ -338,17 +338,17 @@ def test_stamps_come_from_the_frames_and_a_repeated_stamp_observes_nothing():
 
 
 def test_the_parameters_are_composed_into_the_mapper_config_and_strict():
-    m = MapperConfig.compose(objects=ObjectParams(movable_labels=("person",), object_deadband=0.2))
-    assert m.movable_labels == ("person",) and m.objects == ObjectParams(movable_labels=("person",),
-                                                                          object_deadband=0.2)
-    assert MapperConfig().movable_labels == ("person", "animal")
+    m = MapperConfig.compose(dynamic=DynamicParams(dynamic_labels=("person",)),
+                             objects=ObjectParams(object_deadband=0.2))
+    assert m.dynamic_labels == ("person",) and m.objects == ObjectParams(object_deadband=0.2)
+    assert MapperConfig().dynamic_labels == ("person", "animal")
     with pytest.raises(ValueError, match="'persn' is not an ADE20K class name"):
-        MapperConfig(movable_labels=("persn",))
+        MapperConfig(dynamic_labels=("persn",))
     with pytest.raises(ValueError, match="object_gat"):
         MapperConfig(object_gat=0.5)
     # only persons movable: an animal is an obstacle but makes no object
     s = Scene().box((0.0, 0.0), (0.4, 0.3), 0.0, PERSON).box((1.0, 0.0), (0.5, 0.25), 0.0, ANIMAL)
-    assert [d.label for d in s.detect(m.objects)] == [PERSON]
+    assert [d.label for d in s.detect(m)] == [PERSON]
 
 
 def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero(room: list):
@@ -358,7 +358,7 @@ def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero
     cam = PinholeCamera.centred(128, 96, 100.0)
     mapper = Mapper(MapperConfig())
     mapper.set_robot_position(np.zeros(3))
-    tracker = ObjectTracker(mapper.config.objects)
+    tracker = ObjectTracker(mapper.config)
     for n, a in enumerate(np.linspace(-0.6, 0.6, 20)):
         T = look_at(np.array([0.0, 0.3 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
         pts, conf, lab = render(room, T, cam)

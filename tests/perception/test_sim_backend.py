@@ -114,3 +114,57 @@ def test_rejects_truth_without_geometry():
     with pytest.raises(ValueError):
         b.process(None, empty, 0)
     assert b.process(None, None, 0) == []
+
+
+@pytest.mark.parametrize("publish", ["keyframe", "frame"])
+def test_each_frame_publishes_its_own_pose_and_what_it_sees_now(publish: str) -> None:
+    """Issue 23: the message of a tracked frame is that frame — its pose and its depth, also where an
+    object appeared after the keyframe started (those pixels no longer match the keyframe) — never
+    the keyframe's pointmap and pose under a new stamp."""
+    world = World(load_scenario(SMALL))
+    b = SimBackend(SimBackendConfig(DegradationConfig(noise_a=0, noise_b=0, p_boundary=0, p_confuse=0, p_salt=0),
+                                    publish=publish))
+    t0, _ = truth_of(world)
+    first = b.process(None, t0, 1)[0]
+    drive(world, 0.3, 0.0, 0.3)
+    t1, pts = truth_of(world)
+    # something steps in front of the camera between keyframes: a patch at half the depth
+    near = pts.copy()
+    near[30:60, 50:80] *= 0.5
+    labels = t1.labels.copy()
+    labels[30:60, 50:80] = 12  # person
+    t1 = t1.model_copy(update={"points": near, "labels": labels})
+    f = b.process(None, t1, 2)[0]
+    assert f.keyframe_id == first.keyframe_id == 0  # still tracking the first keyframe
+    assert f.header.stamp_ns == 2
+    np.testing.assert_allclose(f.T_WC, t1.T_WC, atol=1e-9)  # this frame's pose, not the keyframe's
+    assert not np.allclose(f.T_WC, first.T_WC, atol=1e-3)
+    valid = t1.confidence > 0
+    depth_err = np.abs(f.points[..., 2] - near[..., 2])
+    assert depth_err[30:60, 50:80].max() < 1e-3  # the new object at this frame's depth
+    # elsewhere the frame's own depth, or (``keyframe``) the fused keyframe point that a trusted match
+    # put on this pixel: the same surface, off by the pixel's footprint on sloped faces
+    assert np.percentile(depth_err[valid], 99) < (0.05 if publish == "keyframe" else 1e-3)
+    assert (f.labels[30:60, 50:80] == 12).mean() > 0.9
+
+
+def test_no_keyframe_outlives_what_it_shows() -> None:
+    """``publish = updates``: a person in the keyframe walks away while the camera stands still (no
+    new keyframe): the keyframe drops the pixels the frames now see through, and its next update
+    carries the wall behind, not the person."""
+    world = World(load_scenario(SMALL))
+    b = SimBackend(SimBackendConfig(DegradationConfig(noise_a=0, noise_b=0, p_boundary=0, p_confuse=0, p_salt=0),
+                                    publish="updates", update_every=2))
+    t0, pts = truth_of(world)
+    near = pts.copy()
+    near[30:60, 50:80] *= 0.5  # a person in the keyframe
+    first = b.process(None, t0.model_copy(update={"points": near}), 1)
+    assert [f.kind for f in first] == ["keyframe_new"]
+    assert (first[0].confidence[30:60, 50:80] > 0).all()
+    out = []
+    for i in range(2, 5):  # they left: the same view without them
+        out += b.process(None, t0, i)
+    assert b.n_keyframes == 1
+    update = [f for f in out if f.kind == "keyframe_update"][-1]
+    assert (update.confidence[30:60, 50:80] == 0).all()  # the ghost is out of the keyframe
+    assert (update.confidence[:30] > 0).mean() > 0.9  # the rest stays

@@ -376,7 +376,7 @@ def main(
     groups = mapper.occupancy()
     k_lo, k_hi, _ = mapper.band_indices()
     # The tracker after each map update (10 Hz stamps): the room's person and animal, tracked.
-    tracker = ObjectTracker.warmed(mapper.config.objects)
+    tracker = ObjectTracker.warmed(mapper.config)
     stamps = iter(range(10**9, 10**18, 100_000_000))
     results["objects"] = _stats(_time(lambda: tracker.update_map(mapper, groups, next(stamps)), repeat))
     tracked = tracker.update_map(mapper, groups, next(stamps))

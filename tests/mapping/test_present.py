@@ -1,0 +1,160 @@
+"""The map shows the present (issue 23), on the pure core: frames at 10 Hz (stamps 0.1 s apart) of
+a room seen long enough to saturate its free space, then a person who steps in, stands and leaves,
+or walks; furniture and people out of view. Both ways frames arrive: without ``kind`` (the default
+perception mode) and under the keyframe protocol (one ``keyframe_new``, then ``tracking`` frames)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from riskfield.protocol import Header, PerceptionFrame, ade20k
+from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.services.geometry.shapes import Box, Plane, render
+from riskfield.services.geometry.transforms import look_at
+from riskfield.services.mapping.config import MapperConfig
+from riskfield.services.mapping.mapper import Mapper
+
+CAM = PinholeCamera.centred(160, 120, 125.0)
+K = (CAM.fx, CAM.fy, CAM.cx, CAM.cy)
+PERSON, CHAIR = ade20k.index("person"), ade20k.index("chair")
+ROOM = [Plane((1, 0, 0), 2.5, ade20k.index("wall")), Plane((0, 0, 1), 0.0, ade20k.index("floor"))]
+STEP = 100_000_000  # 10 Hz
+AHEAD = look_at(np.array([0.0, 0.0, 0.3]), np.array([2.0, 0.0, 0.3]))
+AWAY = look_at(np.array([0.0, 0.0, 0.3]), np.array([-2.0, 0.0, 0.3]))  # the person is behind the camera
+
+
+def person(x: float = 1.0, y: float = 0.0) -> Box:
+    return Box((x, y - 0.2, 0.0), (x + 0.3, y + 0.2, 1.7), PERSON)
+
+
+class Feed:
+    """A mapper fed 10 Hz frames, ``kind`` None or the keyframe protocol."""
+
+    def __init__(self, protocol: bool, q: float, config: MapperConfig | None = None):
+        self.m = Mapper(config or MapperConfig())
+        self.m.set_robot_position(np.zeros(3))
+        self.protocol, self.q, self.t = protocol, q, 1
+
+    def frame(self, scene: list, T: np.ndarray = AHEAD, q: float | None = None, dt_ns: int = STEP) -> None:
+        pts, conf, lab = render(scene, T, CAM, confidence=self.q if q is None else q)
+        kind = None
+        if self.protocol:
+            kind = "keyframe_new" if self.t == 1 else "tracking"
+        self.m.integrate_frame(PerceptionFrame(header=Header(stamp_ns=self.t), T_WC=T, points=pts, confidence=conf,
+                                               labels=lab, keyframe_id=0, kind=kind, intrinsics=K))
+        self.t += dt_ns
+        self.m.update_esdf()
+
+    def at(self, x: float, y: float = 0.0) -> tuple[float, int]:
+        s = self.m.query(np.array([[x, y, 0.3]]))
+        return float(s.distance[0]), int(s.risk_group[0])
+
+    def shows_person(self, x: float = 1.0, y: float = 0.0) -> bool:
+        d, g = self.at(x - 0.2, y)  # 0.2 m in front of its face: 0.05 m inside the 0.15 m high-risk margin
+        return d < 0.1 and g == 1
+
+
+def frames_until(feed: Feed, scene: list, done, limit: int = 30) -> int:
+    for i in range(1, limit + 1):
+        feed.frame(scene)
+        if done():
+            return i
+    return limit + 1
+
+
+@pytest.mark.parametrize("protocol", [False, True])
+@pytest.mark.parametrize(("q", "bound"), [(7.0, 2), (4.0, 3), (2.0, 5)])
+def test_a_person_in_long_seen_free_space_appears_within_a_few_frames(protocol: bool, q: float, bound: int) -> None:
+    """At the ``sim`` backend's confidence of a fresh keyframe (≈ 7) within 2 frames, 0.2 s at
+    10 Hz; with free space weighted like surfaces (``max_free_weight`` = ``max_weight``, the
+    behaviour before) it takes many more."""
+    feed = Feed(protocol, 10.0)
+    for _ in range(30):
+        feed.frame(ROOM)
+    assert not feed.shows_person()
+    assert frames_until(feed, [*ROOM, person()], feed.shows_person) <= bound
+    if q == 7.0:
+        old = Feed(protocol, 10.0, MapperConfig(max_free_weight=50.0))
+        for _ in range(30):
+            old.frame(ROOM)
+        assert frames_until(old, [*ROOM, person()], old.shows_person) > 3 * bound
+
+
+@pytest.mark.parametrize("protocol", [False, True])
+def test_the_space_a_person_left_clears_within_a_second(protocol: bool) -> None:
+    """A person who stood 3 s leaves; the robot does not move: the space clears within 7 frames at
+    confidence 2 (0.7 s), and no frame later shows the person again."""
+    feed = Feed(protocol, 2.0)
+    for _ in range(10):
+        feed.frame(ROOM)
+    for _ in range(30):
+        feed.frame([*ROOM, person()])
+    assert feed.shows_person()
+    assert frames_until(feed, ROOM, lambda: feed.at(0.8)[0] > 0.5) <= 7
+    for _ in range(20):
+        feed.frame(ROOM)
+        assert feed.at(0.8)[0] > 0.5
+
+
+@pytest.mark.parametrize("protocol", [False, True])
+def test_a_walking_person_stays_high_risk_where_they_are_now(protocol: bool) -> None:
+    """A person crossing at 1.2 m/s, 1 m ahead: from the third frame on, every map has them (high
+    risk) where they are in that frame, and the space they left 0.9 s before is free again (the
+    trail behind a walker is 0.2–0.4 m: their interior, seen for 3 frames, takes 3–4 to carve)."""
+    feed = Feed(protocol, 7.0)
+    for _ in range(20):
+        feed.frame(ROOM)
+    ys = np.arange(-0.6, 0.65, 0.12)  # in view: the half field of view is 0.64 m wide at 1 m
+    for i, y in enumerate(ys):
+        feed.frame([*ROOM, person(1.0, y)])
+        if i >= 2:
+            assert feed.shows_person(1.0, y), (i, y, feed.at(0.8, y))
+        if i >= 9:
+            assert feed.at(0.8, ys[i - 9])[0] > 0.3
+
+
+@pytest.mark.parametrize("protocol", [False, True])
+def test_people_out_of_view_persist_for_T_then_decay_furniture_stays(protocol: bool) -> None:
+    c = MapperConfig()
+    T = c.dynamic_persist_s
+    feed = Feed(protocol, 7.0)
+    chair = Box((1.0, 0.3, 0.0), (1.4, 0.6, 0.5), CHAIR)
+    for _ in range(10):
+        feed.frame([*ROOM, person(), chair])
+    assert feed.shows_person() and feed.at(0.9, 0.45)[0] < 0.1
+    n = round(T / 0.1)
+    for _ in range(n - 2):  # the camera looks away for just under T
+        feed.frame(ROOM, AWAY)
+    assert feed.shows_person()
+    for _ in range(4):  # and past T (the decay looks every 0.1 s of frame time)
+        feed.frame(ROOM, AWAY)
+    d, g = feed.at(0.8)
+    assert g != 1 and d > 0.25  # the person is gone (the nearest obstacle is the chair, 0.3 m away)
+    for _ in range(30):  # 30 s more, a frame a second: the chair stays
+        feed.frame(ROOM, AWAY, dt_ns=10 * STEP)
+    assert feed.at(0.9, 0.45)[0] < 0.1 and feed.at(0.9, 0.45)[1] != 1
+
+
+def test_the_compiled_overlay_equals_its_array_definition() -> None:
+    """``Mapper.layers`` (one compiled pass) against ``Mapper.overlay_mask`` (array operations)."""
+    from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
+
+    rng = np.random.default_rng(3)
+    m = Mapper(MapperConfig(half_extent=(0.5, 0.5, 0.5)))
+    m.set_robot_position(np.zeros(3))
+    m.present, m.present_semantic = TsdfLayer(m.shape, 0.15), SemanticLayer(m.shape)
+    for t, s in ((m.tsdf, m.semantic), (m.present, m.present_semantic)):
+        t.tsdf[...] = rng.uniform(-0.15, 0.15, m.shape)
+        t.weight[...] = rng.choice([0.0, 0.3, 1.0, 20.0], m.shape)
+        t.view[...] = rng.integers(-127, 128, (*m.shape, 3))
+        s.label[...] = rng.integers(0, 150, m.shape)
+        s.vote[...] = rng.uniform(0, 5, m.shape)
+    use = m.overlay_mask()
+    ct, cs = m.layers()
+    assert 0 < m.overlaid == use.sum() < use.size
+    for out, base, top in ((ct.tsdf, m.tsdf.tsdf, m.present.tsdf), (ct.weight, m.tsdf.weight, m.present.weight),
+                           (cs.label, m.semantic.label, m.present_semantic.label),
+                           (cs.vote, m.semantic.vote, m.present_semantic.vote)):
+        np.testing.assert_array_equal(out, np.where(use, top, base))
+    np.testing.assert_array_equal(ct.view, np.where(use[..., None], m.present.view, m.tsdf.view))
