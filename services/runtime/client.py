@@ -1,7 +1,7 @@
 """The client side of a stack, for programs that drive one from outside (tests, benchmarks, the
 demo): put a message so that it arrives, and keep what arrives on a key.
 
-One home for both: ``riskfield.testing`` re-exports them as test API, and
+One home for both: the test API module re-exports them as test API, and
 ``riskfield.experiments.stack`` records several keys with ``Collector``s.
 """
 
