@@ -46,13 +46,17 @@ class Volume:
 
     def origin_index_for(self, centre: np.ndarray) -> np.ndarray:
         """Lattice index of voxel (0,0,0) for a grid whose middle voxel is nearest ``centre``."""
-        c = np.round(np.asarray(centre, dtype=np.float64) / self.voxel_size).astype(np.int64)
-        return c - np.asarray(self.shape, dtype=np.int64) // 2
+        return self.lattice_index(centre) - np.asarray(self.shape, dtype=np.int64) // 2
+
+    def lattice_index(self, points: np.ndarray) -> np.ndarray:
+        """Nearest lattice index of world points, ties rounded up (np.round's ties-to-even would
+        put a point halfway between voxel centres in another voxel than ``to_index`` does)."""
+        return np.floor(np.asarray(points, dtype=np.float64) / self.voxel_size + 0.5).astype(np.int64)
 
     # -- world ↔ index ----------------------------------------------------------------------
     def to_index(self, points: np.ndarray) -> np.ndarray:
         """Integer voxel index (rounded) of world points (…×3); may lie outside the grid."""
-        return np.floor((np.asarray(points, dtype=np.float64) - self.origin) / self.voxel_size + 0.5).astype(np.int64)
+        return self.lattice_index(points) - self.origin_index
 
     def to_continuous(self, points: np.ndarray) -> np.ndarray:
         """Fractional index: voxel centres sit at integers."""

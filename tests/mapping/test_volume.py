@@ -68,3 +68,9 @@ def test_layers_shift_together_with_the_volume() -> None:
     assert (tsdf.tsdf[j], tsdf.weight[j], sem.label[j], sem.vote[j]) == (np.float32(0.01), 5.0, 12, 2.5)
     # voxels that entered the volume are unknown
     assert tsdf.weight[-1, -1, 0] == 0 and sem.label[-1, -1, 0] == NO_LABEL and tsdf.tsdf[-1, -1, 0] == np.float32(0.3)
+
+
+def test_a_centre_halfway_between_voxels_is_still_the_middle_voxel() -> None:
+    # 0.125 / 0.05 = 2.5: a tie; the grid and the index must break it the same way
+    vol = Volume.centred(0.05, (21, 21, 21), np.array([0.0, 0.0, 0.125]))
+    assert np.array_equal(vol.to_index(np.array([0.0, 0.0, 0.125])), [10, 10, 10])
