@@ -48,13 +48,14 @@ from riskfield.protocol import RiskConfig
 
 from ..fields import DistanceField, EsdfField, FieldSample
 from . import compiled
-from .barriers import ALPHA1, ALPHA2, BarrierModel
+from . import model as mdl
+from .barriers import BarrierModel
 from .compiled import CompiledStep
 from .config import FilterConfig
+from .model import ALPHA1, ALPHA2
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 
-MARGIN = 3
 _ZERO3 = np.zeros(3)
 #: Above this many rows the exact active-set path hands over to OSQP.
 ACTIVE_SET_MAX_ROWS = 24
@@ -67,6 +68,10 @@ def hocbf_gains(alpha1: float, alpha2: float) -> tuple[float, float]:
     HOCBF would not keep the safe set invariant; critical damping is the closest safe choice.
     """
     return alpha1, min(alpha2, alpha1 * alpha1 / 4.0)
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, np.float64)
 
 
 def _rows_of(s: FieldSample, rows: slice) -> FieldSample:
@@ -124,10 +129,12 @@ class FilterResult:
 class SafetyFilter:
     """The pure filter: config → model + solvers; ``filter()`` once per control step."""
 
-    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None, warm_up: bool = True):
-        """``warm_up=False`` defers :meth:`warm_up` to the caller (a node subscribes first)."""
+    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None, warm_up: bool = True,
+                 model: BarrierModel | None = None):
+        """``warm_up=False`` defers :meth:`warm_up` to the caller (a node subscribes first). ``model``
+        replaces the one the configuration builds (a model of one's own, described by a ``ModelSpec``)."""
         self.config = config or FilterConfig()
-        self.model: BarrierModel = self.config.build_model()
+        self.model: BarrierModel = model if model is not None else self.config.build_model()
         self.delta = self.config.margin(self.model)
         self.gains = GainTable(risk or RiskConfig())
         self._active_set = ActiveSetSolver()
@@ -145,9 +152,18 @@ class SafetyFilter:
 
     def warm_up(self) -> None:
         """Compile the compiled step (or load it from numba's on-disk cache: ~0.5 s; a cold cache
-        compiles for ~20 s) with the control loop's argument types: call before the first step."""
+        compiles for ~20 s) with the control loop's argument types: call before the first step.
+        The numpy path's model functions (``model``) are loaded too: the supervisor reads the
+        barrier with them on every brake, and a first load in the loop would stall a step."""
         if self._compiled is not None:
             self._compiled.warm_up(self.gains.for_groups(()))
+        planar = self.model.spec.attitude == "yaw"
+        shape = (4, 4, 1) if planar else (4, 4, 4)
+        field = EsdfField(np.ones(shape, np.float32), (0.0, 0.0, 0.0), 0.1, interpolation=self.config.interpolation)
+        s = FilterState(np.array([0.15, 0.15, 0.0 if planar else 0.15]))
+        self._filter_numpy(s, np.zeros(self.model.n), field, None, time.perf_counter())
+        self.model.integrate(s, np.zeros(self.model.n), self.config.dt)
+        self.model.backup(s, np.array([1.0, 0.0, 0.0]))
 
     def _build_compiled(self) -> CompiledStep | None:
         """The compiled step (``compiled``) when the backend allows it and numba is installed."""
@@ -159,9 +175,8 @@ class SafetyFilter:
                 raise ValueError("backend 'numba' needs numba installed and the active-set QP "
                                  f"(solver 'auto' or 'active_set', at most {ACTIVE_SET_MAX_ROWS} rows)")
             return None
-        return CompiledStep(self.model, compiled.model_kind(self.model), self.delta, self._alpha_cap,
-                            self.config.dt, self.config.predictive_rows, self.config.margins_in_filter,
-                            self.config.slack, self.config.map_margin_voxels)
+        return CompiledStep(self.model, self.delta, self._alpha_cap, self.config.dt, self.config.predictive_rows,
+                            self.config.margins_in_filter, self.config.slack, self.config.map_margin_voxels)
 
     @property
     def backend(self) -> str:
@@ -256,14 +271,15 @@ class SafetyFilter:
         if self._first_order:
             gains = gains.copy()
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
-        hb = clearance - self.delta - self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
-        if self.config.margins_in_filter:
-            hb = hb - gains[:m, MARGIN]
-        k = int(np.argmin(model.barrier(state, sample, hb)))
+        closing = np.zeros(len(pts))
+        hb = np.empty(m)
+        delta = self.delta + self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
+        k = mdl.barriers(model.di, model.df, model.dl, _f64(sample.distance), _f64(sample.gradient),
+                         _f64(state.velocity), _f64(gains[:m]), closing, delta, self.config.margins_in_filter, 0.0, hb)
         h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
         if not sample.inside.all():
             return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
-        a, b = model.rows(state, sample, hb, gains[:m], ang)
+        a, b = model.rows(state, sample, hb, gains[:m], ang, closing[:m])
         gradients = sample.gradient  # one per row: the candidate backup directions
         if self.config.predictive_rows:
             # The same CBF row with the gradient (and group) found at the predicted point: where the
@@ -278,7 +294,7 @@ class SafetyFilter:
             keep = ahead_s.inside & ~same
             if keep.any():
                 gradients = np.concatenate([gradients, ahead_s.gradient[keep]])
-                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang)
+                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang, closing[m:])
                 a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
             return self._brake(state, u_ref, "non_finite", t0, 0.0, rg)
