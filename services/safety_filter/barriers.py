@@ -214,11 +214,15 @@ class BarrierModel:
         mdl.brake_input(self.di, self.df, self.dl, _f64(s.velocity), self.spec.dt, out)
         return out
 
-    def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
-        """The maximal-braking input along the field's gradient at the critical point: what the
-        slack-relaxed QP must do at least as well as, row by row."""
+    def backup(self, s: FilterState, gradient: np.ndarray, a_row: np.ndarray | None = None,
+               closing: float = 0.0) -> np.ndarray:
+        """The maximal-braking input along the field's gradient (of the row ``a_row`` whose obstacle
+        comes closer at ``closing``): what the slack-relaxed QP must do at least as well as, row by
+        row (``model.backup_input``)."""
         out = np.empty(self.n)
-        mdl.backup_input(self.di, self.df, self.dl, _f64(gradient), _f64(s.velocity), self.spec.dt, out)
+        a = np.zeros(self.n) if a_row is None else _f64(a_row)
+        mdl.backup_input(self.di, self.df, self.dl, _f64(gradient), _f64(s.velocity), self.spec.dt, a, float(closing),
+                         out)
         return out
 
     def alpha_cap(self, a_brake: float) -> float:

@@ -488,7 +488,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     vel, dt = view1(wf, lf, F.velocity), _scalar(wf, lf, F.dt)
     grad, A2, B2, B = view2(wf, lf, F.grad), view2(wf, lf, F.A2), view1(wf, lf, F.B2), view1(wf, lf, F.B)
-    u_bk, u_c = view1(wf, lf, F.u_bk), view1(wf, lf, F.u_c)
+    u_bk, u_c, closing = view1(wf, lf, F.u_bk), view1(wf, lf, F.u_c), view1(wf, lf, F.closing)
     rsrc2, seen = view1(wi, li, I.rsrc2), view1(wi, li, I.seen)
     mdl.brake_input(di, df, dl, vel, dt, u_bk)
     best_score = _worst_row(A2, B2, nlive, n, u_bk)
@@ -508,7 +508,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
             continue
         seen[nseen] = src
         nseen += 1
-        mdl.backup_input(di, df, dl, grad[src], vel, dt, u_c)
+        mdl.backup_input(di, df, dl, grad[src], vel, dt, A2[i], closing[src], u_c)
         score = _worst_row(A2, B2, nlive, n, u_c)
         if score > best_score:
             best_score = score

@@ -52,7 +52,7 @@ from . import model as mdl
 from .barriers import BarrierModel
 from .compiled import CompiledStep
 from .config import FilterConfig
-from .model import ALPHA1, ALPHA2
+from .model import ALPHA1, ALPHA2, OBJECT_COLUMNS
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 
@@ -161,7 +161,7 @@ class SafetyFilter:
         shape = (4, 4, 1) if planar else (4, 4, 4)
         field = EsdfField(np.ones(shape, np.float32), (0.0, 0.0, 0.0), 0.1, interpolation=self.config.interpolation)
         s = FilterState(np.array([0.15, 0.15, 0.0 if planar else 0.15]))
-        self._filter_numpy(s, np.zeros(self.model.n), field, None, time.perf_counter())
+        self._filter_numpy(s, np.zeros(self.model.n), field, None, time.perf_counter(), np.zeros((1, OBJECT_COLUMNS)))
         self.model.integrate(s, np.zeros(self.model.n), self.config.dt)
         self.model.backup(s, np.array([1.0, 0.0, 0.0]))
 
@@ -176,7 +176,8 @@ class SafetyFilter:
                                  f"(solver 'auto' or 'active_set', at most {ACTIVE_SET_MAX_ROWS} rows)")
             return None
         return CompiledStep(self.model, self.delta, self._alpha_cap, self.config.dt, self.config.predictive_rows,
-                            self.config.margins_in_filter, self.config.slack, self.config.map_margin_voxels)
+                            self.config.margins_in_filter, self.config.slack, self.config.map_margin_voxels,
+                            self.config.object_match_m)
 
     @property
     def backend(self) -> str:
@@ -211,24 +212,34 @@ class SafetyFilter:
         return float(h[k]), int(sample.risk_group[k]), bool(sample.inside.all())
 
     def filter(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
-               angular: np.ndarray | None = None) -> FilterResult:
+               angular: np.ndarray | None = None, objects: np.ndarray | None = None,
+               age_s: float = 0.0) -> FilterResult:
         """The safe input closest to ``u_ref`` (model input space; see the barrier models).
 
         ``angular`` is the body-frame angular velocity passed through by single integrators.
+        ``objects`` are the moving objects at the field's stamp (``motion.object_table``; ignored
+        with ``object_motion`` off) and ``age_s`` the field's content age: the barrier adds their
+        motion (``model``). None or no rows: the static barrier.
         On an ``EsdfField`` with the numba backend the step runs compiled (:mod:`.compiled`, the same
         semantics; ``qp_us`` is then not measured apart and reads 0); otherwise with numpy.
         """
         t0 = time.perf_counter()
+        if objects is not None and (not self.config.object_motion or len(objects) == 0):
+            objects = None
+        if objects is not None:
+            objects = np.ascontiguousarray(objects[:compiled.MAX_OBJECTS], np.float64)
+            age_s = max(float(age_s), 0.0) if math.isfinite(age_s) else 0.0
         if self._compiled is not None:
             grid = self.field_for(field)
             if isinstance(grid, EsdfField):
-                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0)
+                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0, objects, age_s)
                 if res is not None:
                     return res
-        return self._filter_numpy(state, u_ref, field, angular, t0)
+        return self._filter_numpy(state, u_ref, field, angular, t0, objects, age_s)
 
     def _filter_compiled(self, step: CompiledStep, state: FilterState, u_ref: np.ndarray, field: EsdfField,
-                         angular: np.ndarray | None, t0: float) -> FilterResult | None:
+                         angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None,
+                         age_s: float = 0.0) -> FilterResult | None:
         """One compiled call; None hands the step to the numpy path (``compiled.HANDBACK``)."""
         u_ref = np.asarray(u_ref, np.float64)
         if u_ref.shape != (self.model.n,):
@@ -237,7 +248,7 @@ class SafetyFilter:
         if ang.shape != (3,):
             return None
         step.run(state.position, state.rotation, state.velocity, u_ref, ang, field,
-                 self.gains.for_groups(field.groups))
+                 self.gains.for_groups(field.groups), objects, age_s)
         code, rg, n_rows, intervening = step.out_i.tolist()
         if code == compiled.HANDBACK:
             return None
@@ -250,7 +261,8 @@ class SafetyFilter:
                             (time.perf_counter() - t0) * 1e6, ActiveSetSolver.name, margin, 0.0, n_rows)
 
     def _filter_numpy(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
-                      angular: np.ndarray | None, t0: float) -> FilterResult:
+                      angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None,
+                      age_s: float = 0.0) -> FilterResult:
         model = self.model
         ang = _ZERO3 if angular is None else np.asarray(angular, np.float64)
         u_ref = np.asarray(u_ref, np.float64)
@@ -272,15 +284,21 @@ class SafetyFilter:
             gains = gains.copy()
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
         closing = np.zeros(len(pts))
+        if objects is not None:
+            mdl.closing_speeds(_f64(pts), _f64(both.distance), _f64(both.gradient),
+                               np.ascontiguousarray(both.risk_group, np.int64), _f64(gains), len(pts), objects,
+                               len(objects), self.config.object_match_m, closing)
         hb = np.empty(m)
         delta = self.delta + self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
         k = mdl.barriers(model.di, model.df, model.dl, _f64(sample.distance), _f64(sample.gradient),
-                         _f64(state.velocity), _f64(gains[:m]), closing, delta, self.config.margins_in_filter, 0.0, hb)
+                         _f64(state.velocity), _f64(gains[:m]), closing, delta, self.config.margins_in_filter,
+                         age_s, hb)
         h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
         if not sample.inside.all():
             return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
         a, b = model.rows(state, sample, hb, gains[:m], ang, closing[:m])
         gradients = sample.gradient  # one per row: the candidate backup directions
+        row_closing = closing[:m]
         if self.config.predictive_rows:
             # The same CBF row with the gradient (and group) found at the predicted point: where the
             # nearest obstacle changes within one period (the ridge between two obstacles, where the
@@ -294,6 +312,7 @@ class SafetyFilter:
             keep = ahead_s.inside & ~same
             if keep.any():
                 gradients = np.concatenate([gradients, ahead_s.gradient[keep]])
+                row_closing = np.concatenate([row_closing, closing[m:][keep]])
                 a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang, closing[m:])
                 a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
@@ -307,7 +326,7 @@ class SafetyFilter:
         res = self._solve(a, b, u_ref)
         fallback = None
         if res.status == "infeasible" and self.config.slack:
-            u_bk = self._backup(state, a, b, gradients[live])
+            u_bk = self._backup(state, a, b, gradients[live], row_closing[live])
             ab = a @ u_bk
             ahead = np.arange(n_rows)[live] >= m  # the predictive rows among the live ones
             soft = ahead & (b > ab)
@@ -332,7 +351,8 @@ class SafetyFilter:
         return FilterResult(res.u, u_ref, h_crit, rg, intervening, fallback, (time.perf_counter() - t0) * 1e6,
                             res.solver, float(hb[k]), qp_us, n_rows)
 
-    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray) -> np.ndarray:
+    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray,
+                closing: np.ndarray) -> np.ndarray:
         """The backup input of the slack-relaxed QP (module docstring): of the maximal-braking
         inputs along each row's gradient and the model's braking input, the one whose worst row
         does best, min_i (a_iᵀu - b_i)/|a_i|. With a single gradient this is the maximal braking
@@ -342,10 +362,10 @@ class SafetyFilter:
         model = self.model
         cands = [model.brake(state)]
         seen: list[np.ndarray] = []
-        for g in gradients:
+        for g, row, c in zip(gradients, a, closing, strict=True):
             if all(np.abs(g - o).max() > 1e-6 for o in seen):
                 seen.append(g)
-                cands.append(model.backup(state, g))
+                cands.append(model.backup(state, g, row, c))
         norm = np.maximum(np.linalg.norm(a, axis=1), 1e-9)
         scores = [float(((a @ u - b) / norm).min()) for u in cands]
         return cands[int(np.argmax(scores))]

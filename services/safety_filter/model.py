@@ -424,13 +424,21 @@ def brake_input(di, df, dl, vel, dt, out):
 
 
 @jit
-def backup_input(di, df, dl, grad, vel, dt, out):
-    """The maximal braking along the gradient: order 1 stops at once (u = 0: no point moves
-    deeper); order 2 accelerates at a_max along ∇d (norm a_max: inside the per-axis box)."""
+def backup_input(di, df, dl, grad, vel, dt, a_row, closing, out):
+    """The maximal braking along the gradient of one row: order 2 accelerates at a_max along ∇d
+    (norm a_max: inside the per-axis box); order 1 stops at once (u = 0: no point moves deeper) —
+    unless the obstacle itself comes closer (closing speed > 0), where stopping is not the safest:
+    then backing away as fast as the box allows, by the inputs that translate the body (the bound
+    that raises that row's a·u; turning inputs stay 0: a swing that helps the row's linearisation
+    can carry the body towards the object)."""
     n = di[DescInts.N]
     if di[DescInts.ORDER] == 1:
+        lo, hi, lin = view1(df, dl, _D.lo), view1(df, dl, _D.hi), view2(df, dl, _D.lin)
         for j in range(n):
             out[j] = 0.0
+            moves = lin[0, j] != 0.0 or lin[1, j] != 0.0 or lin[2, j] != 0.0
+            if closing > 0.0 and moves:
+                out[j] = hi[j] if a_row[j] > 0.0 else (lo[j] if a_row[j] < 0.0 else 0.0)
         return
     gn = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
     if gn > 1e-9:
