@@ -266,3 +266,31 @@ def test_a_noisy_estimate_of_a_walker_does_not_make_the_command_oscillate():
         k0 = int(np.argmax(noisy["v"] < 0))
         assert k0 > 0 and (noisy["v"][k0:] <= 0.01).all()
         assert np.abs(noisy["v"] - clean["v"]).mean() < 0.25
+
+
+def test_missing_or_stale_objects_give_the_static_barrier_counted_not_a_brake():
+    from riskfield.protocol import Header, TrackedObjects, VelocityCommand
+    from riskfield.services.safety_filter.supervisor import FilterSupervisor
+
+    def supervisor(motion: bool = True) -> FilterSupervisor:
+        sup = FilterSupervisor(SafetyFilter(FilterConfig(object_motion=motion)), 0.3, 10.0, 10.0)
+        sup.on_map(grid(1.6), 0.0)
+        sup.on_state(FilterState.planar(0.0, 0.0, 0.0), 0.0)
+        sup.on_ref(VelocityCommand(linear=(0.5, 0.0, 0.0), angular=(0.0, 0.0, 0.0), source="op"), 0.0)
+        return sup
+
+    coming = TrackedObjects(header=Header(stamp_ns=0), objects=[person(1.6, vx=-1.2)])
+    static = supervisor(False).tick(0.1)[0]
+    sup = supervisor()
+    cmd, status = sup.tick(0.1)
+    assert sup.motion == "missing" and sup.counts["objects_missing"] == 1 and status.fallback is None
+    assert cmd.linear == static.linear
+    sup.on_objects(coming, 0.1)
+    cmd, status = sup.tick(0.15)
+    assert sup.motion == "ok" and cmd.linear[0] < static.linear[0] - 0.2 and status.fallback is None
+    sup.on_map(grid(1.6), 0.45)
+    cmd, status = sup.tick(0.5)  # the objects arrived 0.4 s ago: stale (the map timeout is 0.3 s)
+    assert sup.motion == "stale" and sup.counts["objects_stale"] == 1 and status.fallback is None
+    assert cmd.linear == static.linear
+    sup.on_objects(None, 0.5)  # an unusable message
+    assert sup.tick(0.5)[0].linear == static.linear and sup.motion == "missing"
