@@ -352,7 +352,7 @@ class SafetyFilter:
                             res.solver, float(hb[k]), qp_us, n_rows)
 
     def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray,
-                closing: np.ndarray) -> np.ndarray:
+                closing: np.ndarray | None = None) -> np.ndarray:
         """The backup input of the slack-relaxed QP (module docstring): of the maximal-braking
         inputs along each row's gradient and the model's braking input, the one whose worst row
         does best, min_i (a_iᵀu - b_i)/|a_i|. With a single gradient this is the maximal braking
@@ -362,6 +362,7 @@ class SafetyFilter:
         model = self.model
         cands = [model.brake(state)]
         seen: list[np.ndarray] = []
+        closing = np.zeros(len(gradients)) if closing is None else closing
         for g, row, c in zip(gradients, a, closing, strict=True):
             if all(np.abs(g - o).max() > 1e-6 for o in seen):
                 seen.append(g)
