@@ -21,6 +21,10 @@ the field API.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+from enum import IntEnum
+
 import numpy as np
 
 from ..runtime.jit import HAVE_NUMBA, numba
@@ -54,13 +58,80 @@ def stencil_polynomials(field: EsdfField) -> np.ndarray:
     return poly
 
 
+# --------------------------------------------------------------------------- flat buffers with named slots
+
+
+class Layout:
+    """Named slots of one flat buffer, declared once: the sizes, offsets and shapes that both the
+    Python side (allocation, :meth:`view`) and a compiled kernel (:func:`view1`, :func:`view2`,
+    :func:`view3` with ``layout.slot.<name>``) use, so no offset is written by hand.
+
+    A slot's shape is a tuple of ints and dimension names (``("q", 3)``) bound by :meth:`table`.
+    A call into numba costs per argument (~0.2 µs), so a kernel takes a few flat buffers and this
+    table, and carves its views inside.
+    """
+
+    def __init__(self, name: str, slots: Sequence[tuple[str, tuple[int | str, ...]]]):
+        self.slot = IntEnum(name, [s for s, _ in slots], start=0)  # type: ignore[misc]
+        self.shapes = {s: shape for s, shape in slots}
+
+    def table(self, **dims: int) -> np.ndarray:
+        """(slots, 4) int64: [offset, d0, d1, d2] per slot (unused trailing dimensions are 1)."""
+        rows, at = [], 0
+        for shape in self.shapes.values():
+            d = [dims[x] if isinstance(x, str) else int(x) for x in shape]
+            d += [1] * (3 - len(d))
+            rows.append([at, *d])
+            at += math.prod(d)
+        return np.array(rows, np.int64).reshape(-1, 4)
+
+    @staticmethod
+    def size(table: np.ndarray) -> int:
+        """Length of the buffer a :meth:`table` describes."""
+        return int(table[-1, 0] + table[-1, 1:].prod()) if len(table) else 0
+
+    def view(self, buf: np.ndarray, table: np.ndarray, name: str) -> np.ndarray:
+        """The slot ``name`` of ``buf`` with its declared shape (a view)."""
+        k = int(self.slot[name])
+        at, ndim = int(table[k, 0]), len(self.shapes[name])
+        shape = tuple(int(x) for x in table[k, 1:1 + ndim])
+        return buf[at:at + math.prod(shape)].reshape(shape)
+
+
+@jit
+def view1(buf, table, k):
+    """Slot k of a flat buffer (:class:`Layout`), 1-D."""
+    at = table[k, 0]
+    return buf[at:at + table[k, 1]]
+
+
+@jit
+def view2(buf, table, k):
+    """Slot k of a flat buffer (:class:`Layout`), 2-D."""
+    at = table[k, 0]
+    return buf[at:at + table[k, 1] * table[k, 2]].reshape((table[k, 1], table[k, 2]))
+
+
+@jit
+def view3(buf, table, k):
+    """Slot k of a flat buffer (:class:`Layout`), 3-D."""
+    at = table[k, 0]
+    return buf[at:at + table[k, 1] * table[k, 2] * table[k, 3]].reshape((table[k, 1], table[k, 2], table[k, 3]))
+
+
 # --------------------------------------------------------------------------- field query
+
+#: The field's metadata as :func:`query_field` reads it (:func:`kernel_view`).
+FIELD_INTS = Layout("FieldInts", [("dims", (1,)), ("shape", (3,)), ("strides", (3,))])
+FIELD_FLOATS = Layout("FieldFloats", [("origin", (3,)), ("inv_h", (1,)), ("poly", (3, 4, 4))])
+_FI, _FF = FIELD_INTS.table(), FIELD_FLOATS.table()
+_FIS, _FFS = FIELD_INTS.slot, FIELD_FLOATS.slot
 
 
 def kernel_view(field: EsdfField) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(coefficients float64, risk groups uint8, [dims, shape (3), strides (3)] int64,
-    [origin (3), 1/h, stencil polynomials (48)] float64): ``field`` as :func:`query_point` reads it
-    (few arrays: a call into numba costs per argument)."""
+    """(coefficients float64, risk groups uint8, metadata int64 (:data:`FIELD_INTS`), metadata
+    float64 (:data:`FIELD_FLOATS`)): ``field`` as :func:`query_field` reads it (few arrays: a call
+    into numba costs per argument)."""
     flat = field._flat
     if flat.dtype != np.float64 or not flat.flags.writeable or not flat.flags.c_contiguous:
         flat = np.array(flat, np.float64)
@@ -68,16 +139,25 @@ def kernel_view(field: EsdfField) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     if rgs.dtype != np.uint8 or not rgs.flags.writeable or not rgs.flags.c_contiguous:
         rgs = np.array(rgs, np.uint8)
     dims = 2 if field.planar else 3
-    meta_i = np.zeros(7, np.int64)
-    meta_i[0] = dims
-    meta_i[1:4] = 1
-    meta_i[1:1 + dims] = field._shape
-    meta_i[4:4 + dims] = field._strides
-    meta_f = np.zeros(52)
-    meta_f[:dims] = field._origin_d
-    meta_f[3] = field._inv_h
-    meta_f[4:] = stencil_polynomials(field).ravel()
+    meta_i = np.zeros(Layout.size(_FI), np.int64)
+    FIELD_INTS.view(meta_i, _FI, "dims")[0] = dims
+    shape = FIELD_INTS.view(meta_i, _FI, "shape")
+    shape[:] = 1
+    shape[:dims] = field._shape
+    FIELD_INTS.view(meta_i, _FI, "strides")[:dims] = field._strides
+    meta_f = np.zeros(Layout.size(_FF))
+    FIELD_FLOATS.view(meta_f, _FF, "origin")[:dims] = field._origin_d
+    FIELD_FLOATS.view(meta_f, _FF, "inv_h")[0] = field._inv_h
+    FIELD_FLOATS.view(meta_f, _FF, "poly")[:] = stencil_polynomials(field)
     return flat, rgs, meta_i, meta_f
+
+
+@jit
+def query_field(flat, rgs, meta_i, meta_f, k, p, i, dist, grad, hess, rg_out, inside, block, w, r1, r2, r3):
+    """:func:`query_point` on a field as :func:`kernel_view` gives it (its metadata carved by the layouts)."""
+    query_point(flat, rgs, view1(meta_i, _FI, _FIS.dims)[0], view1(meta_i, _FI, _FIS.shape),
+                view1(meta_i, _FI, _FIS.strides), view1(meta_f, _FF, _FFS.origin), view1(meta_f, _FF, _FFS.inv_h)[0],
+                view3(meta_f, _FF, _FFS.poly), k, p, i, dist, grad, hess, rg_out, inside, block, w, r1, r2, r3)
 
 
 @jit

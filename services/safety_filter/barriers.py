@@ -1,6 +1,11 @@
 """Barrier models: the robot dynamics ẋ = f(x) + g(x) u, the barrier h(x) = d(p) - r at one or
 more points p of the robot, and the affine CBF row (A u ≥ b) each point adds to the QP.
 
+Each model is one description (:class:`~.model.ModelSpec`, declared by the constructors below:
+body twist per unit input, pass-through rates, body points, box); :class:`BarrierModel` and the
+compiled step (``compiled``) derive everything from it through the functions of ``model``, where
+the rows are written once.
+
 The safety function follows the paper: h = d(p) (the semantically inflated ESDF), here minus the
 robot radius r and a small sampled-data margin δ (below). Every point p_i (the look-ahead point,
 body points) adds one row with the class-dependent gain of the risk group of its nearest
@@ -44,16 +49,23 @@ braking-distance barrier (:class:`DoubleIntegrator`, default) instead of the pap
 from __future__ import annotations
 
 import math
-from abc import ABC, abstractmethod
-from typing import ClassVar
 
 import numpy as np
 
 from ..fields import DistanceField, FieldSample
-from ..geometry.transforms import yaw_matrix
-from .state import FilterState, skew, so3_exp, so3_integral
+from . import model as mdl
+from .model import ALPHA, ALPHA1, ALPHA2, MARGIN, ModelSpec
+from .state import FilterState
 
-ALPHA, ALPHA1, ALPHA2 = 0, 1, 2
+__all__ = ["ALPHA", "ALPHA1", "ALPHA2", "MARGIN", "BarrierModel", "DoubleIntegrator", "SingleIntegrator",
+           "UnicycleLookahead", "disc_cover"]
+
+_NO_HESSIAN = np.zeros((1, 3, 3))
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    """C-contiguous float64: the one array type the model functions are compiled for."""
+    return np.ascontiguousarray(a, np.float64)
 
 
 def disc_cover(length: float, width: float, discs: int, capsule: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -80,112 +92,169 @@ def disc_cover(length: float, width: float, discs: int, capsule: bool = False) -
     return np.stack([xs, 0 * xs, 0 * xs], axis=1), np.full(discs, math.hypot(0.5 * sl, 0.5 * width))
 
 
-def _offsets(points: list[tuple[float, float, float]] | np.ndarray) -> np.ndarray:
-    o = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if o.shape[0] == 0:
-        raise ValueError("a barrier model needs at least one point")
-    return o
+class BarrierModel:
+    """A robot model from its description (``spec``): body points, h, motion, CBF rows, inputs.
 
+    Everything model-specific is data of the :class:`~.model.ModelSpec`; the methods pass it to
+    the functions of ``model`` (the same ones the compiled step runs), so a new model or body
+    point is one description.
+    """
 
-class BarrierModel(ABC):
-    """Common parts: the barrier points, h, the QP weights and the input bounds."""
-
-    name: ClassVar[str] = ""
-    needs_hessian: ClassVar[bool] = False
-
-    def __init__(self, offsets: np.ndarray, radius: float | np.ndarray, weights: np.ndarray, lo: np.ndarray,
-                 hi: np.ndarray):
-        self.offsets = _offsets(offsets)
-        self._offset_list = [tuple(float(v) for v in o) for o in self.offsets]
-        #: r_i per point, (m,): the clearance of point i is d(p_i) - r_i.
-        self.radius = np.broadcast_to(np.asarray(radius, np.float64), (self.offsets.shape[0],)).copy()
-        self.weights = np.asarray(weights, np.float64)
-        self.lo = np.asarray(lo, np.float64)
-        self.hi = np.asarray(hi, np.float64)
-        if not (np.all(self.weights > 0) and np.all(self.lo <= 0) and np.all(self.hi >= 0)):
-            raise ValueError("weights must be positive and the bounds must contain zero (braking)")
+    def __init__(self, spec: ModelSpec):
+        self.spec = spec
+        self.name = spec.name
+        self.needs_hessian = spec.order == 2
+        self.offsets, self.radius, self.weights, self.lo, self.hi = (spec.offsets, spec.radii, spec.weights,
+                                                                     spec.lo, spec.hi)
+        self.di, self.df = spec.packed
+        self.dl = spec.layout
 
     @property
     def n(self) -> int:
         """Number of inputs."""
-        return self.weights.shape[0]
+        return self.spec.n
 
     @property
     def m(self) -> int:
-        """Number of barrier rows (one per point)."""
-        return self.offsets.shape[0]
+        """Number of barrier points (one row each)."""
+        return self.spec.m
 
-    def _rotation(self, s: FilterState) -> np.ndarray:
-        return s.rotation
+    # -- points and motion ----------------------------------------------------------------------
+    def rotation(self, s: FilterState) -> np.ndarray:
+        """The rotation that carries the body points (the state's, its yaw, or the identity)."""
+        out = np.empty((3, 3))
+        mdl.attitude_rotation(self.di, _f64(s.rotation), out)
+        return out
 
     def points(self, s: FilterState) -> np.ndarray:
         """World positions of the barrier points, (m, 3)."""
-        return s.position + self.offsets @ self._rotation(s).T
+        pts = np.empty((self.m, 3))
+        mdl.place_points(self.df, self.dl, _f64(s.position), self.rotation(s), pts, 0)
+        return pts
+
+    def _flow(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None):
+        ang = np.zeros(3) if angular is None else _f64(angular)
+        pos1, rot1, vel1, w1 = np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3)
+        mdl.flow(self.di, self.df, self.dl, _f64(s.position), _f64(s.rotation), _f64(s.velocity), _f64(u), ang,
+                 float(dt), pos1, rot1, vel1, w1, np.empty((3, 3)), np.empty((3, 3)))
+        return pos1, rot1, vel1, w1
 
     def predicted_points(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None) -> np.ndarray:
         """The barrier points after dt with the input held (exact)."""
         return self.points(self.integrate(s, u, dt, angular))
 
+    def integrate(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None = None) -> FilterState:
+        """Exact solution of the dynamics over dt with the input held (zero-order hold)."""
+        pos1, rot1, vel1, w1 = self._flow(s, u, dt, angular)
+        if self.spec.order == 2:
+            return FilterState(pos1, s.rotation, vel1, s.angular_velocity)
+        return FilterState(pos1, rot1, vel1, w1)
+
+    def point_jacobians(self, s: FilterState) -> np.ndarray:
+        """ṗ_i = J_i u + (pass-through rotation) for every point, (m, 3, n), world frame (order 1):
+        J_i = R (G_lin - [o_i]× G_ang)."""
+        r, sp = self.rotation(s), self.spec
+        arm = np.cross(self.offsets[:, None, :], sp.ang.T[None, :, :])  # o × (G_ang column) = [o]× G_ang
+        return np.einsum("ab,mjb->maj", r, sp.lin.T[None] - arm)
+
+    # -- barrier and rows -----------------------------------------------------------------------
     def h(self, s: FilterState, field: DistanceField) -> np.ndarray:
-        """h_i = d(p_i) - r at every point (without the sampled-data margin)."""
+        """h_i = d(p_i) - r_i at every point (without the sampled-data margin)."""
         return field.query(self.points(s)).distance - self.radius
 
-    @abstractmethod
-    def f(self, s: FilterState) -> np.ndarray:
-        """Drift of the model's state vector."""
+    def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray,
+                closing: np.ndarray | None = None) -> np.ndarray:
+        """The barrier the rows keep non-negative, from hb = d - r - δ (the same for first-order
+        models; the braking barrier subtracts its braking distance)."""
+        grad, vel = _f64(sample.gradient), _f64(s.velocity)
+        c = np.zeros(len(hb)) if closing is None else closing
+        return np.array([mdl.barrier_value(self.di, self.df, self.dl, float(hb[i]), grad[i], vel, float(c[i]))
+                         for i in range(len(hb))])
 
-    @abstractmethod
-    def g(self, s: FilterState) -> np.ndarray:
-        """Input matrix of the model's state vector."""
-
-    @abstractmethod
     def rows(self, s: FilterState, sample: FieldSample, h: np.ndarray, gains: np.ndarray,
-             angular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """CBF rows A u ≥ b at the points: ``h`` (m,) barrier values, ``gains`` (m, 3).
-        ``angular`` is the body-frame angular velocity the filter passes through."""
+             angular: np.ndarray, closing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """CBF rows A u ≥ b at the points (``model.point_row``): ``h`` (m,) barrier values,
+        ``gains`` (m, 4), ``angular`` the reference's body rates, ``closing`` (m,) the closing
+        speeds of moving obstacles (none: a static world)."""
+        m = len(h)
+        a, b = np.empty((m, self.n)), np.empty(m)
+        hess = _NO_HESSIAN if sample.hessian is None else _f64(sample.hessian)
+        g = np.zeros((m, 4))
+        g[:, : np.asarray(gains).shape[1]] = gains
+        mdl.point_rows(self.di, self.df, self.dl, self.rotation(s), _f64(angular), _f64(s.velocity),
+                       _f64(sample.gradient), hess, _f64(h), g, np.zeros(m) if closing is None else _f64(closing), a, b)
+        return a, b
 
-    @abstractmethod
+    def braking_distance(self, approach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(φ(s), φ'(s)) of the braking barrier at the signed approach speeds s (``DoubleIntegrator``)."""
+        sp = self.spec
+        out = [mdl.braking(float(x), sp.speed_floor, sp.a_brake) for x in np.ravel(approach)]
+        shape = np.shape(approach)
+        return np.array([o[0] for o in out]).reshape(shape), np.array([o[1] for o in out]).reshape(shape)
+
+    # -- inputs ---------------------------------------------------------------------------------
     def reference(self, linear: np.ndarray, angular: np.ndarray, s: FilterState) -> np.ndarray:
-        """The model input matching a body-frame velocity command."""
+        """The model input matching a body-frame velocity command: the components the input map
+        selects (order 1), or k_v (v_des - v) towards it (order 2, world frame)."""
+        sp = self.spec
+        if sp.order == 2:
+            return sp.k_v * (s.rotation @ np.asarray(linear, np.float64) - s.velocity)
+        return sp.lin.T @ np.asarray(linear, np.float64) + sp.ang.T @ np.asarray(angular, np.float64)
 
-    @abstractmethod
     def command(self, u: np.ndarray, angular: np.ndarray, s: FilterState) -> tuple[np.ndarray, np.ndarray]:
         """Body-frame (linear, angular) velocity command of a model input."""
+        sp = self.spec
+        if sp.order == 2:
+            return s.rotation.T @ (s.velocity + u * sp.dt), np.asarray(angular, np.float64).copy()
+        return sp.lin @ u, sp.ang @ u + np.asarray(sp.passthrough) * np.asarray(angular, np.float64)
 
     def brake(self, s: FilterState) -> np.ndarray:
         """The input that stops the robot (zero velocity for velocity-controlled models)."""
-        return np.zeros(self.n)
+        out = np.empty(self.n)
+        mdl.brake_input(self.di, self.df, self.dl, _f64(s.velocity), self.spec.dt, out)
+        return out
 
-    def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
-        """The maximal-braking input along the field's gradient at the critical point: what the
-        slack-relaxed QP must do at least as well as, row by row. Velocity-controlled models stop
-        at once (u = 0: no point moves deeper, see the module docstring on stopping)."""
-        return np.zeros(self.n)
-
-    def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray) -> np.ndarray:
-        """The barrier the rows keep non-negative, from hb = d - r - δ (the same for
-        first-order models; the double integrator subtracts its braking distance)."""
-        return hb
+    def backup(self, s: FilterState, gradient: np.ndarray, a_row: np.ndarray | None = None,
+               closing: float = 0.0) -> np.ndarray:
+        """The maximal-braking input along the field's gradient (of the row ``a_row`` whose obstacle
+        comes closer at ``closing``): what the slack-relaxed QP must do at least as well as, row by
+        row (``model.backup_input``)."""
+        out = np.empty(self.n)
+        a = np.zeros(self.n) if a_row is None else _f64(a_row)
+        mdl.backup_input(self.di, self.df, self.dl, _f64(gradient), _f64(s.velocity), self.spec.dt, a, float(closing),
+                         out)
+        return out
 
     def alpha_cap(self, a_brake: float) -> float:
         """Largest first-order gain whose speed limit α h can be shed within h at deceleration
         ``a_brake`` (module docstring): 2 a / (largest point speed)."""
         return 2.0 * a_brake / self.max_point_speed()
 
-    @abstractmethod
     def max_point_speed(self) -> float:
         """Largest speed of any barrier point within the input bounds (m/s): over one control
-        period T the barrier can drop by at most this times T, which sizes the sampled-data margin."""
+        period T the barrier can drop by at most this times T, which sizes the sampled-data margin.
+        Order 1: |G_lin u + (G_ang u) × o| is convex in u, so its largest value is at a corner of
+        the box; the passed-through rates (not bounded by the filter) add w_max |o|. Order 2:
+        velocity is a state, and the nominal speed the reference keeps bounds it."""
+        sp = self.spec
+        if sp.order == 2:
+            return sp.point_speed
+        corners = np.array(np.meshgrid(*[(lo, hi) for lo, hi in zip(sp.lo, sp.hi, strict=True)])).reshape(sp.n, -1).T
+        v, w = corners @ sp.lin.T, corners @ sp.ang.T  # (corners, 3)
+        speed = np.linalg.norm(v[:, None, :] + np.cross(w[:, None, :], self.offsets[None]), axis=2).max(axis=0)
+        if any(sp.passthrough):
+            speed = speed + sp.w_max * np.linalg.norm(self.offsets, axis=1)
+        return float(speed.max())
 
-    @abstractmethod
-    def integrate(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None = None) -> FilterState:
-        """Exact solution of the dynamics over dt with the input held (zero-order hold)."""
+
+# --------------------------------------------------------------------------- the models, declared once
+
+_E = np.eye(3)
 
 
 class UnicycleLookahead(BarrierModel):
-    """Unicycle with look-ahead point(s); input [v, ω]. Points are body-frame (x fwd, y left)."""
-
-    name = "unicycle"
+    """Unicycle with look-ahead point(s); input [v, ω]: v along body x, ω about body z, nothing
+    passed through. Points are body-frame (x fwd, y left)."""
 
     def __init__(self, lookahead: float = 0.25, radius: float = 0.15, lambda_v: float = 1.0,
                  lambda_w: float = 0.5, v_max: float = 1.0, w_max: float = 2.0,
@@ -198,139 +267,35 @@ class UnicycleLookahead(BarrierModel):
         if body is not None:
             pts += [tuple(o) for o in np.asarray(body[0]).reshape(-1, 3)]
             radii += list(np.asarray(body[1]).reshape(-1))
-        super().__init__(np.array(pts), np.array(radii), np.array([lambda_v, lambda_w]),
-                         np.array([-v_max, -w_max]), np.array([v_max, w_max]))
+        super().__init__(ModelSpec(
+            "unicycle", order=1, attitude="yaw", lin=[[1, 0], [0, 0], [0, 0]], ang=[[0, 0], [0, 0], [0, 1]],
+            passthrough=(0.0, 0.0, 0.0), offsets=np.array(pts), radii=np.array(radii),
+            weights=np.array([lambda_v, lambda_w]), lo=np.array([-v_max, -w_max]), hi=np.array([v_max, w_max])))
         self.lookahead = lookahead
-
-    def _rotation(self, s: FilterState) -> np.ndarray:
-        return yaw_matrix(s.yaw)  # a ground robot: roll and pitch do not move its look-ahead point
-
-    def _points_at(self, x: float, y: float, z: float, th: float) -> np.ndarray:
-        c, sn = math.cos(th), math.sin(th)  # plain floats: a handful of points, called twice a step
-        return np.array([(x + c * ox - sn * oy, y + sn * ox + c * oy, z + oz) for ox, oy, oz in self._offset_list])
-
-    def points(self, s: FilterState) -> np.ndarray:
-        p = s.position
-        return self._points_at(float(p[0]), float(p[1]), float(p[2]), s.yaw)
-
-    def predicted_points(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None) -> np.ndarray:
-        x, y, th1 = self._arc(s, float(u[0]), float(u[1]), dt)
-        return self._points_at(x, y, float(s.position[2]), th1)
-
-    def _arc(self, s: FilterState, v: float, w: float, dt: float) -> tuple[float, float, float]:
-        """Position and heading after dt at constant (v, ω): a straight line or a circular arc."""
-        th = s.yaw
-        th1 = th + w * dt
-        if abs(w * dt) < 1e-9:
-            dx, dy = v * dt * math.cos(th), v * dt * math.sin(th)
-        else:
-            dx = v / w * (math.sin(th1) - math.sin(th))
-            dy = -v / w * (math.cos(th1) - math.cos(th))
-        return float(s.position[0]) + dx, float(s.position[1]) + dy, th1
-
-    def f(self, s: FilterState) -> np.ndarray:
-        return np.zeros(3)
-
-    def g(self, s: FilterState) -> np.ndarray:
-        th = s.yaw
-        return np.array([[math.cos(th), 0.0], [math.sin(th), 0.0], [0.0, 1.0]])
-
-    def jacobians(self, s: FilterState) -> np.ndarray:
-        """ṗ_i = J_i [v, ω] for every point, (m, 2, 2) (x, y rows)."""
-        c, sn = math.cos(s.yaw), math.sin(s.yaw)
-        ox, oy = self.offsets[:, 0], self.offsets[:, 1]
-        j = np.empty((self.m, 2, 2))
-        j[:, 0, 0], j[:, 1, 0] = c, sn
-        j[:, 0, 1] = -(sn * ox + c * oy)
-        j[:, 1, 1] = c * ox - sn * oy
-        return j
-
-    def rows(self, s: FilterState, sample: FieldSample, h: np.ndarray, gains: np.ndarray,
-             angular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        a = np.einsum("mk,mkj->mj", sample.gradient[:, :2], self.jacobians(s))
-        return a, -gains[:, ALPHA] * h
-
-    def reference(self, linear: np.ndarray, angular: np.ndarray, s: FilterState) -> np.ndarray:
-        return np.array([linear[0], angular[2]], np.float64)
-
-    def max_point_speed(self) -> float:
-        # |J u|² = v² + ω²|o|² - 2 v ω o_y, largest at a corner of the box.
-        v, w = self.hi
-        o2 = (self.offsets[:, :2] ** 2).sum(axis=1)
-        return float(np.sqrt(v * v + w * w * o2 + 2 * v * w * np.abs(self.offsets[:, 1])).max())
-
-    def command(self, u: np.ndarray, angular: np.ndarray, s: FilterState) -> tuple[np.ndarray, np.ndarray]:
-        return np.array([u[0], 0.0, 0.0]), np.array([0.0, 0.0, u[1]])
-
-    def integrate(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None = None) -> FilterState:
-        v, w = float(u[0]), float(u[1])
-        x, y, th1 = self._arc(s, v, w, dt)
-        pos = np.array([x, y, float(s.position[2])])
-        return FilterState(pos, yaw_matrix(th1), np.array([v * math.cos(th1), v * math.sin(th1), 0.0]),
-                           np.array([0.0, 0.0, w]))
 
 
 class SingleIntegrator(BarrierModel):
-    """ṗ = R u with u the body-frame linear velocity (2 or 3 components); ω passes through."""
+    """ṗ = R u with u the body-frame linear velocity (2 or 3 components); the body turns at the
+    reference's rates (its yaw rate in 2-D), which pass through."""
 
     def __init__(self, dim: int = 2, radius: float | np.ndarray = 0.15, v_max: float = 1.0, vz_max: float = 0.5,
                  points: list[tuple[float, float, float]] | None = None, w_max: float = 2.0):
         if dim not in (2, 3):
             raise ValueError("dim must be 2 or 3")
         bound = np.array([v_max, v_max, vz_max])[:dim]
-        super().__init__(np.array(points or [(0.0, 0.0, 0.0)]), radius, np.ones(dim), -bound, bound)
+        super().__init__(ModelSpec(
+            f"single{dim}d", order=1, attitude="yaw" if dim == 2 else "full", lin=_E[:, :dim],
+            ang=np.zeros((3, dim)), passthrough=(0.0, 0.0, 1.0) if dim == 2 else (1.0, 1.0, 1.0),
+            offsets=np.array(points or [(0.0, 0.0, 0.0)]), radii=radius, weights=np.ones(dim), lo=-bound, hi=bound,
+            w_max=w_max))
         self.dim, self.w_max = dim, w_max
-        self.name = f"single{dim}d"  # type: ignore[misc]
-
-    def _rotation(self, s: FilterState) -> np.ndarray:
-        return yaw_matrix(s.yaw) if self.dim == 2 else s.rotation
-
-    def _omega(self, angular: np.ndarray) -> np.ndarray:
-        return np.array([0.0, 0.0, angular[2]]) if self.dim == 2 else np.asarray(angular, np.float64)
-
-    def f(self, s: FilterState) -> np.ndarray:
-        return np.zeros(self.dim)
-
-    def g(self, s: FilterState) -> np.ndarray:
-        return self._rotation(s)[: self.dim, : self.dim]
-
-    def rows(self, s: FilterState, sample: FieldSample, h: np.ndarray, gains: np.ndarray,
-             angular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r = self._rotation(s)
-        a = sample.gradient @ r[:, : self.dim]
-        if not self.offsets.any():
-            return a, -gains[:, ALPHA] * h  # points at the centre do not move with the rotation
-        spin = skew(self._omega(angular))  # ω × o for every body offset o
-        drift = (self.offsets @ spin.T @ r.T * sample.gradient).sum(axis=1)
-        return a, -gains[:, ALPHA] * h - drift
-
-    def reference(self, linear: np.ndarray, angular: np.ndarray, s: FilterState) -> np.ndarray:
-        return np.asarray(linear[: self.dim], np.float64).copy()
-
-    def max_point_speed(self) -> float:
-        # The passed-through rotation is not bounded by the filter: count w_max of the config.
-        return float(np.linalg.norm(self.hi) + self.w_max * np.linalg.norm(self.offsets, axis=1).max())
-
-    def command(self, u: np.ndarray, angular: np.ndarray, s: FilterState) -> tuple[np.ndarray, np.ndarray]:
-        lin = np.zeros(3)
-        lin[: self.dim] = u
-        return lin, self._omega(angular)
-
-    def integrate(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None = None) -> FilterState:
-        w = self._omega(np.zeros(3) if angular is None else angular)
-        r = self._rotation(s)
-        ub = np.zeros(3)
-        ub[: self.dim] = u
-        pos = s.position + r @ so3_integral(w, dt) @ ub
-        r1 = r @ so3_exp(w * dt)
-        return FilterState(pos, r1, r1 @ ub, r1 @ w)
 
 
 class DoubleIntegrator(BarrierModel):
     """ṗ = v, v̇ = u (world-frame acceleration), |u_i| ≤ a_max, with one of two barriers.
 
     Declared once: state x = (p, v), f(x) = (v, 0), g(x) = (0, I); h(x) = d(p) - r - δ, so
-    ḣ = ∇dᵀv and ḧ = ∇dᵀu + vᵀ∇²d v. Both rows below are derived from these two derivatives.
+    ḣ = ∇dᵀv and ḧ = ∇dᵀu + vᵀ∇²d v. Both rows (``model.point_row``) are derived from these two derivatives.
 
     ``barrier="braking"`` (default): the braking-distance barrier. With s = -ḣ the approach
     speed along the gradient and a_b = ``brake_fraction`` · a_max the deceleration the barrier
@@ -383,7 +348,7 @@ class DoubleIntegrator(BarrierModel):
     ψ₁ = ḣ + k₁ h and ψ̇₁ + k₂ ψ₁ ≥ 0 is ḧ + α₁ ḣ + α₂ h ≥ 0 with α₁ = k₁ + k₂, α₂ = k₁ k₂.
     Forward invariance needs real k's, i.e. α₁² ≥ 4 α₂ (otherwise h oscillates through zero); the
     filter's gain table enforces it. It ignores the bounds: from states with ψ₁ ≥ 0 it may need
-    more than a_max. For ψ₁ ≥ 0 the row is exactly the paper's; see :meth:`_hocbf_rows` for ψ₁ < 0.
+    more than a_max. For ψ₁ ≥ 0 the row is exactly the paper's; see ``model.point_row`` for ψ₁ < 0.
 
     Points are offsets from the centre in the world frame (the model has no attitude).
     In the node, the reference command's linear velocity (body frame) is a desired velocity
@@ -391,37 +356,24 @@ class DoubleIntegrator(BarrierModel):
     one control period T ahead.
     """
 
-    name = "double3d"
-    needs_hessian = True
-
     def __init__(self, radius: float | np.ndarray = 0.15, a_max: float = 3.0, k_v: float = 2.0, dt: float = 0.02,
                  points: list[tuple[float, float, float]] | None = None, v_max: float = 1.0,
                  barrier: str = "braking", brake_fraction: float = 0.7, brake_rate_length: float = math.inf,
                  brake_speed_floor: float = 1e-3):
-        super().__init__(np.array(points or [(0.0, 0.0, 0.0)]), radius, np.ones(3),
-                         -np.full(3, a_max), np.full(3, a_max))
         if barrier not in ("braking", "hocbf") or not 0 < brake_fraction <= 1:
             raise ValueError("barrier is 'braking' or 'hocbf', brake_fraction in (0, 1]")
-        self.k_v, self.dt, self.v_max = k_v, dt, v_max
-        self.kind = barrier
-        self.a_max = a_max
-        self.a_brake = brake_fraction * a_max
         if not brake_rate_length > 0:
             raise ValueError("brake_rate_length must be positive (inf: the linear class-K function)")
-        self.rate_length = brake_rate_length
         if not brake_speed_floor > 0:
             raise ValueError("brake_speed_floor must be positive")
-        self.speed_floor = brake_speed_floor
-
-    def braking_distance(self, approach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(φ(s), φ'(s)) of the braking barrier at the signed approach speeds s (class docstring)."""
-        s0, ab = self.speed_floor, self.a_brake
-        phi = np.where(approach >= s0, (approach * approach + s0 * s0) / (2 * ab), s0 * approach / ab)
-        return phi, np.maximum(approach, s0) / ab
-
-    def max_point_speed(self) -> float:
-        # Velocity is a state here, not an input: v_max is the nominal speed the reference keeps.
-        return self.v_max
+        super().__init__(ModelSpec(
+            "double3d", order=2, attitude="none", lin=_E, ang=np.zeros((3, 3)), passthrough=(1.0, 1.0, 1.0),
+            offsets=np.array(points or [(0.0, 0.0, 0.0)]), radii=radius, weights=np.ones(3),
+            lo=-np.full(3, a_max), hi=np.full(3, a_max), barrier=barrier, a_brake=brake_fraction * a_max,
+            speed_floor=brake_speed_floor, rate_length=brake_rate_length, a_max=a_max, k_v=k_v, dt=dt,
+            point_speed=v_max))
+        self.k_v, self.dt, self.v_max, self.kind, self.a_max = k_v, dt, v_max, barrier, a_max
+        self.a_brake, self.rate_length, self.speed_floor = brake_fraction * a_max, brake_rate_length, brake_speed_floor
 
     @staticmethod
     def roots(alpha1: float, alpha2: float) -> tuple[float, float]:
@@ -429,72 +381,3 @@ class DoubleIntegrator(BarrierModel):
         the HOCBF is {h ≥ 0, ḣ + k₂ h ≥ 0}: a state must start there to be kept there."""
         disc = math.sqrt(max(alpha1 * alpha1 - 4 * alpha2, 0.0))
         return 0.5 * (alpha1 - disc), 0.5 * (alpha1 + disc)
-
-    def points(self, s: FilterState) -> np.ndarray:
-        return s.position + self.offsets
-
-    def f(self, s: FilterState) -> np.ndarray:
-        return np.concatenate([s.velocity, np.zeros(3)])
-
-    def g(self, s: FilterState) -> np.ndarray:
-        return np.vstack([np.zeros((3, 3)), np.eye(3)])
-
-    def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray) -> np.ndarray:
-        if self.kind == "hocbf":
-            return hb
-        return hb - self.braking_distance(-(sample.gradient @ s.velocity))[0]
-
-    def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
-        # Maximal acceleration along the gradient (norm a_max: inside the per-axis box).
-        g = np.asarray(gradient, np.float64)
-        n = float(np.linalg.norm(g))
-        return self.a_max * g / n if n > 1e-9 else self.brake(s)
-
-    def rows(self, s: FilterState, sample: FieldSample, h: np.ndarray, gains: np.ndarray,
-             angular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.kind == "hocbf":
-            return self._hocbf_rows(s, sample, h, gains)
-        v = s.velocity
-        assert sample.hessian is not None
-        curvature = np.einsum("i,mij,j->m", v, sample.hessian, v)
-        hdot = sample.gradient @ v
-        phi, c = self.braking_distance(-hdot)
-        hbrake = h - phi
-        a1, a2 = gains[:, ALPHA1], gains[:, ALPHA2]
-        kappa = 0.5 * (a1 - np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0)))
-        rate = kappa * hbrake * (1.0 + np.maximum(hbrake, 0.0) / self.rate_length)  # α(h_b), class docstring
-        return sample.gradient * c[:, None], -rate - hdot - c * curvature
-
-    def _hocbf_rows(self, s: FilterState, sample: FieldSample, h: np.ndarray,
-                    gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        v = s.velocity
-        assert sample.hessian is not None
-        curvature = np.einsum("i,mij,j->m", v, sample.hessian, v)
-        hdot = sample.gradient @ v
-        a1, a2 = gains[:, ALPHA1], gains[:, ALPHA2]
-        disc = np.sqrt(np.maximum(a1 * a1 - 4 * a2, 0.0))
-        k_slow, k_fast = 0.5 * (a1 - disc), 0.5 * (a1 + disc)
-        psi1 = hdot + k_fast * h
-        # Outside the HOCBF's safe set (ψ₁ < 0: approaching faster than k h allows, e.g. right after
-        # the nearest obstacle switched to a group with smaller gains) the paper's row would let h
-        # cross zero before ψ₁ recovers. Recovering ψ₁ at rate γ ≥ k_fast + 2|ψ₁|/h keeps
-        # h(t) ≥ ½ h₀ e^{-k_fast t} (from ψ₁(t) ≥ ψ₁(0) e^{-γt} and ḣ = ψ₁ - k_fast h).
-        gamma = np.where(psi1 < 0, np.maximum(k_slow, k_fast + 2 * np.abs(psi1) / np.maximum(h, 1e-3)), k_slow)
-        b = -curvature - (k_fast + gamma) * hdot - gamma * k_fast * h
-        return sample.gradient.copy(), b
-
-    def reference(self, linear: np.ndarray, angular: np.ndarray, s: FilterState) -> np.ndarray:
-        return self.k_v * (s.rotation @ np.asarray(linear, np.float64) - s.velocity)
-
-    def command(self, u: np.ndarray, angular: np.ndarray, s: FilterState) -> tuple[np.ndarray, np.ndarray]:
-        return s.rotation.T @ (s.velocity + u * self.dt), np.asarray(angular, np.float64).copy()
-
-    def brake(self, s: FilterState) -> np.ndarray:
-        # Straight against the velocity, scaled into the bounds (clipping per axis would turn it).
-        a = -s.velocity / self.dt
-        peak = float(np.max(np.abs(a) / self.hi))
-        return a / peak if peak > 1.0 else a
-
-    def integrate(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None = None) -> FilterState:
-        return FilterState(s.position + s.velocity * dt + 0.5 * u * dt * dt, s.rotation, s.velocity + u * dt,
-                           s.angular_velocity)

@@ -8,16 +8,19 @@ hold on the whole box, the same dual active-set QP (``qp.ActiveSetSolver``), the
 predictive rows and the slack relaxation — in a single ``numba.njit`` function over
 preallocated buffers, so a step allocates nothing in Python but its result.
 
-It is an accelerator, not a second definition: wherever the compiled step would leave the
-numpy path's well-trodden cases it hands the step back (:data:`HANDBACK`) and the numpy path
-decides — a non-finite state, an active-set failure that the numpy path sends to OSQP. Results
-agree with the numpy path to rounding (sums run in another order than BLAS's), which the
-property test in ``tests/safety_filter/test_compiled.py`` checks on random states, fields and
-references for every model.
+It is an accelerator, not a second definition: the model (its points, motion, barrier values and
+rows) comes from its one description through the functions of ``model``, which the numpy path
+calls too; wherever the compiled step would leave the numpy path's well-trodden cases it hands
+the step back (:data:`HANDBACK`) and the numpy path decides — a non-finite state, an active-set
+failure that the numpy path sends to OSQP. Results agree with the numpy path to rounding (sums
+run in another order than BLAS's), which the property test in
+``tests/safety_filter/test_compiled.py`` checks on random states, fields and references for
+every model.
 
-The field is queried by ``fields.compiled.query_point`` (the grid query for one point, in
-machine code). The kernel is compiled (or loaded from numba's on-disk cache) when the filter is
-built — in the node's setup — never in the control loop.
+The buffers are laid out once (:data:`FLOATS`, :data:`INTS`: ``fields.compiled.Layout``), and
+each phase of the step carves the views it needs by slot name. The field is queried by
+``fields.compiled.query_field``. The kernel is compiled (or loaded from numba's on-disk cache)
+when the filter is built — in the node's setup — never in the control loop.
 """
 
 from __future__ import annotations
@@ -26,71 +29,59 @@ import math
 
 import numpy as np
 
-from ..fields.compiled import HAVE_NUMBA, jit, kernel_view, query_point
+from ..fields.compiled import HAVE_NUMBA, Layout, jit, kernel_view, query_field, view1, view2, view3
 from ..fields.grid import EsdfField
+from . import model as mdl
+from .model import OBJECT_COLUMNS, DescInts
 from .qp import FEASIBILITY_TOL
 
-# Model kinds of the kernel.
-UNICYCLE, SINGLE2D, SINGLE3D, DOUBLE_BRAKING, DOUBLE_HOCBF = 0, 1, 2, 3, 4
-# Outcome codes of the kernel (out_i[0]).
+# Outcome codes of the kernel (INTS "out"[0]).
 OK, SLACK, OUTSIDE_MAP, NON_FINITE, INFEASIBLE, HANDBACK = 0, 1, 2, 3, 4, 9
 FALLBACK = {OK: None, SLACK: "slack", OUTSIDE_MAP: "outside_map", NON_FINITE: "non_finite",
             INFEASIBLE: "infeasible"}
-
+#: Moving objects one step takes at most (``CompiledStep.run`` keeps the nearest).
+MAX_OBJECTS = 16
 
 _MAX_ITER, _TOL = 50, 1e-12  # as qp.ActiveSetSolver's defaults
 
-
-# --------------------------------------------------------------------------- SO(3) helpers
-
-
-@jit
-def _series(x, y, z, t, c1, c2, out):
-    """t·I + c1·[w]× + c2·[w]×² (state._series)."""
-    xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
-    out[0, 0] = t - c2 * (yy + zz)
-    out[0, 1] = -c1 * z + c2 * xy
-    out[0, 2] = c1 * y + c2 * xz
-    out[1, 0] = c1 * z + c2 * xy
-    out[1, 1] = t - c2 * (xx + zz)
-    out[1, 2] = -c1 * x + c2 * yz
-    out[2, 0] = -c1 * y + c2 * xz
-    out[2, 1] = c1 * x + c2 * yz
-    out[2, 2] = t - c2 * (xx + yy)
-
-
-@jit
-def _so3_exp(x, y, z, out):
-    th = math.sqrt(x * x + y * y + z * z)
-    if th < 1e-9:
-        _series(x, y, z, 1.0, 1.0, 0.5, out)
-    else:
-        _series(x, y, z, 1.0, math.sin(th) / th, (1 - math.cos(th)) / th**2, out)
-
-
-@jit
-def _so3_integral(x, y, z, t, out):
-    th = math.sqrt(x * x + y * y + z * z)
-    if abs(th * t) < 1e-6:
-        _series(x, y, z, t, 0.5 * t * t, t**3 / 6.0, out)
-    else:
-        _series(x, y, z, t, (1 - math.cos(th * t)) / th**2, (th * t - math.sin(th * t)) / th**3, out)
+#: The float workspace of one filter's step. Dimensions: n inputs, m body points, q = 2m field
+#: samples (the points now and one period ahead), rows = q + 2n QP rows with the box, k objects,
+#: d the packed description's length.
+FLOATS = Layout("Floats", [
+    # the model's description (``model.DESC``), written once
+    ("desc", ("d",)),
+    # inputs of a step (CompiledStep.run)
+    ("position", (3,)), ("rotation", (3, 3)), ("velocity", (3,)), ("u_ref", ("n",)), ("ang", (3,)),
+    ("objects", ("k", OBJECT_COLUMNS)), ("age", (1,)),
+    # constants of the filter (δ per map: CompiledStep.prepare)
+    ("delta", (1,)), ("alpha_cap", (1,)), ("dt", (1,)), ("match", (1,)),
+    # outputs: [h at the critical point, the barrier there], u
+    ("out", (2,)), ("u", ("n",)),
+    # scratch
+    ("pts", ("q", 3)), ("dist", ("q",)), ("grad", ("q", 3)), ("hess", ("q", 3, 3)), ("gains", ("q", 4)),
+    ("closing", ("q",)), ("hb", ("m",)), ("A", ("q", "n")), ("B", ("q",)), ("A2", ("q", "n")), ("B2", ("q",)),
+    ("u_box", ("n",)), ("u_bk", ("n",)), ("u_c", ("n",)), ("rot", (3, 3)), ("rot1", (3, 3)), ("s1", (3, 3)),
+    ("s2", (3, 3)), ("pos1", (3,)), ("vel1", (3,)), ("w1", (3,)),
+    ("block", (4, 4, 4)), ("w", (3, 3, 4)), ("r1", (4, 4, 3)), ("r2", (4, 3, 3)), ("r3", (3, 3, 3)),
+    ("rc", ("rows", "n")), ("rd", ("rows",)), ("norms", ("rows",)), ("gram", (8, 8)), ("aug", (8, 9)),
+    ("z", ("n",)), ("rhs", (8,)), ("rr", (8,)), ("step", ("n",)), ("lam", (8,)), ("marks", ("n2",)), ("sw", ("n",)),
+])
+#: The integer workspace: the description's integers, the filter's switches, the object count, the
+#: outputs [code, risk group, rows, intervening] and scratch.
+INTS = Layout("Ints", [
+    ("desc", (len(DescInts),)), ("predictive", (1,)), ("margins", (1,)), ("slack", (1,)), ("first_order", (1,)),
+    ("nobj", (1,)), ("out", (4,)),
+    ("rgq", ("q",)), ("inside", ("q",)), ("active", (8,)), ("rsrc", ("q",)), ("rsrc2", ("q",)), ("seen", ("q",)),
+])
+F, I, D = FLOATS.slot, INTS.slot, mdl.DESC.slot
 
 
-@jit
-def _yaw_rot(yaw, out):
-    c, s = math.cos(yaw), math.sin(yaw)
-    out[:, :] = 0.0
-    out[0, 0], out[0, 1], out[1, 0], out[1, 1], out[2, 2] = c, -s, s, c, 1.0
-
-
-@jit
-def _rigid_points(pos, rot, offsets, m, pts, row0):
-    """pts[row0 + i] = pos + rot @ o_i."""
-    for i in range(m):
-        for a in range(3):
-            pts[row0 + i, a] = pos[a] + rot[a, 0] * offsets[i, 0] + rot[a, 1] * offsets[i, 1] \
-                + rot[a, 2] * offsets[i, 2]
+def workspace(m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(float table, int table) of :data:`FLOATS` and :data:`INTS` for m points and n inputs."""
+    d = Layout.size(mdl.DESC.table(n=n, m=m))
+    q = 2 * m
+    return (FLOATS.table(d=d, n=n, m=m, q=q, rows=q + 2 * n, k=MAX_OBJECTS, n2=2 * n),
+            INTS.table(q=q))
 
 
 # --------------------------------------------------------------------------- the QP (qp.ActiveSetSolver)
@@ -322,82 +313,6 @@ def _active_set(w, r, A, b, nrow, lo, hi, n, u, rc, rd, norms, gram, aug, z, rhs
     return 0
 
 
-# --------------------------------------------------------------------------- the step
-
-
-@jit
-def _braking(approach, s0, a_brake):
-    """(φ(s), φ'(s)) of the braking barrier (``DoubleIntegrator.braking_distance``)."""
-    if approach >= s0:
-        phi = (approach * approach + s0 * s0) / (2 * a_brake)
-    else:
-        phi = s0 * approach / a_brake
-    return phi, max(approach, s0) / a_brake
-
-
-@jit
-def _rows(kind, n, m, i, src, rot, omega, offsets, centred, grad, hess, hb_i, gain, vel, a_brake, s0, ell, A, B,
-          row):
-    """The CBF row of point i (field sample in row src) into A[row], B[row] (barriers.*.rows)."""
-    gx, gy, gz = grad[src, 0], grad[src, 1], grad[src, 2]
-    if kind == UNICYCLE:
-        c, s = rot[0, 0], rot[1, 0]
-        ox, oy = offsets[i, 0], offsets[i, 1]
-        A[row, 0] = gx * c + gy * s
-        A[row, 1] = gx * -(s * ox + c * oy) + gy * (c * ox - s * oy)
-        B[row] = -gain[0] * hb_i
-    elif kind == SINGLE2D or kind == SINGLE3D:
-        for j in range(n):
-            A[row, j] = gx * rot[0, j] + gy * rot[1, j] + gz * rot[2, j]
-        if centred:
-            B[row] = -gain[0] * hb_i
-        else:
-            ox, oy, oz = offsets[i, 0], offsets[i, 1], offsets[i, 2]
-            cx = omega[1] * oz - omega[2] * oy  # ω × o
-            cy = omega[2] * ox - omega[0] * oz
-            cz = omega[0] * oy - omega[1] * ox
-            drift = 0.0
-            for a in range(3):
-                drift += (rot[a, 0] * cx + rot[a, 1] * cy + rot[a, 2] * cz) * grad[src, a]
-            B[row] = -gain[0] * hb_i - drift
-    else:
-        curv = 0.0
-        for a in range(3):
-            for b in range(3):
-                curv += vel[a] * hess[src, a, b] * vel[b]
-        hdot = gx * vel[0] + gy * vel[1] + gz * vel[2]
-        a1, a2 = gain[1], gain[2]
-        disc = math.sqrt(max(a1 * a1 - 4 * a2, 0.0))
-        if kind == DOUBLE_BRAKING:
-            phi, cc = _braking(-hdot, s0, a_brake)
-            hbrake = hb_i - phi
-            kappa = 0.5 * (a1 - disc)
-            rate = kappa * hbrake * (1.0 + max(hbrake, 0.0) / ell)  # α(h_b), DoubleIntegrator's docstring
-            for a in range(3):
-                A[row, a] = grad[src, a] * cc
-            B[row] = -rate - hdot - cc * curv
-        else:
-            k_slow, k_fast = 0.5 * (a1 - disc), 0.5 * (a1 + disc)
-            psi1 = hdot + k_fast * hb_i
-            gamma = max(k_slow, k_fast + 2 * abs(psi1) / max(hb_i, 1e-3)) if psi1 < 0 else k_slow
-            for a in range(3):
-                A[row, a] = grad[src, a]
-            B[row] = -curv - (k_fast + gamma) * hdot - gamma * k_fast * hb_i
-
-
-@jit
-def _brake_input(kind, n, vel, dt, hi, out):
-    """``BarrierModel.brake``: zero velocity, or against the velocity scaled into the bounds."""
-    for j in range(n):
-        out[j] = 0.0
-    if kind >= DOUBLE_BRAKING:
-        peak = 0.0
-        for j in range(3):
-            peak = max(peak, abs(-vel[j] / dt) / hi[j])
-        for j in range(3):
-            out[j] = -vel[j] / dt / peak if peak > 1.0 else -vel[j] / dt
-
-
 @jit
 def _worst_row(A, B, nrows, n, u):
     """min_i (a_iᵀu - b_i)/max(|a_i|, 1e-9) over the rows."""
@@ -411,132 +326,103 @@ def _worst_row(A, B, nrows, n, u):
     return worst
 
 
+
+
+# --------------------------------------------------------------------------- the step, in phases
+
+
 @jit
-def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref, ang,
-                flat, rgs, dims, shape, strides, forigin, inv_h, poly, table,
-                pts, dist, grad, hess, rgq, inside, gains, hb, A, B, A2, B2, u_box, u_bk,
-                rot, rot1, tmp, omega, pos1, block, w, r1, r2, r3, ws,
-                u_out, out_f, out_i, rsrc, rsrc2, seen, u_c):
-    """One filter step (SafetyFilter.filter); outcome in out_i = [code, risk group, rows, intervening],
-    out_f = [h at the critical point, the barrier there]."""
-    delta, alpha_cap, dt, a_brake, a_max, s0, ell = par[0], par[1], par[2], par[3], par[4], par[5], par[6]
-    predictive, margins, slack_on, first_order = flags[0], flags[1], flags[2], flags[3]
-    out_i[0], out_i[1], out_i[2], out_i[3] = OK, 0, 0, 0
-    out_f[0], out_f[1] = 0.0, 0.0
+def _scalar(wf, lf, k):
+    return view1(wf, lf, k)[0]
+
+
+@jit
+def _begin(wf, lf, dl, n):
+    """Inputs finite (a non-finite reference brakes; a non-finite state goes to the numpy path) and
+    the reference clipped into the box (u_box). Returns the outcome code, or -1 to go on."""
+    u_ref, ang = view1(wf, lf, F.u_ref), view1(wf, lf, F.ang)
     for j in range(n):
         if not math.isfinite(u_ref[j]):
-            out_i[0] = NON_FINITE
-            return
+            return NON_FINITE
     for j in range(3):
         if not math.isfinite(ang[j]):
-            out_i[0] = NON_FINITE
-            return
-    for j in range(15):
-        if not math.isfinite(state[j]):
-            out_i[0] = HANDBACK  # the numpy path decides what a non-finite state means
-            return
+            return NON_FINITE
+    pos, rot, vel = view1(wf, lf, F.position), view2(wf, lf, F.rotation), view1(wf, lf, F.velocity)
+    for a in range(3):
+        if not (math.isfinite(pos[a]) and math.isfinite(vel[a])):
+            return HANDBACK  # the numpy path decides what a non-finite state means
+        for b in range(3):
+            if not math.isfinite(rot[a, b]):
+                return HANDBACK
+    df = view1(wf, lf, F.desc)
+    lo, hi, u_box = view1(df, dl, D.lo), view1(df, dl, D.hi), view1(wf, lf, F.u_box)
     for j in range(n):
         u_box[j] = min(max(u_ref[j], lo[j]), hi[j])
-    pos = state[0:3]
-    vel = state[12:15]
-    for a in range(3):
-        for b in range(3):
-            rot[a, b] = state[3 + 3 * a + b]
-    centred = True
-    for i in range(m):
-        for a in range(3):
-            if offsets[i, a] != 0.0:
-                centred = False
-    # Barrier points now (rows 0..m-1) and one period ahead under u_box (rows m..2m-1).
-    if kind == UNICYCLE:
-        th = math.atan2(rot[1, 0], rot[0, 0])
-        _yaw_rot(th, rot)
-        _rigid_points(pos, rot, offsets, m, pts, 0)
-        if predictive:
-            v, wz = u_box[0], u_box[1]
-            th1 = th + wz * dt
-            if abs(wz * dt) < 1e-9:
-                dx, dy = v * dt * math.cos(th), v * dt * math.sin(th)
-            else:
-                dx = v / wz * (math.sin(th1) - math.sin(th))
-                dy = -v / wz * (math.cos(th1) - math.cos(th))
-            pos1[0], pos1[1], pos1[2] = pos[0] + dx, pos[1] + dy, pos[2]
-            _yaw_rot(th1, rot1)
-            _rigid_points(pos1, rot1, offsets, m, pts, m)
-    elif kind == SINGLE2D or kind == SINGLE3D:
-        if kind == SINGLE2D:
-            _yaw_rot(math.atan2(rot[1, 0], rot[0, 0]), rot)
-            omega[0], omega[1], omega[2] = 0.0, 0.0, ang[2]
-        else:
-            omega[0], omega[1], omega[2] = ang[0], ang[1], ang[2]
-        _rigid_points(pos, rot, offsets, m, pts, 0)
-        if predictive:
-            # integrate(): p₁ = p + R ∫exp ub, R₁ = R exp(ω dt)
-            _so3_integral(omega[0], omega[1], omega[2], dt, tmp)
-            for a in range(3):
-                s = 0.0
-                for b in range(3):
-                    rs = 0.0
-                    for c in range(3):
-                        rs += rot[a, c] * tmp[c, b]
-                    s += rs * (u_box[b] if b < n else 0.0)
-                pos1[a] = pos[a] + s
-            _so3_exp(omega[0] * dt, omega[1] * dt, omega[2] * dt, tmp)
-            for a in range(3):
-                for b in range(3):
-                    s = 0.0
-                    for c in range(3):
-                        s += rot[a, c] * tmp[c, b]
-                    rot1[a, b] = s
-            if kind == SINGLE2D:
-                _yaw_rot(math.atan2(rot1[1, 0], rot1[0, 0]), rot1)
-            _rigid_points(pos1, rot1, offsets, m, pts, m)
-    else:
-        for i in range(m):
-            for a in range(3):
-                pts[i, a] = pos[a] + offsets[i, a]
-        if predictive:
-            for i in range(m):
-                for a in range(3):
-                    pts[m + i, a] = pos[a] + vel[a] * dt + 0.5 * u_box[a] * dt * dt + offsets[i, a]
-    npts = 2 * m if predictive else m
-    k = 3 if kind >= DOUBLE_BRAKING else 2
+    return -1
+
+
+@jit
+def _points(wf, wi, lf, li, dl, predictive):
+    """The barrier points now (samples 0..m-1) and one period ahead under u_box (m..2m-1)."""
+    di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
+    pos, rot, vel = view1(wf, lf, F.position), view2(wf, lf, F.rotation), view1(wf, lf, F.velocity)
+    pts, r = view2(wf, lf, F.pts), view2(wf, lf, F.rot)
+    mdl.attitude_rotation(di, rot, r)
+    mdl.place_points(df, dl, pos, r, pts, 0)
+    if predictive:
+        pos1, rot1, r1 = view1(wf, lf, F.pos1), view2(wf, lf, F.rot1), view2(wf, lf, F.s1)
+        mdl.flow(di, df, dl, pos, rot, vel, view1(wf, lf, F.u_box), view1(wf, lf, F.ang), _scalar(wf, lf, F.dt),
+                 pos1, rot1, view1(wf, lf, F.vel1), view1(wf, lf, F.w1), r1, view2(wf, lf, F.s2))
+        mdl.attitude_rotation(di, rot1, r1)
+        mdl.place_points(df, dl, pos1, r1, pts, di[DescInts.M])
+
+
+@jit
+def _sample(wf, wi, lf, li, flat, rgs, fmi, fmf, table, npts, order):
+    """Field query at every sample, the gains of their groups (capped for first-order models) and
+    the closing speeds of moving objects. False when a point is not finite (the numpy path decides)."""
+    pts, dist, grad, hess = view2(wf, lf, F.pts), view1(wf, lf, F.dist), view2(wf, lf, F.grad), view3(wf, lf, F.hess)
+    rgq, inside, gains = view1(wi, li, I.rgq), view1(wi, li, I.inside), view2(wf, lf, F.gains)
+    block, w, r1 = view3(wf, lf, F.block), view3(wf, lf, F.w), view3(wf, lf, F.r1)
+    r2, r3 = view3(wf, lf, F.r2), view3(wf, lf, F.r3)
+    k = 3 if order == 2 else 2
     for i in range(npts):
         for a in range(3):
             if not math.isfinite(pts[i, a]):
-                out_i[0] = HANDBACK
-                return
-        query_point(flat, rgs, dims, shape, strides, forigin, inv_h, poly, k, pts[i], i, dist, grad, hess, rgq, inside,
-               block, w, r1, r2, r3)
+                return False
+        query_field(flat, rgs, fmi, fmf, k, pts[i], i, dist, grad, hess, rgq, inside, block, w, r1, r2, r3)
     nt = table.shape[0]
+    cap = _scalar(wf, lf, F.alpha_cap)
+    first_order = view1(wi, li, I.first_order)[0]
     for i in range(npts):
         g = min(rgq[i], nt - 1)
         for c in range(4):
             gains[i, c] = table[g, c]
         if first_order:
-            gains[i, 0] = min(gains[i, 0], alpha_cap)
-    kbest, best = 0, math.inf
+            gains[i, 0] = min(gains[i, 0], cap)
+    closing = view1(wf, lf, F.closing)
+    nobj = view1(wi, li, I.nobj)[0]
+    if nobj > 0:
+        mdl.closing_speeds(pts, dist, grad, rgq, gains, npts, view2(wf, lf, F.objects), nobj,
+                           _scalar(wf, lf, F.match), closing)
+    else:
+        for i in range(npts):
+            closing[i] = 0.0
+    return True
+
+
+@jit
+def _rows(wf, wi, lf, li, dl, m, n, predictive):
+    """The CBF rows (``model.point_row``) of the points now and, where the gradient or group one
+    period ahead differs, of the points ahead (filter's predictive rows). Returns the row count,
+    or -1 when a row is not finite."""
+    di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
+    rot, ang, vel = view2(wf, lf, F.rot), view1(wf, lf, F.ang), view1(wf, lf, F.velocity)
+    grad, hess, gains = view2(wf, lf, F.grad), view3(wf, lf, F.hess), view2(wf, lf, F.gains)
+    hb, closing, A, B = view1(wf, lf, F.hb), view1(wf, lf, F.closing), view2(wf, lf, F.A), view1(wf, lf, F.B)
+    rgq, inside, rsrc = view1(wi, li, I.rgq), view1(wi, li, I.inside), view1(wi, li, I.rsrc)
     for i in range(m):
-        hb[i] = dist[i] - radius[i] - delta
-        if margins:
-            hb[i] = hb[i] - gains[i, 3]
-        val = hb[i]
-        if kind == DOUBLE_BRAKING:
-            phi, _ = _braking(-(grad[i, 0] * vel[0] + grad[i, 1] * vel[1] + grad[i, 2] * vel[2]), s0, a_brake)
-            val = hb[i] - phi
-        if val < best or i == 0:
-            kbest, best = i, val
-    kc = kbest
-    h_crit = dist[kc] - radius[kc]
-    out_f[0], out_i[1] = h_crit, rgq[kc]
-    for i in range(m):
-        if not inside[i]:
-            out_f[0] = 0.0
-            out_i[0] = OUTSIDE_MAP
-            return
-    for i in range(m):
-        _rows(kind, n, m, i, i, rot, omega, offsets, centred, grad, hess, hb[i], gains[i], vel, a_brake, s0, ell,
-              A, B, i)
+        B[i] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[i], hess[i], hb[i], gains[i], closing[i], A[i])
         rsrc[i] = i
     nrows = m
     if predictive:
@@ -547,8 +433,8 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
                 diff = max(diff, abs(grad[j, a] - grad[i, a]))
             same = diff < 0.05 and rgq[j] == rgq[i]
             if inside[j] and not same:
-                _rows(kind, n, m, i, j, rot, omega, offsets, centred, grad, hess, hb[i], gains[j], vel, a_brake,
-                      s0, ell, A, B, nrows)
+                B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[j], hess[j], hb[i], gains[j], closing[j],
+                                         A[nrows])
                 rsrc[nrows] = j
                 nrows += 1
     for i in range(nrows):
@@ -556,15 +442,17 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
         for j in range(n):
             ok = ok and math.isfinite(A[i, j])
         if not ok:
-            out_f[0] = 0.0
-            out_i[0] = NON_FINITE
-            return
-    if not math.isfinite(h_crit):
-        out_f[0] = 0.0
-        out_i[0] = NON_FINITE
-        return
-    out_i[2] = nrows
-    # Rows that hold for every u in the box cannot be active: drop them.
+            return -1
+    return nrows
+
+
+@jit
+def _drop_inactive(wf, wi, lf, li, dl, nrows, n):
+    """Rows that hold for every u in the box cannot be active: the others into A2, B2 (rsrc2)."""
+    df = view1(wf, lf, F.desc)
+    lo, hi = view1(df, dl, D.lo), view1(df, dl, D.hi)
+    A, B, A2, B2 = view2(wf, lf, F.A), view1(wf, lf, F.B), view2(wf, lf, F.A2), view1(wf, lf, F.B2)
+    rsrc, rsrc2 = view1(wi, li, I.rsrc), view1(wi, li, I.rsrc2)
     nlive = 0
     for i in range(nrows):
         s = 0.0
@@ -576,190 +464,161 @@ def _step(kind, n, m, offsets, radius, weights, lo, hi, par, flags, state, u_ref
             B2[nlive] = B[i]
             rsrc2[nlive] = rsrc[i]
             nlive += 1
-    status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
+    return nlive
+
+
+@jit
+def _qp(wf, wi, lf, li, dl, n, nlive):
+    """The exact QP on the live rows (A2, B2) into u: status 0 solved, 1 infeasible, 2 failed."""
+    df = view1(wf, lf, F.desc)
+    return _active_set(view1(df, dl, D.weights), view1(wf, lf, F.u_ref), view2(wf, lf, F.A2),
+                       view1(wf, lf, F.B2), nlive, view1(df, dl, D.lo), view1(df, dl, D.hi),
+                       n, view1(wf, lf, F.u), view2(wf, lf, F.rc), view1(wf, lf, F.rd), view1(wf, lf, F.norms),
+                       view2(wf, lf, F.gram), view2(wf, lf, F.aug), view1(wf, lf, F.z), view1(wf, lf, F.rhs),
+                       view1(wf, lf, F.rr), view1(wf, lf, F.step), view1(wf, lf, F.lam), view1(wf, lf, F.marks),
+                       view1(wf, lf, F.sw), view1(wi, li, I.active))
+
+
+@jit
+def _relax(wf, wi, lf, li, dl, m, n, nlive):
+    """An infeasible QP with the slack relaxation on (filter's module docstring): the backup u_bk —
+    of the braking input and the maximal braking along each live row's (distinct) gradient, the
+    one whose worst row does best — then the soft predictive rows, then every row relaxed to what
+    u_bk achieves. Returns (status, code) as the numpy path ends."""
+    di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
+    vel, dt = view1(wf, lf, F.velocity), _scalar(wf, lf, F.dt)
+    grad, A2, B2, B = view2(wf, lf, F.grad), view2(wf, lf, F.A2), view1(wf, lf, F.B2), view1(wf, lf, F.B)
+    u_bk, u_c, closing = view1(wf, lf, F.u_bk), view1(wf, lf, F.u_c), view1(wf, lf, F.closing)
+    rsrc2, seen = view1(wi, li, I.rsrc2), view1(wi, li, I.seen)
+    mdl.brake_input(di, df, dl, vel, dt, u_bk)
+    best_score = _worst_row(A2, B2, nlive, n, u_bk)
+    nseen = 0
+    for i in range(nlive):
+        src = rsrc2[i]
+        new = True
+        for s_ in range(nseen):
+            o = seen[s_]
+            diff = 0.0
+            for a in range(3):
+                diff = max(diff, abs(grad[src, a] - grad[o, a]))
+            if diff <= 1e-6:
+                new = False
+                break
+        if not new:
+            continue
+        seen[nseen] = src
+        nseen += 1
+        mdl.backup_input(di, df, dl, grad[src], vel, dt, A2[i], closing[src], u_c)
+        score = _worst_row(A2, B2, nlive, n, u_c)
+        if score > best_score:
+            best_score = score
+            for j in range(n):
+                u_bk[j] = u_c[j]
+    # Soft predictive rows: first relax only the rows ahead (rsrc2 ≥ m) that the backup violates,
+    # keeping the current rows hard; B keeps the live rows' b meanwhile.
+    soft = False
+    status = 1
+    for i in range(nlive):
+        B[i] = B2[i]
+        if rsrc2[i] >= m:
+            ab = 0.0
+            for j in range(n):
+                ab += A2[i, j] * u_bk[j]
+            if B2[i] > ab:
+                B2[i] = ab
+                soft = True
+    if soft:
+        status = _qp(wf, wi, lf, li, dl, n, nlive)
+        if status == 2:
+            return 2, HANDBACK
+        for i in range(nlive):
+            B2[i] = B[i]
+    blind = False
+    for i in range(nlive):
+        ab = 0.0
+        amax = 0.0
+        for j in range(n):
+            ab += A2[i, j] * u_bk[j]
+            amax = max(amax, abs(A2[i, j]))
+        if B2[i] > ab and amax <= 1e-9:
+            blind = True
+        B2[i] = min(B2[i], ab)
+    if status == 1 and not blind:
+        status = _qp(wf, wi, lf, li, dl, n, nlive)
+        if status == 2:
+            return 2, HANDBACK
+        if status != 0:
+            u = view1(wf, lf, F.u)
+            for j in range(n):
+                u[j] = u_bk[j]
+            status = 0
+        return status, SLACK
+    return status, OK
+
+
+@jit
+def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
+    """One filter step (SafetyFilter.filter) over the workspaces ``wf``, ``wi`` (laid out by the
+    tables ``lf``, ``li`` of :data:`FLOATS`, :data:`INTS`; ``dl`` the description's
+    ``model.DESC`` table), the field as ``fields.compiled.kernel_view`` gives it and the gains per
+    risk group (``table``). Outcome in INTS "out" = [code, risk group, rows, intervening], FLOATS
+    "out" = [h at the critical point, the barrier there] and "u"."""
+    out_i, out_f = view1(wi, li, I.out), view1(wf, lf, F.out)
+    out_i[0], out_i[1], out_i[2], out_i[3] = OK, 0, 0, 0
+    out_f[0], out_f[1] = 0.0, 0.0
+    di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
+    n, m, order = di[DescInts.N], di[DescInts.M], di[DescInts.ORDER]
+    predictive = view1(wi, li, I.predictive)[0] != 0
+    code = _begin(wf, lf, dl, n)
+    if code >= 0:
+        out_i[0] = code
+        return
+    _points(wf, wi, lf, li, dl, predictive)
+    if not _sample(wf, wi, lf, li, flat, rgs, fmi, fmf, table, 2 * m if predictive else m, order):
+        out_i[0] = HANDBACK
+        return
+    dist, grad, hb = view1(wf, lf, F.dist), view2(wf, lf, F.grad), view1(wf, lf, F.hb)
+    rgq, inside = view1(wi, li, I.rgq), view1(wi, li, I.inside)
+    kc = mdl.barriers(di, df, dl, dist, grad, view1(wf, lf, F.velocity), view2(wf, lf, F.gains),
+                      view1(wf, lf, F.closing), _scalar(wf, lf, F.delta), view1(wi, li, I.margins)[0] != 0,
+                      _scalar(wf, lf, F.age), hb)
+    h_crit = dist[kc] - view1(df, dl, D.radii)[kc]
+    out_f[0], out_i[1] = h_crit, rgq[kc]
+    for i in range(m):
+        if not inside[i]:
+            out_f[0] = 0.0
+            out_i[0] = OUTSIDE_MAP
+            return
+    nrows = _rows(wf, wi, lf, li, dl, m, n, predictive)
+    if nrows < 0 or not math.isfinite(h_crit):
+        out_f[0] = 0.0
+        out_i[0] = NON_FINITE
+        return
+    out_i[2] = nrows
+    nlive = _drop_inactive(wf, wi, lf, li, dl, nrows, n)
+    status = _qp(wf, wi, lf, li, dl, n, nlive)
     code = OK
     if status == 2:
         out_i[0] = HANDBACK  # the numpy path takes it to OSQP
         return
-    if status == 1 and slack_on:
-        # SafetyFilter._backup: of the braking input and the maximal braking along each live row's
-        # (distinct) gradient, the one whose worst row does best, min_i (a_iᵀu - b_i)/|a_i|.
-        _brake_input(kind, n, vel, dt, hi, u_bk)
-        best_score = _worst_row(A2, B2, nlive, n, u_bk)
-        nseen = 0
-        for i in range(nlive):
-            src = rsrc2[i]
-            new = True
-            for s_ in range(nseen):
-                o = seen[s_]
-                diff = 0.0
-                for a in range(3):
-                    diff = max(diff, abs(grad[src, a] - grad[o, a]))
-                if diff <= 1e-6:
-                    new = False
-                    break
-            if not new:
-                continue
-            seen[nseen] = src
-            nseen += 1
-            if kind >= DOUBLE_BRAKING:
-                gn = math.sqrt(grad[src, 0] ** 2 + grad[src, 1] ** 2 + grad[src, 2] ** 2)
-                if gn > 1e-9:
-                    for j in range(3):
-                        u_c[j] = a_max * grad[src, j] / gn
-                else:
-                    _brake_input(kind, n, vel, dt, hi, u_c)
-            else:
-                for j in range(n):
-                    u_c[j] = 0.0
-            score = _worst_row(A2, B2, nlive, n, u_c)
-            if score > best_score:
-                best_score = score
-                for j in range(n):
-                    u_bk[j] = u_c[j]
-        # filter's soft predictive rows: first relax only the rows ahead (rsrc2 ≥ m) that the backup
-        # violates, keeping the current rows hard; B keeps the live rows' b meanwhile.
-        soft = False
-        for i in range(nlive):
-            B[i] = B2[i]
-            if rsrc2[i] >= m:
-                ab = 0.0
-                for j in range(n):
-                    ab += A2[i, j] * u_bk[j]
-                if B2[i] > ab:
-                    B2[i] = ab
-                    soft = True
-        if soft:
-            status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
-            if status == 2:
-                out_i[0] = HANDBACK
-                return
-            for i in range(nlive):
-                B2[i] = B[i]
-        blind = False
-        for i in range(nlive):
-            ab = 0.0
-            amax = 0.0
-            for j in range(n):
-                ab += A2[i, j] * u_bk[j]
-                amax = max(amax, abs(A2[i, j]))
-            if B2[i] > ab and amax <= 1e-9:
-                blind = True
-            B2[i] = min(B2[i], ab)
-        if status == 1 and not blind:
-            status = _active_set(weights, u_ref, A2, B2, nlive, lo, hi, n, u_out, *ws)
-            code = SLACK
-            if status == 2:
-                out_i[0] = HANDBACK
-                return
-            if status != 0:
-                for j in range(n):
-                    u_out[j] = u_bk[j]
-                status = 0
+    if status == 1 and view1(wi, li, I.slack)[0] != 0:
+        status, code = _relax(wf, wi, lf, li, dl, m, n, nlive)
+        if code == HANDBACK:
+            out_i[0] = HANDBACK
+            return
     if status != 0:
         out_i[0] = INFEASIBLE
         return
+    u, u_box = view1(wf, lf, F.u), view1(wf, lf, F.u_box)
     dev = 0.0
     for j in range(n):
-        if not math.isfinite(u_out[j]):
+        if not math.isfinite(u[j]):
             out_i[0] = NON_FINITE
             return
-        dev = max(dev, abs(u_out[j] - u_box[j]))
+        dev = max(dev, abs(u[j] - u_box[j]))
     out_i[0] = code
     out_i[3] = 1 if (code != OK or dev > 1e-6) else 0
     out_f[1] = hb[kc]
-
-
-@jit
-def _take(buf, at, size):
-    return buf[at:at + size], at + size
-
-
-@jit
-def step_kernel(ci, cf, inp, flat, rgs, fmi, fmf, table, wf, wi):
-    """One filter step over packed arrays (a numba call costs ~0.2 µs per argument: few arguments).
-
-    ci = [model kind, n, m, predictive rows, margins in filter, slack, first order];
-    cf = [δ (+ the map margin of the field in hand), α cap, T, a_brake, a_max, braking speed floor s₀,
-    braking rate length ℓ, offsets (m×3), radii (m), weights, lo, hi (n each)];
-    inp = [position, rotation (row-major), velocity, u_ref (n), angular (3)]; the field as
-    ``fields.compiled.kernel_view`` gives it (fmi = [dims, shape, strides], fmf = [origin, 1/h,
-    stencil polynomials]); ``table`` the gains per risk group. Outputs: wf[0:2] = [h at the
-    critical point, the barrier there], wf[2:2+n] = u; wi[0:4] = [code, risk group, rows,
-    intervening]. The rest of wf and wi is scratch, carved here.
-    """
-    kind, n, m = ci[0], ci[1], ci[2]
-    q = 2 * m
-    rows = q + 2 * n
-    par = cf[0:7]
-    offsets, o = _take(cf, 7, 3 * m)
-    offsets = offsets.reshape((m, 3))
-    radius, o = _take(cf, o, m)
-    weights, o = _take(cf, o, n)
-    lo, o = _take(cf, o, n)
-    hi, o = _take(cf, o, n)
-    state, u_ref, ang = inp[0:15], inp[15:15 + n], inp[15 + n:18 + n]
-    out_f, u_out = wf[0:2], wf[2:2 + n]
-    o = 2 + n
-    pts, o = _take(wf, o, 3 * q)
-    dist, o = _take(wf, o, q)
-    grad, o = _take(wf, o, 3 * q)
-    hess, o = _take(wf, o, 9 * q)
-    gains, o = _take(wf, o, 4 * q)
-    hb, o = _take(wf, o, m)
-    A, o = _take(wf, o, q * n)
-    B, o = _take(wf, o, q)
-    A2, o = _take(wf, o, q * n)
-    B2, o = _take(wf, o, q)
-    u_box, o = _take(wf, o, n)
-    u_bk, o = _take(wf, o, 3)
-    rot, o = _take(wf, o, 9)
-    rot1, o = _take(wf, o, 9)
-    tmp, o = _take(wf, o, 9)
-    omega, o = _take(wf, o, 3)
-    pos1, o = _take(wf, o, 3)
-    block, o = _take(wf, o, 64)
-    w, o = _take(wf, o, 36)
-    r1, o = _take(wf, o, 48)
-    r2, o = _take(wf, o, 36)
-    r3, o = _take(wf, o, 27)
-    rc, o = _take(wf, o, rows * n)
-    rd, o = _take(wf, o, rows)
-    norms, o = _take(wf, o, rows)
-    gram, o = _take(wf, o, 64)
-    aug, o = _take(wf, o, 72)
-    z, o = _take(wf, o, n)
-    rhs, o = _take(wf, o, 8)
-    rr, o = _take(wf, o, 8)
-    step, o = _take(wf, o, n)
-    lam, o = _take(wf, o, 8)
-    marks, o = _take(wf, o, 2 * n)
-    sw, o = _take(wf, o, n)
-    u_c, o = _take(wf, o, 3)
-    out_i = wi[0:4]
-    rgq, o = _take(wi, 4, q)
-    inside, o = _take(wi, o, q)
-    active, o = _take(wi, o, 8)
-    rsrc, o = _take(wi, o, q)
-    rsrc2, o = _take(wi, o, q)
-    seen, o = _take(wi, o, q)
-    _step(kind, n, m, offsets, radius, weights, lo, hi, par, ci[3:7], state, u_ref, ang,
-          flat, rgs, fmi[0], fmi[1:4], fmi[4:7], fmf[0:3], fmf[3], fmf[4:52].reshape((3, 4, 4)), table,
-          pts.reshape((q, 3)), dist, grad.reshape((q, 3)), hess.reshape((q, 3, 3)), rgq, inside,
-          gains.reshape((q, 4)), hb, A.reshape((q, n)), B, A2.reshape((q, n)), B2, u_box, u_bk,
-          rot.reshape((3, 3)), rot1.reshape((3, 3)), tmp.reshape((3, 3)), omega, pos1, block.reshape((4, 4, 4)),
-          w.reshape((3, 3, 4)), r1.reshape((4, 4, 3)), r2.reshape((4, 3, 3)), r3.reshape((3, 3, 3)),
-          (rc.reshape((rows, n)), rd, norms, gram.reshape((8, 8)), aug.reshape((8, 9)), z, rhs, rr, step, lam,
-           marks, sw, active),
-          u_out, out_f, out_i, rsrc, rsrc2, seen, u_c)
-
-
-def workspace_sizes(m: int, n: int) -> tuple[int, int]:
-    """Lengths of :func:`step_kernel`'s float and int workspaces (its carving, summed)."""
-    q, rows = 2 * m, 2 * m + 2 * n
-    floats = (2 + n + 3 * q + q + 3 * q + 9 * q + 4 * q + m + q * n + q + q * n + q + n + 3 + 9 * 3 + 3 + 3
-              + 64 + 36 + 48 + 36 + 27 + rows * n + rows + rows + 64 + 72 + n + 8 + 8 + n + 8 + 2 * n + n + 3)
-    return floats, 4 + 2 * q + 8 + 3 * q
 
 
 # --------------------------------------------------------------------------- the Python side
@@ -768,35 +627,44 @@ def workspace_sizes(m: int, n: int) -> tuple[int, int]:
 class CompiledStep:
     """Preallocated buffers and constants of one filter's compiled step.
 
-    ``run`` fills the state buffer, calls :func:`step_kernel` once and leaves the outcome in
-    ``u``, ``out_f`` and ``out_i``; :meth:`SafetyFilter.filter <.filter.SafetyFilter.filter>`
-    turns it into a ``FilterResult``. Built (and the kernel compiled or loaded from numba's
-    cache) once per filter: :meth:`warm_up` runs it on a small grid.
+    ``run`` fills the input slots, calls :func:`step_kernel` once and leaves the outcome in ``u``,
+    ``out_f`` and ``out_i``; :meth:`SafetyFilter.filter <.filter.SafetyFilter.filter>` turns it
+    into a ``FilterResult``. Built (and the kernel compiled or loaded from numba's cache) once per
+    filter: :meth:`warm_up` runs it on a small grid.
     """
 
-    def __init__(self, model, kind: int, delta: float, alpha_cap: float, dt: float, predictive: bool,
-                 margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0):
+    def __init__(self, model, delta: float, alpha_cap: float, dt: float, predictive: bool,
+                 margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0, match: float = 0.3):
         if not HAVE_NUMBA:
             raise RuntimeError("the compiled filter step needs numba (pip install '.[robot]')")
         m, n = model.m, model.n
-        self.kind, self.m, self.n = kind, m, n
-        a_max = float(getattr(model, "a_max", 0.0))
-        a_brake = float(getattr(model, "a_brake", 1.0))
-        s0 = float(getattr(model, "speed_floor", 1.0))
-        ell = float(getattr(model, "rate_length", math.inf))
+        self.m, self.n = m, n
+        self.lf, self.li = workspace(m, n)
+        self.dl = model.dl
+        self.wf, self.wi = np.zeros(Layout.size(self.lf)), np.zeros(Layout.size(self.li), np.int64)
+        di, df = model.spec.packed
+        fv, iv = self._f, self._i
+        fv("desc")[:] = df
+        iv("desc")[:] = di
         # δ of the kernel = δ + map_margin_voxels · the voxel size of the field in hand (``prepare``).
         self.delta, self.map_margin_voxels = delta, map_margin_voxels
-        cap = alpha_cap if math.isfinite(alpha_cap) else 1e300
-        self.ci = np.array([kind, n, m, predictive, margins_in_filter, slack, kind < DOUBLE_BRAKING], np.int64)
-        self.cf = np.concatenate([[delta, cap, dt, a_brake, a_max, s0, ell],
-                                  np.asarray(model.offsets, np.float64).ravel(),
-                                  model.radius, model.weights, model.lo, model.hi]).astype(np.float64)
-        self.inp = np.zeros(18 + n)
-        floats, ints = workspace_sizes(m, n)
-        self.wf, self.wi = np.zeros(floats), np.zeros(ints, np.int64)
+        fv("delta")[0] = delta
+        fv("alpha_cap")[0] = alpha_cap if math.isfinite(alpha_cap) else 1e300
+        fv("dt")[0], fv("match")[0] = dt, match
+        iv("predictive")[0], iv("margins")[0], iv("slack")[0] = predictive, margins_in_filter, slack
+        iv("first_order")[0] = model.spec.order == 1
+        self.position, self.rotation, self.velocity = fv("position"), fv("rotation"), fv("velocity")
+        self.u_ref, self.ang, self.objects, self.age = fv("u_ref"), fv("ang"), fv("objects"), fv("age")
+        self.nobj = iv("nobj")
         # Views of the outputs (step_kernel's docstring).
-        self.out_f, self.u, self.out_i = self.wf[0:2], self.wf[2:2 + n], self.wi[0:4]
+        self.out_f, self.u, self.out_i = fv("out"), fv("u"), iv("out")
         self._field: tuple | None = None
+
+    def _f(self, name: str) -> np.ndarray:
+        return FLOATS.view(self.wf, self.lf, name)
+
+    def _i(self, name: str) -> np.ndarray:
+        return INTS.view(self.wi, self.li, name)
 
     def prepare(self, field: EsdfField) -> tuple:
         """The kernel's view of a field (``fields.compiled.kernel_view``), kept per map."""
@@ -804,19 +672,26 @@ class CompiledStep:
             return self._field[1]
         view = kernel_view(field)
         self._field = (field, view)
-        self.cf[0] = self.delta + self.map_margin_voxels * field.voxel_size
+        self._f("delta")[0] = self.delta + self.map_margin_voxels * field.voxel_size
         return view
 
     def run(self, position: np.ndarray, rotation: np.ndarray, velocity: np.ndarray, u_ref: np.ndarray,
-            ang: np.ndarray, field: EsdfField, table: np.ndarray) -> None:
-        inp, n = self.inp, self.n
-        inp[0:3] = position
-        inp[3:12] = rotation.reshape(9)
-        inp[12:15] = velocity
-        inp[15:15 + n] = u_ref
-        inp[15 + n:18 + n] = ang
+            ang: np.ndarray, field: EsdfField, table: np.ndarray, objects: np.ndarray | None = None,
+            age: float = 0.0) -> None:
+        """One step; ``objects`` (k × ``model.OBJECT_COLUMNS``, at most :data:`MAX_OBJECTS`) are the
+        moving objects at the map's stamp, ``age`` (s) the map's content age."""
+        self.position[:] = position
+        self.rotation[:] = rotation
+        self.velocity[:] = velocity
+        self.u_ref[:] = u_ref
+        self.ang[:] = ang
+        k = 0 if objects is None else min(len(objects), MAX_OBJECTS)
+        if k:
+            self.objects[:k] = objects[:k]
+        self.nobj[0] = k
+        self.age[0] = age
         flat, rgs, fmi, fmf = self.prepare(field)
-        step_kernel(self.ci, self.cf, inp, flat, rgs, fmi, fmf, table, self.wf, self.wi)
+        step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, flat, rgs, fmi, fmf, table)
 
     def warm_up(self, table: np.ndarray) -> None:
         """Compile (or load from the on-disk cache) with the argument types of the control loop."""
@@ -826,13 +701,3 @@ class CompiledStep:
             self.run(np.array([0.15, 0.15, 0.0 if planar else 0.15]), np.eye(3), np.zeros(3), np.zeros(self.n),
                      np.zeros(3), field, table)
         self._field = None
-
-
-def model_kind(model) -> int:
-    """The kernel's model kind of a barrier model (``barriers``)."""
-    name = model.name
-    if name == "unicycle":
-        return UNICYCLE
-    if name in ("single2d", "single3d"):
-        return SINGLE2D if name == "single2d" else SINGLE3D
-    return DOUBLE_HOCBF if model.kind == "hocbf" else DOUBLE_BRAKING

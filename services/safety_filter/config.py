@@ -4,9 +4,9 @@ The node's settings (``settings.py``) extend this with timeouts and the risk fil
 simulation that uses the core directly builds a ``FilterConfig`` alone.
 
 Like the mapper's (see ``mapping.config``), the configuration is composed of one parameter
-struct per part — ``BarrierParams`` (model and geometry), ``BoundsParams`` (input box) and
-``QpParams`` (rate, sampled-data margin, rows, solver) — flat, so every setting keeps its
-one name (``--set robot_radius=0.2``, ``config.robot_radius``).
+struct per part — ``BarrierParams`` (model and geometry), ``BoundsParams`` (input box),
+``QpParams`` (rate, sampled-data margin, rows, solver) and ``MotionParams`` (moving obstacles) —
+flat, so every setting keeps its one name (``--set robot_radius=0.2``, ``config.robot_radius``).
 """
 
 from __future__ import annotations
@@ -144,16 +144,43 @@ class QpParams(BaseModel):
     backend: Literal["auto", "numba", "numpy"] = "auto"
 
 
-class FilterConfig(QpParams, BoundsParams, BarrierParams):
-    """Barrier model and QP of the safety filter: ``BarrierParams``, ``BoundsParams`` and
-    ``QpParams`` composed; it builds the barrier model and knows the sampled-data margin."""
+class MotionParams(BaseModel):
+    """Moving obstacles (``map/objects``): the barrier's ∂h/∂t from the tracked objects' velocities
+    (``model``: ḣ = ∇h·ẋ + ∂h/∂t ≥ -α(h), ∂h/∂t = -max(∇d·v_obj, 0) at a body point whose nearest
+    obstacle is the object). A track's velocity counts only once it is fast, old and fresh enough
+    (``motion``), so a noisy estimate of a standing person adds nothing."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    object_motion: bool = Field(default=True, description=(
+        "add the motion of the tracked objects on map/objects to the barrier (∂h/∂t); false: the static "
+        "barrier, as before map/objects existed (the crowd benchmark's baseline)"))
+    object_speed_deadband: NonNeg = Field(default=0.2, description=(
+        "m/s: a tracked speed below this counts as standing; the velocity ramps in fully at twice it "
+        "(continuous, so a speed near the threshold cannot switch the barrier on and off)"))
+    object_speed_cap: Pos = Field(default=2.5, description=(
+        "m/s: tracked speeds are capped here (a person runs at most ~2.5 m/s indoors; a larger "
+        "estimate is noise that would brake for nothing)"))
+    object_young_ms: NonNeg = Field(default=300.0, description=(
+        "ms: a track younger than this counts with the fraction tracked_ms / object_young_ms of its velocity"))
+    object_stale_ms: Pos = Field(default=500.0, description=(
+        "ms: an object not observed for longer than this (its age_ms) adds no motion"))
+    object_match_m: Pos = Field(default=0.3, description=(
+        "m: a body point's nearest obstacle is a tracked object when the object's risk group is the "
+        "field's there and the field's distance agrees with the object's geometry (horizontal distance "
+        "to its centre - radius - the group's margin) to within this"))
+
+
+class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
+    """Barrier model and QP of the safety filter: ``BarrierParams``, ``BoundsParams``, ``QpParams``
+    and ``MotionParams`` composed; it builds the barrier model and knows the sampled-data margin."""
 
     model_config = ConfigDict(extra="forbid")
 
     @classmethod
     def compose(cls, barrier: BarrierParams | None = None, bounds: BoundsParams | None = None,
-                qp: QpParams | None = None) -> FilterConfig:
-        parts = (barrier, bounds, qp)
+                qp: QpParams | None = None, motion: MotionParams | None = None) -> FilterConfig:
+        parts = (barrier, bounds, qp, motion)
         return cls.model_validate({k: v for p in parts if p is not None for k, v in p.model_dump().items()})
 
     def part(self, params: type[P]) -> P:
@@ -163,6 +190,7 @@ class FilterConfig(QpParams, BoundsParams, BarrierParams):
     barrier_params = property(lambda self: self.part(BarrierParams), doc="The ``BarrierParams`` part.")
     bounds_params = property(lambda self: self.part(BoundsParams), doc="The ``BoundsParams`` part.")
     qp_params = property(lambda self: self.part(QpParams), doc="The ``QpParams`` part.")
+    motion_params = property(lambda self: self.part(MotionParams), doc="The ``MotionParams`` part.")
 
     def body(self) -> Footprint:
         """The footprint in force (the model's default when not configured)."""

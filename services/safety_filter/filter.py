@@ -48,13 +48,14 @@ from riskfield.protocol import RiskConfig
 
 from ..fields import DistanceField, EsdfField, FieldSample
 from . import compiled
-from .barriers import ALPHA1, ALPHA2, BarrierModel
+from . import model as mdl
+from .barriers import BarrierModel
 from .compiled import CompiledStep
 from .config import FilterConfig
+from .model import ALPHA1, ALPHA2, OBJECT_COLUMNS
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 
-MARGIN = 3
 _ZERO3 = np.zeros(3)
 #: Above this many rows the exact active-set path hands over to OSQP.
 ACTIVE_SET_MAX_ROWS = 24
@@ -67,6 +68,10 @@ def hocbf_gains(alpha1: float, alpha2: float) -> tuple[float, float]:
     HOCBF would not keep the safe set invariant; critical damping is the closest safe choice.
     """
     return alpha1, min(alpha2, alpha1 * alpha1 / 4.0)
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, np.float64)
 
 
 def _rows_of(s: FieldSample, rows: slice) -> FieldSample:
@@ -124,10 +129,12 @@ class FilterResult:
 class SafetyFilter:
     """The pure filter: config → model + solvers; ``filter()`` once per control step."""
 
-    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None, warm_up: bool = True):
-        """``warm_up=False`` defers :meth:`warm_up` to the caller (a node subscribes first)."""
+    def __init__(self, config: FilterConfig | None = None, risk: RiskConfig | None = None, warm_up: bool = True,
+                 model: BarrierModel | None = None):
+        """``warm_up=False`` defers :meth:`warm_up` to the caller (a node subscribes first). ``model``
+        replaces the one the configuration builds (a model of one's own, described by a ``ModelSpec``)."""
         self.config = config or FilterConfig()
-        self.model: BarrierModel = self.config.build_model()
+        self.model: BarrierModel = model if model is not None else self.config.build_model()
         self.delta = self.config.margin(self.model)
         self.gains = GainTable(risk or RiskConfig())
         self._active_set = ActiveSetSolver()
@@ -145,9 +152,18 @@ class SafetyFilter:
 
     def warm_up(self) -> None:
         """Compile the compiled step (or load it from numba's on-disk cache: ~0.5 s; a cold cache
-        compiles for ~20 s) with the control loop's argument types: call before the first step."""
+        compiles for ~20 s) with the control loop's argument types: call before the first step.
+        The numpy path's model functions (``model``) are loaded too: the supervisor reads the
+        barrier with them on every brake, and a first load in the loop would stall a step."""
         if self._compiled is not None:
             self._compiled.warm_up(self.gains.for_groups(()))
+        planar = self.model.spec.attitude == "yaw"
+        shape = (4, 4, 1) if planar else (4, 4, 4)
+        field = EsdfField(np.ones(shape, np.float32), (0.0, 0.0, 0.0), 0.1, interpolation=self.config.interpolation)
+        s = FilterState(np.array([0.15, 0.15, 0.0 if planar else 0.15]))
+        self._filter_numpy(s, np.zeros(self.model.n), field, None, time.perf_counter(), np.zeros((1, OBJECT_COLUMNS)))
+        self.model.integrate(s, np.zeros(self.model.n), self.config.dt)
+        self.model.backup(s, np.array([1.0, 0.0, 0.0]))
 
     def _build_compiled(self) -> CompiledStep | None:
         """The compiled step (``compiled``) when the backend allows it and numba is installed."""
@@ -159,9 +175,9 @@ class SafetyFilter:
                 raise ValueError("backend 'numba' needs numba installed and the active-set QP "
                                  f"(solver 'auto' or 'active_set', at most {ACTIVE_SET_MAX_ROWS} rows)")
             return None
-        return CompiledStep(self.model, compiled.model_kind(self.model), self.delta, self._alpha_cap,
-                            self.config.dt, self.config.predictive_rows, self.config.margins_in_filter,
-                            self.config.slack, self.config.map_margin_voxels)
+        return CompiledStep(self.model, self.delta, self._alpha_cap, self.config.dt, self.config.predictive_rows,
+                            self.config.margins_in_filter, self.config.slack, self.config.map_margin_voxels,
+                            self.config.object_match_m)
 
     @property
     def backend(self) -> str:
@@ -196,24 +212,34 @@ class SafetyFilter:
         return float(h[k]), int(sample.risk_group[k]), bool(sample.inside.all())
 
     def filter(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
-               angular: np.ndarray | None = None) -> FilterResult:
+               angular: np.ndarray | None = None, objects: np.ndarray | None = None,
+               age_s: float = 0.0) -> FilterResult:
         """The safe input closest to ``u_ref`` (model input space; see the barrier models).
 
         ``angular`` is the body-frame angular velocity passed through by single integrators.
+        ``objects`` are the moving objects at the field's stamp (``motion.object_table``; ignored
+        with ``object_motion`` off) and ``age_s`` the field's content age: the barrier adds their
+        motion (``model``). None or no rows: the static barrier.
         On an ``EsdfField`` with the numba backend the step runs compiled (:mod:`.compiled`, the same
         semantics; ``qp_us`` is then not measured apart and reads 0); otherwise with numpy.
         """
         t0 = time.perf_counter()
+        if objects is not None and (not self.config.object_motion or len(objects) == 0):
+            objects = None
+        if objects is not None:
+            objects = np.ascontiguousarray(objects[:compiled.MAX_OBJECTS], np.float64)
+            age_s = max(float(age_s), 0.0) if math.isfinite(age_s) else 0.0
         if self._compiled is not None:
             grid = self.field_for(field)
             if isinstance(grid, EsdfField):
-                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0)
+                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0, objects, age_s)
                 if res is not None:
                     return res
-        return self._filter_numpy(state, u_ref, field, angular, t0)
+        return self._filter_numpy(state, u_ref, field, angular, t0, objects, age_s)
 
     def _filter_compiled(self, step: CompiledStep, state: FilterState, u_ref: np.ndarray, field: EsdfField,
-                         angular: np.ndarray | None, t0: float) -> FilterResult | None:
+                         angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None,
+                         age_s: float = 0.0) -> FilterResult | None:
         """One compiled call; None hands the step to the numpy path (``compiled.HANDBACK``)."""
         u_ref = np.asarray(u_ref, np.float64)
         if u_ref.shape != (self.model.n,):
@@ -222,7 +248,7 @@ class SafetyFilter:
         if ang.shape != (3,):
             return None
         step.run(state.position, state.rotation, state.velocity, u_ref, ang, field,
-                 self.gains.for_groups(field.groups))
+                 self.gains.for_groups(field.groups), objects, age_s)
         code, rg, n_rows, intervening = step.out_i.tolist()
         if code == compiled.HANDBACK:
             return None
@@ -235,7 +261,8 @@ class SafetyFilter:
                             (time.perf_counter() - t0) * 1e6, ActiveSetSolver.name, margin, 0.0, n_rows)
 
     def _filter_numpy(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
-                      angular: np.ndarray | None, t0: float) -> FilterResult:
+                      angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None,
+                      age_s: float = 0.0) -> FilterResult:
         model = self.model
         ang = _ZERO3 if angular is None else np.asarray(angular, np.float64)
         u_ref = np.asarray(u_ref, np.float64)
@@ -256,15 +283,22 @@ class SafetyFilter:
         if self._first_order:
             gains = gains.copy()
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
-        hb = clearance - self.delta - self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
-        if self.config.margins_in_filter:
-            hb = hb - gains[:m, MARGIN]
-        k = int(np.argmin(model.barrier(state, sample, hb)))
+        closing = np.zeros(len(pts))
+        if objects is not None:
+            mdl.closing_speeds(_f64(pts), _f64(both.distance), _f64(both.gradient),
+                               np.ascontiguousarray(both.risk_group, np.int64), _f64(gains), len(pts), objects,
+                               len(objects), self.config.object_match_m, closing)
+        hb = np.empty(m)
+        delta = self.delta + self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
+        k = mdl.barriers(model.di, model.df, model.dl, _f64(sample.distance), _f64(sample.gradient),
+                         _f64(state.velocity), _f64(gains[:m]), closing, delta, self.config.margins_in_filter,
+                         age_s, hb)
         h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
         if not sample.inside.all():
             return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
-        a, b = model.rows(state, sample, hb, gains[:m], ang)
+        a, b = model.rows(state, sample, hb, gains[:m], ang, closing[:m])
         gradients = sample.gradient  # one per row: the candidate backup directions
+        row_closing = closing[:m]
         if self.config.predictive_rows:
             # The same CBF row with the gradient (and group) found at the predicted point: where the
             # nearest obstacle changes within one period (the ridge between two obstacles, where the
@@ -278,7 +312,8 @@ class SafetyFilter:
             keep = ahead_s.inside & ~same
             if keep.any():
                 gradients = np.concatenate([gradients, ahead_s.gradient[keep]])
-                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang)
+                row_closing = np.concatenate([row_closing, closing[m:][keep]])
+                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang, closing[m:])
                 a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
             return self._brake(state, u_ref, "non_finite", t0, 0.0, rg)
@@ -291,7 +326,7 @@ class SafetyFilter:
         res = self._solve(a, b, u_ref)
         fallback = None
         if res.status == "infeasible" and self.config.slack:
-            u_bk = self._backup(state, a, b, gradients[live])
+            u_bk = self._backup(state, a, b, gradients[live], row_closing[live])
             ab = a @ u_bk
             ahead = np.arange(n_rows)[live] >= m  # the predictive rows among the live ones
             soft = ahead & (b > ab)
@@ -316,7 +351,8 @@ class SafetyFilter:
         return FilterResult(res.u, u_ref, h_crit, rg, intervening, fallback, (time.perf_counter() - t0) * 1e6,
                             res.solver, float(hb[k]), qp_us, n_rows)
 
-    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray) -> np.ndarray:
+    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray,
+                closing: np.ndarray | None = None) -> np.ndarray:
         """The backup input of the slack-relaxed QP (module docstring): of the maximal-braking
         inputs along each row's gradient and the model's braking input, the one whose worst row
         does best, min_i (a_iᵀu - b_i)/|a_i|. With a single gradient this is the maximal braking
@@ -326,10 +362,11 @@ class SafetyFilter:
         model = self.model
         cands = [model.brake(state)]
         seen: list[np.ndarray] = []
-        for g in gradients:
+        closing = np.zeros(len(gradients)) if closing is None else closing
+        for g, row, c in zip(gradients, a, closing, strict=True):
             if all(np.abs(g - o).max() > 1e-6 for o in seen):
                 seen.append(g)
-                cands.append(model.backup(state, g))
+                cands.append(model.backup(state, g, row, c))
         norm = np.maximum(np.linalg.norm(a, axis=1), 1e-9)
         scores = [float(((a @ u - b) / norm).min()) for u in cands]
         return cands[int(np.argmax(scores))]

@@ -1,13 +1,16 @@
 """The ``safety-filter`` node: ESDF + state + reference in, ``cmd/safe`` + ``safety/status`` out.
 
-Subscribes ``{robot}/map/esdf``, ``{robot}/state`` and ``{robot}/cmd/ref`` (latest-value queues)
-and ``{robot}/config/risk``; publishes on every new reference, on every map taken (accepted or
-unusable; ``step_on_map``) and at ``rate_hz`` (a tick is skipped when such a step went out less
-than half a period before). The map, state and reference are decoded here rather than by the
-runtime so that a bad message is not only counted and logged but also makes the filter brake
-(``invalid_*``) until a good one arrives. The risk configuration hot-reloads from the config key and from ``risk_file``
-(polled every ``risk_poll_s``, see ``runtime.risk_file``); a bad configuration is logged,
-counted (``risk_errors``) and the old one kept.
+Subscribes ``{robot}/map/esdf``, ``{robot}/state`` and ``{robot}/cmd/ref`` (latest-value queues),
+``{robot}/config/risk`` and ``{robot}/map/objects`` (tracked people and animals: their motion
+enters the barrier, ``supervisor``; missing, stale or invalid it is the static barrier, counted in
+``objects_missing``, ``objects_stale``, ``invalid_objects``, never a brake); publishes on every
+new reference, on every map taken (accepted or unusable; ``step_on_map``) and at ``rate_hz`` (a
+tick is skipped when such a step went out less than half a period before). The map, state and
+reference are decoded here rather than by the runtime so that a bad message is not only counted
+and logged but also makes the filter brake (``invalid_*``) until a good one arrives. The risk
+configuration hot-reloads from the config key and from ``risk_file`` (polled every
+``risk_poll_s``, see ``runtime.risk_file``); a bad configuration is logged, counted
+(``risk_errors``) and the old one kept.
 
 The map is judged by its content (``freshness``): a map whose stamp is already too old or in the
 future, whose publisher's ``seq`` went backwards, or that is older than the map in force is
@@ -28,7 +31,16 @@ import logging
 import time
 from typing import Any
 
-from riskfield.protocol import DecodeError, EsdfGrid, Limits, RiskConfig, RobotState, VelocityCommand, decode
+from riskfield.protocol import (
+    DecodeError,
+    EsdfGrid,
+    Limits,
+    RiskConfig,
+    RobotState,
+    TrackedObjects,
+    VelocityCommand,
+    decode,
+)
 
 from ..runtime.node import Node
 from ..runtime.risk_file import watch_risk_file
@@ -54,14 +66,18 @@ class FilterNode:
         # distance (4 B/voxel) and risk_group (1 B/voxel) travel together: the payload is ~1.25 × distance
         self._map_limits = Limits(max_payload_bytes=2 * s.max_map_bytes + 65536, max_array_bytes=s.max_map_bytes)
         self._small_limits = Limits(max_payload_bytes=64 * 1024, max_array_bytes=4096)
+        self._objects_limits = Limits(max_payload_bytes=1024 * 1024, max_array_bytes=4096)
+        self._last_motion = self.supervisor.motion
         for name in ("steps", "brakes", "slack", "intervening", "invalid_map", "invalid_state", "invalid_ref",
-                     "risk_reloads", "risk_errors", "map_refused", "esdf_publishers"):
+                     "risk_reloads", "risk_errors", "map_refused", "esdf_publishers", "invalid_objects",
+                     "objects_missing", "objects_stale", "objects_moving"):
             node.stats[name] = 0.0
         k = node.keys
         node.subscribe(k.esdf, None, self._on_map, queue="latest")
         node.subscribe(k.state, None, self._on_state, queue="latest")
         node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
+        node.subscribe(k.objects, None, self._on_objects, queue="latest")
         node.every(self.period, self._on_timer)
         # The compiled step is loaded (or compiled) here, in setup, never on a control step; after
         # subscribing, so that what arrives meanwhile waits in the inbox for the loop.
@@ -118,6 +134,18 @@ class FilterNode:
             self.supervisor.on_ref(msg, time.monotonic())
         self._step()  # a bad reference brakes at once, too
 
+    def _on_objects(self, key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, TrackedObjects, self._objects_limits)
+        except DecodeError as exc:
+            # Not a brake: without usable objects the barrier is the static one (supervisor).
+            self.supervisor.on_objects(None, time.monotonic())
+            self.node.stats["invalid_objects"] += 1
+            self.node.ratelog(logging.WARNING, "invalid_objects",
+                              f"rejected a map/objects message ({exc}): static barrier until a good one")
+            return
+        self.supervisor.on_objects(msg, time.monotonic())
+
     def _on_risk(self, risk: RiskConfig) -> None:
         self.supervisor.set_risk(risk)
         self.node.stats["risk_reloads"] += 1
@@ -172,6 +200,16 @@ class FilterNode:
         st["solve_us"] = status.solve_us
         st["h"] = status.h
         st["esdf_publishers"] = status.esdf_publishers
+        motion = self.supervisor.motion
+        if motion in ("missing", "stale", "ok"):
+            st["objects_" + ("moving" if motion == "ok" else motion)] += 1
+        if motion != self._last_motion:
+            if motion in ("missing", "stale") and self._last_motion == "ok":
+                self.node.ratelog(logging.WARNING, f"objects_{motion}",
+                                  f"{self.node.keys.objects} {motion}: the static barrier (moving objects not seen)")
+            elif motion == "ok":
+                self.node.log.info("moving objects from %s in the barrier", self.node.keys.objects)
+            self._last_motion = motion
         if status.fallback != self._last_fallback:
             if status.fallback is None:
                 self.node.log.info("filtering (no fallback)")

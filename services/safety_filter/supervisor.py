@@ -16,6 +16,13 @@ first problem found, in this order:
 "invalid" means the last message on that key could not be used; it holds until a valid one
 arrives. Braking is the zero velocity command for every model.
 
+Moving objects (``map/objects``, ``on_objects``) never brake: with ``object_motion`` on, the
+newest ``TrackedObjects`` adds the objects' motion to the barrier (``motion``, ``model``) while it
+is fresh — arrived within the map timeout and made from a map no more than the map timeout older
+than the ESDF in force. Missing or stale, the step uses the static barrier; ``motion`` says which
+(``off``, ``missing``, ``stale``, ``ok``) and ``counts`` counts the steps (``objects_missing``,
+``objects_stale``).
+
 ``slack`` is the one fallback that does not brake: the QP was infeasible with fresh inputs and
 the command is the slack-relaxed QP's, at least as safe as maximal braking along the field's
 gradient (``filter``); the status says ``fallback="slack"`` on every such step.
@@ -28,11 +35,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from riskfield.protocol import EsdfGrid, Header, RiskConfig, RobotState, SafetyStatus, VelocityCommand
+from riskfield.protocol import (
+    EsdfGrid,
+    Header,
+    RiskConfig,
+    RobotState,
+    SafetyStatus,
+    TrackedObjects,
+    VelocityCommand,
+)
 
 from ..fields import DistanceField, EsdfField
 from .filter import FilterResult, SafetyFilter
 from .freshness import MapFreshness
+from .motion import object_table
 from .state import FilterState
 
 SOURCE = "safety-filter"
@@ -59,6 +75,8 @@ class FilterSupervisor:
         self._slots = {"map": _Slot(), "state": _Slot(), "ref": _Slot()}
         self.last: FilterResult | None = None
         self.counts: dict[str, int] = {}
+        self._objects: tuple[TrackedObjects, float] | None = None
+        self.motion = "off" if not filt.config.object_motion else "missing"
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_map(self, grid: EsdfGrid | DistanceField, now: float) -> str | None:
@@ -83,6 +101,33 @@ class FilterSupervisor:
             self.invalid("state", now)
             return
         self._set("state", state, now)
+
+    def on_objects(self, msg: TrackedObjects | None, now: float) -> None:
+        """The newest tracked objects (None: the last message was unusable; the static barrier)."""
+        self._objects = None if msg is None else (msg, now)
+
+    def objects(self, state: FilterState, now: float) -> tuple[np.ndarray | None, float]:
+        """(moving-object table at the ESDF's stamp, the ESDF's content age (s)) for this step, or
+        (None, 0) for the static barrier; sets ``motion`` and counts a missing or stale input."""
+        if not self.filter.config.object_motion:
+            self.motion = "off"
+            return None, 0.0
+        if self._objects is None:
+            self.motion = "missing"
+            self._count("objects_missing")
+            return None, 0.0
+        msg, at = self._objects
+        stamp = msg.header.stamp_ns
+        esdf = self.freshness.stamp_ns if self.freshness.stamp_ns is not None else stamp
+        limit = self.timeouts["map"]
+        if now - at > limit or (esdf - stamp) * 1e-9 > limit:
+            self.motion = "stale"
+            self._count("objects_stale")
+            return None, 0.0
+        self.motion = "ok"
+        age = None if self._wall_ns is None else self.freshness.age_s(self._wall_ns)
+        table = object_table(msg.objects, self.filter.config, esdf, stamp, state.position)
+        return table, 0.0 if age is None else max(age, 0.0)
 
     def on_ref(self, msg: VelocityCommand, now: float) -> None:
         self._set("ref", msg, now)
@@ -138,7 +183,8 @@ class FilterSupervisor:
         model = self.filter.model
         lin, ang = np.asarray(ref.linear, np.float64), np.asarray(ref.angular, np.float64)
         u_ref = model.reference(lin, ang, state)
-        res = self.filter.filter(state, u_ref, field, ang)  # type: ignore[arg-type]
+        objects, age = self.objects(state, now)
+        res = self.filter.filter(state, u_ref, field, ang, objects, age)  # type: ignore[arg-type]
         self.last = res
         if res.fallback is not None and res.fallback != "slack":
             return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)

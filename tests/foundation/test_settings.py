@@ -123,7 +123,13 @@ def test_core_parameters_are_composed_of_per_stage_structs():
         TsdfParams,
         VolumeParams,
     )
-    from riskfield.services.safety_filter.config import BarrierParams, BoundsParams, FilterConfig, QpParams
+    from riskfield.services.safety_filter.config import (
+        BarrierParams,
+        BoundsParams,
+        FilterConfig,
+        MotionParams,
+        QpParams,
+    )
 
     m = MapperConfig.compose(volume=VolumeParams(voxel_size=0.1), tsdf=TsdfParams(truncation=0.3),
                              esdf=EsdfParams(output="3d"))
@@ -134,7 +140,8 @@ def test_core_parameters_are_composed_of_per_stage_structs():
     f = FilterConfig.compose(barrier=BarrierParams(robot_radius=0.3), bounds=BoundsParams(v_max=0.5))
     assert (f.robot_radius, f.v_max, f.rate_hz) == (0.3, 0.5, QpParams().rate_hz)
     assert f.barrier_params.robot_radius == 0.3 and f.qp_params == QpParams()
-    assert sum(len(p.model_fields) for p in (BarrierParams, BoundsParams, QpParams)) == len(FilterConfig.model_fields)
+    parts = [BarrierParams, BoundsParams, QpParams, MotionParams]
+    assert sum(len(p.model_fields) for p in parts) == len(FilterConfig.model_fields)
     with pytest.raises(ValueError, match="robot_raduis"):  # the cores are strict too
         FilterConfig(robot_raduis=0.5)
     with pytest.raises(ValueError, match="min_depth must be below max_depth"):  # a stage's own check still runs
