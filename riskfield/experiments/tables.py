@@ -70,14 +70,22 @@ def table3(rows: Mapping[str, Mapping[str, Mapping[str, float]]], n_pairs: int) 
     return "\n".join(out)
 
 
-def safety_table(rows: Mapping[str, Mapping[str, float]], n_pairs: int) -> str:
-    """Method × the full-run safety figures that the paper's MP metrics leave out."""
+def safety_table(rows: Mapping[str, Mapping[str, float]], n_pairs: int, barrier: str | None = None) -> str:
+    """Method × the full-run safety figures that the paper's MP metrics leave out, each method with
+    its extra margin beyond the robot radius (``margin_m``) when the rows carry it."""
+    margin = any("margin_m" in r for r in rows.values())
+    filt = f" The default filter's barrier is `{barrier}`." if barrier else ""
     out = [f"**Full-run safety.** {n_pairs} trajectories; a collision is any step whose ground-truth clearance "
-           "(distance to the obstacle surfaces minus the robot radius) is below zero, wherever it happens.", "",
-           "| Method | Collision Rate ↓ | Min. Clearance (m) ↑ | Relaxed Steps ↓ | MP Collision Rate ↓ |",
-           "|---|---|---|---|---|"]
+           "(distance to the obstacle surfaces minus the robot radius) is below zero, wherever it happens."
+           + (" Extra margin: what the filter keeps beyond the robot radius (the sampled-data δ plus half a voxel "
+              "of a gridded field; 0 on the no-extra-margin rows). Rows named with a suffix are matched with the "
+              "other two methods in place of their own." + filt if margin else ""), "",
+           "| Method |" + (" Extra Margin (m) |" if margin else "")
+           + " Collision Rate ↓ | Min. Clearance (m) ↑ | Progress ↑ | Relaxed Steps ↓ | MP Collision Rate ↓ |",
+           "|---|" + ("---|" if margin else "") + "---|---|---|---|---|"]
     for name, r in rows.items():
-        out.append(f"| {name} | {_f(r['collision_rate'])} | {_f(r['min_clearance_m'])} | "
+        m = f" {_f(r.get('margin_m'))} |" if margin else ""
+        out.append(f"| {name} |{m} {_f(r['collision_rate'])} | {_f(r['min_clearance_m'])} | {_f(r['progress'])} | "
                    f"{_f(100 * r['relaxed_fraction'], 2)} % | {_f(r['mp_collision_rate'])} |")
     return "\n".join(out)
 
