@@ -21,6 +21,7 @@ SAFETY_RUNS = (
 )
 OTHER_RUNS = (
     ("teleop_gt", "riskfield bench teleop --perception gt"),
+    ("teleop_gt_paper", "riskfield bench teleop --preset paper --perception gt"),
     ("teleop_sim", "riskfield bench teleop --perception sim"),
     ("navigation_gt", "riskfield bench navigation --perception gt"),
     ("navigation_sim", "riskfield bench navigation --perception sim"),
