@@ -209,9 +209,16 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
 # -- metrics -------------------------------------------------------------------------------------------------
 
 
+#: A roll-out whose progress exceeds this left the object ring far behind (flung away by the unbounded
+#: QP: the paper's HOCBF has no input bounds); its unclipped progress dominates the mean, so it is counted.
+RUNAWAY = 2.0
+
+
 def _row(rollouts: Sequence[Rollout], mp: dict, method: str, group: str | None = None) -> dict:
     d = summarise(rollouts, mp, method, group).as_dict()
     d["computation_time_s"] = A.mean_step_time(rollouts, method, group)  # the authors' mean of means
+    d["runaway"] = sum(1 for r in rollouts if r.method == method and (group is None or r.group == group)
+                       and r.progress > RUNAWAY)
     return d
 
 

@@ -173,10 +173,11 @@ PAPER_FULL_RUN = {"SaferSplat": dict(collision_rate=0.315, min_clearance_mean_m=
 PAPER_GROUPS = {"high": 164, "mid": 161, "low": 161}
 
 
-def _row2(name: str, r: Mapping[str, float]) -> str:
+def _row2(name: str, r: Mapping[str, Any]) -> str:
+    runaway = r.get("runaway")
     return (f"| {name} | {_time(r['computation_time_s'])} | {_f(r['progress'])} | {_f(r['mp_clearance_m'])} | "
             f"{_f(r['mp_collision_rate'])} | {_f(r['collision_rate'])} | {_f(r.get('min_clearance_mean_m'))} | "
-            f"{_f(r['min_clearance_m'])} |")
+            f"{_f(r['min_clearance_m'])} | {'–' if runaway is None else runaway} |")
 
 
 def _table3(rows: Mapping[str, Any]) -> list[str]:
@@ -199,20 +200,22 @@ def authors_tables(t: Mapping[str, Any], primary: str, trio: Sequence[str]) -> s
     statistic each one is, group counts per scene."""
     n = t["trajectories"]
     head2 = ("| Method | Computation Time (s) ↓ | Progress to Goal ↑ | MP Clearance (m) ↑ | MP Collision Rate ↓ | "
-             "Collision Rate (full run) ↓ | Min. Clearance, mean (m) ↑ | Min. Clearance, min (m) ↑ |")
+             "Collision Rate (full run) ↓ | Min. Clearance, mean (m) ↑ | Min. Clearance, min (m) ↑ | Runaway ↓ |")
     out = [f"**Table II (authors' protocol).** {n} trajectories; MP metrics up to the matched progress of "
            f"{', '.join(trio)}; a `∇²h = 0` row is matched with the other two in place of its own (the paper's "
            "eq. 14 keeps the Hessian term; the rows without a suffix are the paper's controller), every other "
            "row with the first two in place of the third. Time: mean per-step controller time (field query + QP) "
            "per trajectory, averaged. MP clearance: each trajectory's minimum up to the matched progress, averaged. "
            "Min. clearance over the full run: *mean* = each trajectory's minimum, averaged (the authors' "
-           "statistic); *min* = the smallest over all trajectories.", "", head2, "|---|---|---|---|---|---|---|---|"]
+           "statistic); *min* = the smallest over all trajectories. Runaway: roll-outs whose progress exceeds 2 — "
+           "flung away by the unbounded QP (the paper's HOCBF has no input bounds) on a spike of the grid's Hessian; "
+           "their unclipped progress is in the mean.", "", head2, "|---|---|---|---|---|---|---|---|---|"]
     for name, r in t["table2"].items():
         out.append(_row2(name, r))
     out += ["", "Paper (ScanNet++, SaferSplat on a trained 3DGS): Table II of the paper; full-run columns from the "
             "authors' `success6_3methods_exposure_main_table.csv` (`collision_rate_full`, "
             "`min_clearance_mean_full_m`: per-trajectory minimum, averaged); the minimum over all trajectories "
-            "is not published.", "", head2, "|---|---|---|---|---|---|---|---|"]
+            "is not published.", "", head2, "|---|---|---|---|---|---|---|---|---|"]
     for name, r in PAPER_TABLE2.items():
         full = PAPER_FULL_RUN[name]
         out.append(_row2(name, {**r, "collision_rate": full["collision_rate"],
