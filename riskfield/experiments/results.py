@@ -96,7 +96,9 @@ under `bench_out/results/`. Measured on the shared 2-core development machine wi
 * The ESDF rows of the authors' HOCBF read distance, gradient and Hessian from the trilinear ESDF (the paper: "ESDF
   gradients and Hessians are computed by finite differences and evaluated at query points using trilinear
   interpolation"); the authors' ESDF controller (`run_scannetpp_esdf_cbf_ref.py`) is not in their release. The
-  `∇²h = 0` rows are the same controller without the curvature term, reported beside it.
+  `∇²h = 0` rows are the same controller without the curvature term, reported beside it. With SaferSplat's
+  unbounded QP a few Hessian roll-outs are flung away on a spike of the grid's Hessian (the *Runaway* column);
+  their unclipped progress is in the mean, so read the progress of those rows with it.
 * Table III matches progress over the three methods (baseline, ESDF, semantic ESDF), as the authors'
   `recompute_paper_tables_from_rollouts.py` does; the two-ESDF matching of the paper's caption is a second, named
   table. Table II extra rows are matched with the other two methods in place of their own (a `∇²h = 0` row) or of
