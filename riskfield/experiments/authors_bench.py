@@ -66,6 +66,7 @@ class AuthorsResult:
     rollouts: list[Rollout]
     scenes: list[dict] = field(default_factory=list)  # per scene: tiers, counts, maps
     modes: tuple[str, ...] = ("target", "scene")
+    margins: dict[str, float] = field(default_factory=dict)  # per method: extra margin beyond the radius (m)
 
 
 def esdf_variants(case, frames: Sequence[Frame], budget_s: float, voxel: float, risk: RiskConfig,
@@ -147,6 +148,8 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
     methods = methods_for(modes, baseline, riskfield, no_hessian)
     rollouts: list[Rollout] = []
     info: list[dict] = []
+    # The authors' HOCBF keeps h = d − r: no margin beyond the radius; riskfield's filter keeps δ + half a voxel.
+    margins = {m: 0.0 for m in methods}
     first_id = 0
     for si, sc in enumerate(scenes):
         items = A.scene_items(sc.objects)
@@ -186,7 +189,9 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
                 controls[name] = _HocbfStep(A.field_barrier(fields["scene"], cfg.radius, hessian=h), cfg)
         if riskfield:
             fc = FilterConfig(model="double3d", robot_radius=cfg.radius, rate_hz=1.0 / cfg.dt)
-            controls[RISKFIELD] = _RiskfieldStep(SafetyFilter(fc, risk), fields["scene"])
+            step = _RiskfieldStep(SafetyFilter(fc, risk), fields["scene"])
+            controls[RISKFIELD] = step
+            margins[RISKFIELD] = float(step.filt.delta + fc.map_margin_voxels * fields["scene"].voxel_size)
         if on_scene:
             on_scene(f"{sc.name}: roll-outs", 0)
         for pair in pairs:
@@ -203,7 +208,7 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
                 if on_rollout:
                     on_rollout()
             rollouts.extend(done[m] for m in methods)
-    return AuthorsResult(rollouts, info, tuple(modes))
+    return AuthorsResult(rollouts, info, tuple(modes), margins)
 
 
 # -- metrics -------------------------------------------------------------------------------------------------
@@ -246,6 +251,8 @@ def tables(result: AuthorsResult, primary: str) -> dict:
     for m in present:
         if m not in trio:
             t2[m] = _row(rs, _matched_with(rs, trio, m), m)
+    for m, row in t2.items():
+        row["margin_m"] = result.margins.get(m)
     t3_by_mode, t3_two, t3_overall = {}, {}, {}
     for mode in result.modes:
         three = (*base, SEMANTIC[mode])

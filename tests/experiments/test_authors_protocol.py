@@ -323,8 +323,10 @@ def test_bench_cli_authors_target_low_rows_identical(tmp_path):
     saf = next(line for line in md.splitlines() if line.startswith("| SaferSplat |"))
     assert [c.strip() for c in saf.strip("|").split("|")][5:7] == ["0.315", "0.085"]
     assert "min_clearance_mean_full_m" in md
-    for row in s["table2"].values():
+    for name, row in s["table2"].items():
         assert row["min_clearance_m"] <= row["min_clearance_mean_m"]
+        # margins in the open: the authors' HOCBF none, riskfield's filter δ (v_max T = 0.05 m) + half a voxel
+        assert row["margin_m"] == (pytest.approx(0.05 + 0.025) if name.startswith("riskfield") else 0.0)
 
 
 def test_results_document_assembles_runs_and_keeps_unrun_sections(tmp_path):
