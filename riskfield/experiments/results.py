@@ -114,6 +114,8 @@ under `bench_out/results/`. Measured on the shared 2-core development machine wi
 """
 
 KEPT = "(Kept from the previous RESULTS.md: not re-run this time.)"
+NOT_RUN = ("Not re-run for this commit (it did not fit the session's time on the shared machine); its previous "
+           "numbers measured older code and are in this file's git history. `bash benchmarks/regenerate.sh` runs it.")
 
 
 def _demote(md: str) -> str:
@@ -141,6 +143,8 @@ def assemble(out: Path, previous: str = "", commit: str = "?") -> str:
     for folder, command in SAFETY_RUNS:
         run = out / folder
         if not (run / "tables.md").is_file():
+            # A previous section measured other code: say the run is missing rather than keep it.
+            doc.append(f"## `{command}` (not re-run)\n\n{NOT_RUN}")
             continue
         wall = json.loads((run / "summary.json").read_text()).get("wall_time_s", float("nan"))
         doc.append(f"## `{command}` ({wall:.0f} s wall)\n\n{_demote((run / 'tables.md').read_text())}")
