@@ -16,4 +16,5 @@ for name, folder in ROOTS.items():
     packages.append(name)
     packages += [f"{name}.{sub}" for sub in find_packages(folder)]
 
-setup(packages=packages, package_dir=ROOTS, package_data={"riskfield": ["py.typed"]})
+setup(packages=packages, package_dir=ROOTS,
+      package_data={"riskfield": ["py.typed"], "riskfield.services.safety_filter": ["presets/*.yaml"]})

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerate benchmarks/RESULTS.md: the safety benchmark under both protocols (riskfield, authors) and both
 # perception modes (gt, sim), then the document (paper tables beside, differences explained).
-# ALL=1 also re-runs teleop and navigation; otherwise their sections are kept from the current RESULTS.md.
+# ALL=1 also re-runs teleop (the product filter and, on gt, the paper preset) and navigation; otherwise their sections are kept from the current RESULTS.md.
 # Usage (repository root): bash benchmarks/regenerate.sh      OUT=dir to change the output folder.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,6 +16,7 @@ done
 if [ "${ALL:-0}" = 1 ]; then
   for p in gt sim; do
     run teleop --perception "$p" --out "$OUT/teleop_$p"
+    if [ "$p" = gt ]; then run teleop --preset paper --perception gt --out "$OUT/teleop_gt_paper"; fi
     run navigation --perception "$p" --out "$OUT/navigation_$p"
   done
 fi

@@ -23,14 +23,18 @@ written here in our own code:
   with up to ``max_tries`` attempts; the first round in which some group cannot place its pair ends
   the scene and that round is discarded, so every group of a scene has the same count and the pairs
   of equal rank are drawn together.
-* **Controller** (:class:`Hocbf`): SaferSplat's double-integrator high-order CBF, for every barrier row
+* **Controller** (:class:`Hocbf`): SaferSplat's double-integrator high-order CBF — the paper's eq. 14,
+  Hessian term included (:func:`field_barrier`) — for every barrier row
   ``ḧ + (α+β)ḣ + αβh ≥ 0`` i.e. ``∇hᵀu + vᵀ∇²h v + (α+β)∇hᵀv + αβ h ≥ 0`` with α = 5, β = 1, the QP
   ``min ‖u − u_ref‖²`` over those rows (no input bounds, as SaferSplat's ``cbf/cbf_utils.py``
   ``CBF.solve_QP``) solved by the filter's QP solver (``safety_filter.qp``), and the reference passed
   through unchanged when the solver fails. Period 0.05 s, at most 500 steps; the nominal input is the
   goal-seeking PD law (``nominal_mode=goal``).
 * **Metrics** (:class:`AuthorsRollout` + ``metrics``): progress is ``max_t ‖p_t − s‖ / ‖g − s‖`` (not
-  clipped); matched progress is the minimum over the compared methods; MP clearance is the minimum,
+  clipped); matched progress is the minimum over the compared methods — for Table I/II *and* Table
+  III over all three methods (``recompute_paper_tables_from_rollouts.py``, ``main``: ``matched_progress
+  = min(r.progress for r in trio.values())``, and the Table III records are the ESDF rows of those
+  trio records); MP clearance is the minimum,
   up to the first step reaching the matched progress, of the *unsigned* distance to the full mesh
   minus the radius (the script uses open3d's ``compute_distance``; the paper's text says signed); MP
   collision is MP clearance < 0; computation time is the mean per-step controller time of each
@@ -285,16 +289,18 @@ class Hocbf:
         return res.u
 
 
-def field_barrier(field: DistanceField, radius: float, hessian: bool = False) -> Barrier:
-    """``h = d − r`` of a distance field at the robot's centre, with the field's gradient and (when
-    ``hessian``) its Hessian, else ∇²h = 0.
+def field_barrier(field: DistanceField, radius: float, hessian: bool = True) -> Barrier:
+    """``h = d − r`` of a distance field at the robot's centre, with the field's gradient and Hessian:
+    the paper's HOCBF (its eq. 14, ``∇dᵀu + vᵀ∇²d v + α₁∇dᵀv + α₂ d ≥ 0``), whose text says "ESDF
+    gradients and Hessians are computed by finite differences and evaluated at query points using
+    trilinear interpolation" — what ``EsdfField``'s ``trilinear`` query returns. The authors' ESDF
+    controller (``run_scannetpp_esdf_cbf_ref.py --method esdf``, called in
+    ``repro/table_metrics/README_success6_final_experiment.md`` § 5 and 6) is not in their release.
 
-    The grid ESDF's Hessian (second differences of a trilinear field) spikes on the ridges between
-    obstacles, where the gradient also turns; with SaferSplat's unbounded QP the curvature term then
-    asks for accelerations of tens of m/s², and in discrete time the robot chatters across the ridge
-    and is flung out of the room (seen in this benchmark: progress values of 10–10⁴). The authors'
-    ESDF roll-outs show no such runs, so the ESDF rows use the gradient only (∇²h = 0 is also what a
-    distance field's value is to first order along the path)."""
+    ``hessian=False`` sets ∇²h = 0: a named variant (``authors_bench.ESDF_NO_HESSIAN``) reported
+    beside the paper's, never instead of it. It was once the default here because the curvature
+    term on the grid's ridges looked like it flung robots out of the room; over 6 scenes no QP
+    failed and no robot left the room with it, and it lowered the full-run collision rate."""
 
     def barrier(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         s = field.query(p[None], hessian=hessian)

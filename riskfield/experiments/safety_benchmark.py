@@ -13,9 +13,16 @@ Per scene:
    (nearest-point barrier on a KD-tree), (ii) the ESDF (all margins 0), (iii) the semantic
    ESDF (margins 0.15 / 0.05 / 0.00 m for high / mid / low).
 4. **Roll-outs** — a 3-D double integrator from each start to its goal: the same CLF nominal
-   controller (``clf.DoubleIntegratorCLF``) and the same high-order CBF gains for every method;
-   the barrier is the field's distance minus the robot radius. The per-step filter time
-   (field query + QP) is what Table II reports.
+   controller (``clf.DoubleIntegratorCLF``) and the same filter for every method — the safety
+   filter core (``SafetyFilter``, model ``double3d``) with its default barrier
+   (``FilterConfig.barrier``) and identical class-K gains for every group. The barrier is the
+   field's distance minus the robot radius minus the filter's *extra margin*: the sampled-data
+   δ = v_max T (2.5 cm) plus half a voxel of a gridded field (2.5 cm on 5 cm voxels; 0 for the
+   point cloud), see ``QpParams``. Every method is reported with that margin (``margin_m``),
+   and each ESDF variant is also driven with no extra margin (``VARIANTS``): by the default
+   filter, by the other barrier, and by the paper's filter (the HOCBF of its eq. 14 on the
+   trilinear field) — so the margin's share in the result is in the open. The per-step filter
+   time (field query + QP) is what Table II reports.
 5. **Metrics** — ``metrics`` (progress, matched-progress clearance and collision rate).
 """
 
@@ -296,13 +303,41 @@ def uniform_gains(risk: RiskConfig, alpha1: float, alpha2: float) -> RiskConfig:
                                               for g in risk.groups]})
 
 
-def hocbf_safe_control(cfg: BenchConfig, risk: RiskConfig | None = None) -> SafeControl:
-    """One step of the safety filter core (``safety_filter.SafetyFilter``, model ``double3d``:
-    the paper's HOCBF ``∇dᵀu + vᵀ∇²d v + α₁∇dᵀv + α₂(d − r) ≥ 0`` with |a_i| ≤ a_max) at the
-    roll-out's control period; its braking input when it falls back."""
+ZERO_MARGIN = (("sampled_data_margin", 0.0), ("map_margin_voxels", 0.0))
+"""Filter settings that remove the extra margin: the barrier is then d − r exactly."""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A filter configuration beside the default one, named by ``suffix`` (the method's name is
+    ``"<method>, <suffix>"``): ``FilterConfig`` fields that differ from the benchmark's filter."""
+
+    suffix: str
+    overrides: tuple[tuple[str, object], ...]
+
+
+def variants(default_barrier: str | None = None) -> tuple[Variant, ...]:
+    """The no-extra-margin rows of each ESDF variant: the default filter, the other barrier, and
+    the paper's filter (eq. 14's HOCBF read from the trilinear field, as the paper's text says:
+    "ESDF gradients and Hessians are computed by finite differences and evaluated at query points
+    using trilinear interpolation")."""
+    barrier = default_barrier or FilterConfig().barrier
+    other = "braking" if barrier == "hocbf" else "hocbf"
+    return (Variant("no extra margin", ZERO_MARGIN),
+            Variant(f"{other} barrier, no extra margin", (("barrier", other), *ZERO_MARGIN)),
+            Variant("paper's HOCBF (trilinear), no extra margin",
+                    (("barrier", "hocbf"), ("interpolation", "trilinear"), *ZERO_MARGIN)))
+
+
+def filter_safe_control(cfg: BenchConfig, risk: RiskConfig | None = None,
+                        overrides: Sequence[tuple[str, object]] = ()) -> _FilterStep:
+    """One step of the safety filter core (``safety_filter.SafetyFilter``, model ``double3d``,
+    with its default barrier unless ``overrides`` say otherwise) at the roll-out's control period,
+    |a_i| ≤ a_max; its braking input when it falls back. Its barrier is d − r − ``margin_m``
+    (``_FilterStep.margin_m``), read with the filter's interpolation (default ``bspline_smooth``)."""
 
     fc = FilterConfig(model="double3d", robot_radius=cfg.robot_radius, a_max=cfg.a_max, v_max=cfg.v_max,
-                      rate_hz=1.0 / cfg.dt)
+                      rate_hz=1.0 / cfg.dt, **dict(overrides))
     filt = SafetyFilter(fc, uniform_gains(risk or RiskConfig(), cfg.alpha1, cfg.alpha2))
     return _FilterStep(filt)
 
@@ -314,6 +349,19 @@ class _FilterStep:
     def __init__(self, filt: SafetyFilter):
         self.filt = filt
         self.relaxed = False
+
+    def margin_m(self, field_: DistanceField) -> float:
+        """The extra margin beyond the robot radius on ``field_``: δ + ``map_margin_voxels`` voxels
+        of a gridded field (the filter's ``hb``)."""
+        return float(self.filt.delta + self.filt.config.map_margin_voxels * getattr(field_, "voxel_size", 0.0))
+
+    @property
+    def barrier(self) -> str:
+        return self.filt.config.barrier
+
+    @property
+    def interpolation(self) -> str:
+        return self.filt.config.interpolation
 
     def __call__(self, field_: DistanceField, p: np.ndarray, v: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
         res = self.filt.filter(FilterState(p, velocity=v), u_ref, field_)

@@ -70,14 +70,22 @@ def table3(rows: Mapping[str, Mapping[str, Mapping[str, float]]], n_pairs: int) 
     return "\n".join(out)
 
 
-def safety_table(rows: Mapping[str, Mapping[str, float]], n_pairs: int) -> str:
-    """Method × the full-run safety figures that the paper's MP metrics leave out."""
+def safety_table(rows: Mapping[str, Mapping[str, float]], n_pairs: int, barrier: str | None = None) -> str:
+    """Method × the full-run safety figures that the paper's MP metrics leave out, each method with
+    its extra margin beyond the robot radius (``margin_m``) when the rows carry it."""
+    margin = any("margin_m" in r for r in rows.values())
+    filt = f" The default filter's barrier is `{barrier}`." if barrier else ""
     out = [f"**Full-run safety.** {n_pairs} trajectories; a collision is any step whose ground-truth clearance "
-           "(distance to the obstacle surfaces minus the robot radius) is below zero, wherever it happens.", "",
-           "| Method | Collision Rate ↓ | Min. Clearance (m) ↑ | Relaxed Steps ↓ | MP Collision Rate ↓ |",
-           "|---|---|---|---|---|"]
+           "(distance to the obstacle surfaces minus the robot radius) is below zero, wherever it happens."
+           + (" Extra margin: what the filter keeps beyond the robot radius (the sampled-data δ plus half a voxel "
+              "of a gridded field; 0 on the no-extra-margin rows). Rows named with a suffix are matched with the "
+              "other two methods in place of their own." + filt if margin else ""), "",
+           "| Method |" + (" Extra Margin (m) |" if margin else "")
+           + " Collision Rate ↓ | Min. Clearance (m) ↑ | Progress ↑ | Relaxed Steps ↓ | MP Collision Rate ↓ |",
+           "|---|" + ("---|" if margin else "") + "---|---|---|---|---|"]
     for name, r in rows.items():
-        out.append(f"| {name} | {_f(r['collision_rate'])} | {_f(r['min_clearance_m'])} | "
+        m = f" {_f(r.get('margin_m'))} |" if margin else ""
+        out.append(f"| {name} |{m} {_f(r['collision_rate'])} | {_f(r['min_clearance_m'])} | {_f(r['progress'])} | "
                    f"{_f(100 * r['relaxed_fraction'], 2)} % | {_f(r['mp_collision_rate'])} |")
     return "\n".join(out)
 
@@ -153,45 +161,78 @@ def plot_safety(out: Path, per_method: Series, progress: Series, times: Series,
     return paths
 
 
-#: The authors' full-run collision rates (their roll-outs, every step).
-PAPER_FULL_RUN = {"Ours (ESDF)": 0.650, "Ours (Semantic ESDF)": 0.549}
+#: The authors' full-run figures over their 486 roll-outs (phai-lab/SafeDF at 63914b7,
+#: ``repro/table_metrics/success6_3methods_exposure_main_table.csv``): ``collision_rate_full`` (any step
+#: closer than the radius) and ``min_clearance_mean_full_m`` (each trajectory's minimum clearance over the
+#: whole run, *averaged* over trajectories — not the minimum over all of them, which they do not publish).
+#: Their MP clearance (``matched_progress_min_clearance_mean_m``, Table I/II) is likewise a per-trajectory
+#: minimum up to the matched progress, averaged: the statistic of our MP clearance.
+PAPER_FULL_RUN = {"SaferSplat": dict(collision_rate=0.315, min_clearance_mean_m=0.085),
+                  "Ours (ESDF)": dict(collision_rate=0.650, min_clearance_mean_m=0.012),
+                  "Ours (Semantic ESDF)": dict(collision_rate=0.549, min_clearance_mean_m=0.025)}
 PAPER_GROUPS = {"high": 164, "mid": 161, "low": 161}
 
 
-def _row2(name: str, r: Mapping[str, float]) -> str:
+def _row2(name: str, r: Mapping[str, Any]) -> str:
+    runaway = r.get("runaway")
     return (f"| {name} | {_time(r['computation_time_s'])} | {_f(r['progress'])} | {_f(r['mp_clearance_m'])} | "
-            f"{_f(r['mp_collision_rate'])} | {_f(r['collision_rate'])} | {_f(r['min_clearance_m'])} |")
+            f"{_f(r['mp_collision_rate'])} | {_f(r['collision_rate'])} | {_f(r.get('min_clearance_mean_m'))} | "
+            f"{_f(r['min_clearance_m'])} | {'–' if runaway is None else runaway} |")
+
+
+def _table3(rows: Mapping[str, Any]) -> list[str]:
+    head3 = ("| Risk Group | n | ESDF Progress ↑ | ESDF MP Clearance (m) ↑ | ESDF MP Collision ↓ | "
+             "ESDF Coll. (full) ↓ | Sem. Progress ↑ | Sem. MP Clearance (m) ↑ | Sem. MP Collision ↓ | "
+             "Sem. Coll. (full) ↓ |")
+    out = [head3, "|---|---|---|---|---|---|---|---|---|---|"]
+    for group, r in rows.items():
+        e, s = r["esdf"], r["semantic"]
+        out.append(f"| {group.capitalize()} | {e['n']} | {_f(e['progress'])} | {_f(e['mp_clearance_m'])} | "
+                   f"{_f(e['mp_collision_rate'])} | {_f(e['collision_rate'])} | {_f(s['progress'])} | "
+                   f"{_f(s['mp_clearance_m'])} | {_f(s['mp_collision_rate'])} | {_f(s['collision_rate'])} |")
+    return out
 
 
 def authors_tables(t: Mapping[str, Any], primary: str, trio: Sequence[str]) -> str:
     """Markdown of an authors'-protocol run (``authors_bench.tables``): Table II with the full-run
-    columns, Table III per semantic mode with the paper's beside it, group counts per scene."""
+    columns, Table III per semantic mode matched over the three methods (the authors' script) and
+    over the two ESDF variants (a second, named table), the paper's figures beside them with the
+    statistic each one is, group counts per scene."""
     n = t["trajectories"]
     head2 = ("| Method | Computation Time (s) ↓ | Progress to Goal ↑ | MP Clearance (m) ↑ | MP Collision Rate ↓ | "
-             "Collision Rate (full run) ↓ | Min. Clearance (m) ↑ |")
+             "Collision Rate (full run) ↓ | Min. Clearance, mean (m) ↑ | Min. Clearance, min (m) ↑ | Runaway ↓ |")
     out = [f"**Table II (authors' protocol).** {n} trajectories; MP metrics up to the matched progress of "
-           f"{', '.join(trio)}; other rows are matched with the first two in place of the third. Time: mean per-step "
-           "controller time (field query + QP) per trajectory, averaged.", "", head2, "|---|---|---|---|---|---|---|"]
+           f"{', '.join(trio)}; a `∇²h = 0` row is matched with the other two in place of its own (the paper's "
+           "eq. 14 keeps the Hessian term; the rows without a suffix are the paper's controller), every other "
+           "row with the first two in place of the third. Time: mean per-step controller time (field query + QP) "
+           "per trajectory, averaged. MP clearance: each trajectory's minimum up to the matched progress, averaged. "
+           "Min. clearance over the full run: *mean* = each trajectory's minimum, averaged (the authors' "
+           "statistic); *min* = the smallest over all trajectories. Runaway: roll-outs whose progress exceeds 2 — "
+           "flung away by the unbounded QP (the paper's HOCBF has no input bounds) on a spike of the grid's Hessian; "
+           "their unclipped progress is in the mean.", "", head2, "|---|---|---|---|---|---|---|---|---|"]
     for name, r in t["table2"].items():
         out.append(_row2(name, r))
-    out += ["", "Paper (ScanNet++, SaferSplat on a trained 3DGS):", "", head2, "|---|---|---|---|---|---|---|"]
+    out += ["", "Paper (ScanNet++, SaferSplat on a trained 3DGS): Table II of the paper; full-run columns from the "
+            "authors' `success6_3methods_exposure_main_table.csv` (`collision_rate_full`, "
+            "`min_clearance_mean_full_m`: per-trajectory minimum, averaged); the minimum over all trajectories "
+            "is not published.", "", head2, "|---|---|---|---|---|---|---|---|---|"]
     for name, r in PAPER_TABLE2.items():
-        out.append(_row2(name, {**r, "collision_rate": PAPER_FULL_RUN.get(name), "min_clearance_m": None}))
-    head3 = ("| Risk Group | n | ESDF Progress ↑ | ESDF MP Clearance (m) ↑ | ESDF MP Collision ↓ | "
-             "ESDF Coll. (full) ↓ | Sem. Progress ↑ | Sem. MP Clearance (m) ↑ | Sem. MP Collision ↓ | "
-             "Sem. Coll. (full) ↓ |")
+        full = PAPER_FULL_RUN[name]
+        out.append(_row2(name, {**r, "collision_rate": full["collision_rate"],
+                                "min_clearance_mean_m": full["min_clearance_mean_m"], "min_clearance_m": None}))
+    two = t.get("table3_two_method_by_mode", {})
     for mode, rows in t["table3_by_mode"].items():
         label = "target group inflated (the authors')" if mode == "target" else "every group inflated (deployed)"
         tag = " — primary" if mode == primary else ""
-        out += ["", f"**Table III (authors' protocol), semantic mode `{mode}`: {label}{tag}.** "
-                "MP metrics up to the matched progress of the two ESDF variants.", "", head3,
-                "|---|---|---|---|---|---|---|---|---|---|"]
-        for group, r in rows.items():
-            e, s = r["esdf"], r["semantic"]
-            out.append(f"| {group.capitalize()} | {e['n']} | {_f(e['progress'])} | {_f(e['mp_clearance_m'])} | "
-                       f"{_f(e['mp_collision_rate'])} | {_f(e['collision_rate'])} | {_f(s['progress'])} | "
-                       f"{_f(s['mp_clearance_m'])} | {_f(s['mp_collision_rate'])} | {_f(s['collision_rate'])} |")
-    out += ["", "Paper (target mode):", "",
+        out += ["", f"**Table III (authors' protocol), semantic mode `{mode}`: {label}{tag}.** MP metrics up to the "
+                "matched progress of the three methods (the baseline, the ESDF and this mode's semantic ESDF), as "
+                "the authors' `recompute_paper_tables_from_rollouts.py` matches them.", "", *_table3(rows)]
+        if mode in two:
+            out += ["", f"**Table III, two-method matching, semantic mode `{mode}`.** The same roll-outs with MP "
+                    "metrics up to the matched progress of the two ESDF variants only (the paper's caption).", "",
+                    *_table3(two[mode])]
+    out += ["", "Paper (target mode; the authors' `success6_matchbalanced_subtable_matched_progress.csv`, matched "
+            "over the three methods):", "",
             "| Risk Group | n | ESDF Progress | ESDF MP Clearance | ESDF MP Collision | Sem. Progress | "
             "Sem. MP Clearance | Sem. MP Collision |", "|---|---|---|---|---|---|---|---|"]
     for group, r in PAPER_TABLE3.items():

@@ -130,13 +130,17 @@ class OccupancyParams(BaseModel):
     """Never-observed voxels behind an obstacle's observed interior (beyond the truncation):
     ``solid`` fills them up to ``behind_surface_depth`` along the viewing direction (the shadow
     of the surface; observed voxels stop it), so a box, a person or a wall seen from one side is
-    negative inside; ``free`` leaves them free (an obstacle is then only ``truncation`` deep)."""
-    behind_surface_depth: Annotated[float, Field(ge=0, le=5.0, allow_inf_nan=False)] = 0.5
-    """Depth (m) of the ``solid`` fill. 0.5 m (with the 0.15 m truncation) makes objects up to
-    0.65 m through along the line of sight solid when one side is seen; the price: never-observed
-    gaps narrower than this behind an obstacle (a doorway's part hidden by its jamb) read closed
-    until the camera looks into them. Deeper closes more gaps, shallower leaves big objects hollow
-    at the back."""
+    negative inside however deep; ``free`` leaves them free (an obstacle is then only
+    ``truncation`` deep, and deeper inside the field is positive with its gradient pointing in)."""
+    behind_surface_depth: Annotated[float, Field(ge=0, le=5.0, allow_inf_nan=False)] = 5.0
+    """Depth (m) of the ``solid`` fill. 5 m spans the default map (2.5 m half extent): the shadow an
+    observed obstacle casts is solid up to the first observed voxel or the map's edge, so an object
+    seen only end-on is negative all the way through, with the gradient pointing out of the shadow
+    (sideways, up, or back to the seen face), never further in. The price: the never-observed space
+    behind an obstacle (a doorway's part hidden by its jamb, the floor behind a sofa) reads closed
+    until a camera looks into it; any ray through it reopens it at once. A shallower fill (0.5 m was
+    the previous default) keeps such gaps open beyond that depth but leaves deeper objects positive
+    inside past τ + the depth, with the gradient pointing further in."""
     unobserved_below_obstacle: Literal["free", "solid"] = "solid"
     """Never-observed voxels straight below an obstacle (``solid``, with the ``solid`` fill behind
     surfaces): up to ``below_obstacle_depth`` they join it, so an object whose top was seen at a

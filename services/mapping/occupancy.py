@@ -51,14 +51,17 @@ leaves the rest of an object's inside never observed (weight < min_weight):
   two obstacle voxels along an axis). The never-seen back of an object is thus resolved to
   about a voxel and a half.
 
-The default D = 0.5 m makes the inside of the obstacles a small robot meets read negative after
-one side is seen: a box or a chair up to τ + D = 0.65 m through along the line of sight, a
-person (a cylinder of about 0.5 m), and a wall of any thickness (it becomes at least 0.65 m thick
-in the map, which costs nothing: its far side is not seen either). The trade-off: the fill also
-closes never-observed gaps narrower than D behind an obstacle — the part of a doorway hidden behind its jamb when
-seen obliquely, or the space behind a thin pole — until the camera looks into them; the free
-space carved by any ray through them reopens them at once (observed voxels stop the fill). A
-deeper fill closes more such gaps; a shallower one leaves bigger objects hollow at the back.
+The default D = 5 m spans the default map: the shadow an observed obstacle casts is solid up to
+the first observed voxel (or the map's edge), so the inside of an obstacle reads negative however
+deep, also where only one face was seen — a 1.2 m sofa seen end-on is negative 0.3, 0.8 and 1.1 m
+inside, its gradient pointing out of the shadow (back to the seen face, up or sideways: wherever
+observed or unshadowed space is nearest), never further in along the line of sight. A bounded fill
+(0.5 m, the previous default) left the inside free again past τ + D, with the gradient pointing
+further in: a look-ahead point that overshot the fill was pushed deeper. The trade-off: the fill
+also closes the never-observed space behind an obstacle — the part of a doorway hidden behind its
+jamb, the floor behind a sofa, the space behind a thin pole — until a camera looks into it; the
+free space carved by any ray through it reopens it at once (observed voxels stop the fill). A
+camera that drives towards what it sees looks into that space before the robot gets there.
 ``"free"`` keeps every unseen gap open but leaves obstacles only τ deep.
 
 **Never-observed space below obstacles** (``unobserved_below_obstacle``, default ``"solid"``).

@@ -5,12 +5,16 @@ as ``RISKFIELD_<FIELD>`` variables or with ``--set field=value``."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, ClassVar
+from typing import Annotated, Any, ClassVar
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from ..runtime.settings import NodeSettings
+from ..runtime.settings import NodeSettings, read_config_file
 from .config import FilterConfig
+
+#: Named filter configurations shipped with the package (``presets/<name>.yaml``, a config file's
+#: ``safety-filter`` section): ``paper`` is the paper's teleoperation filter.
+PRESETS = Path(__file__).parent / "presets"
 
 Seconds = Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)]
 
@@ -33,6 +37,23 @@ class FilterSettings(NodeSettings, FilterConfig):
     step_on_map: bool = Field(default=True, description=(
         "step (and publish cmd/safe) as soon as a map is taken, not only on a reference or a tick; "
         "false: the previous scheduling, kept for `riskfield bench latency --previous`"))
+
+    preset: str | None = Field(default=None, description=(
+        "a named filter configuration shipped with riskfield (safety_filter/presets/<name>.yaml, e.g. "
+        "paper): its values replace the defaults; the config file, environment and --set still override it"))
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset_under_the_rest(cls, data: Any) -> Any:
+        # The preset is read like a config file (runtime.settings.read_config_file) and slots in
+        # just above the defaults: whatever the sources set explicitly wins.
+        if not isinstance(data, dict) or not data.get("preset"):
+            return data
+        path = PRESETS / f"{data['preset']}.yaml"
+        if not path.is_file():
+            known = sorted(p.stem for p in PRESETS.glob("*.yaml"))
+            raise ValueError(f"preset {data['preset']!r} is not one of {known}")
+        return {**read_config_file(path)[cls.SERVICE], **data}
 
     def filter_config(self) -> FilterConfig:
         return FilterConfig.model_validate({k: getattr(self, k) for k in FilterConfig.model_fields})

@@ -11,10 +11,11 @@ from riskfield.experiments.safety_benchmark import (
     BenchConfig,
     build_pointcloud,
     camera_poses,
+    filter_safe_control,
     gt_perception,
-    hocbf_safe_control,
     make_case,
     rollout,
+    variants,
     zero_margins,
 )
 from riskfield.experiments.sampling import Pair
@@ -48,7 +49,7 @@ def test_case_excludes_floor_and_ceiling_from_ground_truth(case):
 
 def test_free_path_reaches_the_goal(case):
     pair = Pair(0, "ball_1", "low", np.array([-1.5, 1.2, 0.5]), np.array([1.5, 1.2, 0.5]))
-    r = rollout("m", pair, AnalyticField(Sphere([0.0, 0.0, 0.5], 0.3)), hocbf_safe_control(CFG), CLF, CFG, case)
+    r = rollout("m", pair, AnalyticField(Sphere([0.0, 0.0, 0.5], 0.3)), filter_safe_control(CFG), CLF, CFG, case)
     assert r.progress > 0.97
     assert r.clearance.min() > 0.3  # 0.5 m from the walls at the ends, minus the radius
     assert np.all(r.filter_times > 0)
@@ -58,7 +59,7 @@ def test_exact_field_keeps_clearance_through_a_blocked_path(case):
     # Straight through the ball (centre at z 0.5): the filter must steer around or stop.
     pair = Pair(0, "ball_1", "low", np.array([-1.5, 0.05, 0.5]), np.array([1.5, 0.05, 0.5]))
     exact = AnalyticField(Sphere([0.0, 0.0, 0.5], 0.3))
-    r = rollout("m", pair, exact, hocbf_safe_control(CFG), CLF, CFG, case)
+    r = rollout("m", pair, exact, filter_safe_control(CFG), CLF, CFG, case)
     assert r.clearance.min() > -0.02  # HOCBF in discrete time: at most a small overshoot
     assert r.reached > 0.3  # it did approach
     # With the filter off, the same pair goes straight through the ball.
@@ -100,8 +101,19 @@ def test_bench_cli_end_to_end(tmp_path):
     res = CliRunner().invoke(app, ["--trajectories", "6", "--scenes", "1", "--frames", "9", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     s = json.loads((tmp_path / "summary.json").read_text())
-    assert s["trajectories"] == 6 and len(s["per_trajectory"]) == 18
+    extra = [f"{m}, {v.suffix}" for m in ("Ours (ESDF)", "Ours (Semantic ESDF)") for v in variants()]
+    assert len(extra) == 6 and s["trajectories"] == 6 and len(s["per_trajectory"]) == 6 * (3 + 6)
     assert set(s["table2"]) == {"Point cloud", "Ours (ESDF)", "Ours (Semantic ESDF)"}
+    # Margins in the open: every method with its extra margin beyond the robot radius.
+    assert set(s["methods"]) == {*s["table2"], *extra} == {*s["table2"], *s["no_extra_margin"]}
+    assert s["methods"]["Ours (ESDF)"]["margin_m"] == pytest.approx(0.025 + 0.5 * 0.05)  # δ = v_max T, ½ voxel
+    assert s["methods"]["Point cloud"]["margin_m"] == pytest.approx(0.025)  # no voxel: δ alone
+    for name in extra:
+        assert s["methods"][name]["margin_m"] == 0.0 == s["no_extra_margin"][name]["margin_m"]
+    assert {s["methods"][f"Ours (ESDF), {v.suffix}"]["barrier"] for v in variants()} == {"braking", "hocbf"}
+    assert s["methods"]["Ours (ESDF), paper's HOCBF (trilinear), no extra margin"]["interpolation"] == "trilinear"
+    for name, row in s["table2"].items():
+        assert row["margin_m"] == s["methods"][name]["margin_m"]
     for row in s["table2"].values():
         assert 0.0 <= row["progress"] <= 1.0 and 0.0 <= row["mp_collision_rate"] <= 1.0
         assert row["computation_time_s"] > 0  # measured; its size is the bench's report, not a test
@@ -119,6 +131,10 @@ def test_bench_cli_end_to_end(tmp_path):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert float(cells[2]) == pytest.approx(row["progress"], abs=1e-3), line
         assert float(cells[4]) == pytest.approx(row["mp_collision_rate"], abs=1e-3), line
+    for name, row in s["no_extra_margin"].items():  # the full-run table: margin, then collision rate
+        line = next(ln for ln in md.splitlines() if ln.startswith(f"| {name} |"))
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert float(cells[1]) == 0.0 and float(cells[2]) == pytest.approx(row["collision_rate"], abs=1e-3), line
     assert (tmp_path / "safety_methods.png").stat().st_size > 1000
 
 

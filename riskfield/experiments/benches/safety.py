@@ -2,8 +2,11 @@
 
 Six procedural scenes by default (``--scannetpp DIR`` adds ScanNet++ scenes), object-centric
 start/goal pairs split evenly over the scenes, three methods on identical pairs, and the
-paper's metrics. Writes ``tables.md``, ``summary.json`` (every number, every trajectory) and
-plots into ``--out``. See ``safety_benchmark`` for the protocol.
+paper's metrics. Every method is stated with its extra margin beyond the robot radius
+(``margin_m`` in ``summary.json``), and each ESDF variant is also driven with no extra margin
+(the default filter, the other barrier, the paper's HOCBF on the trilinear field:
+``safety_benchmark.variants``). Writes ``tables.md``, ``summary.json`` (every number, every
+trajectory) and plots into ``--out``. See ``safety_benchmark`` for the protocol.
 """
 
 from __future__ import annotations
@@ -29,13 +32,14 @@ from riskfield.experiments.safety_benchmark import (
     build_esdf_maps,
     build_pointcloud,
     camera_poses,
+    filter_safe_control,
     gt_perception,
-    hocbf_safe_control,
     make_case,
     pairs_for,
     procedural_case,
     rollout,
     sim_perception,
+    variants,
 )
 from riskfield.experiments.scannetpp import load_scene, scannetpp_folders
 from riskfield.experiments.tables import plot_safety, safety_table, table2, table3, write_json
@@ -99,7 +103,12 @@ def safety(
     renderer = Renderer(PinholeCamera.from_fov(*cfg.image, 90.0))
     perceive = gt_perception(renderer) if perception == "gt" else sim_perception(renderer, seed)
     clf = DoubleIntegratorCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
-    safe = hocbf_safe_control(cfg)
+    safe = filter_safe_control(cfg)
+    extra = variants()
+    extra_safe = {v.suffix: filter_safe_control(cfg, overrides=v.overrides) for v in extra}
+    extra_methods = [f"{m}, {v.suffix}" for m in (ESDF, SEMANTIC) for v in extra]
+    per_pair = len(METHODS) + len(extra_methods)
+    margins: dict[str, float] = {}
 
     rollouts: list[Rollout] = []
     maps_info: list[dict] = []
@@ -107,7 +116,7 @@ def safety(
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
     with Progress(*columns, console=console) as progress:
-        task = progress.add_task("roll-outs", total=trajectories * len(METHODS))
+        task = progress.add_task("roll-outs", total=trajectories * per_pair)
         for case, n in zip(cases, per_scene, strict=True):
             progress.update(task, description=f"{case.name}: maps")
             snap = case.scene.at(0.0)
@@ -121,17 +130,37 @@ def safety(
             first_id += len(pairs)
             if len(pairs) < n:
                 console.print(f"[yellow]{case.name}: only {len(pairs)} of {n} pairs could be placed[/yellow]")
-                progress.update(task, total=progress.tasks[0].total - (n - len(pairs)) * len(METHODS))
+                progress.update(task, total=progress.tasks[0].total - (n - len(pairs)) * per_pair)
             progress.update(task, description=f"{case.name}: roll-outs")
+            for b in built:
+                margins[b.method] = safe.margin_m(b.field)
+                if b.method in (ESDF, SEMANTIC):
+                    margins.update({f"{b.method}, {k}": c.margin_m(b.field) for k, c in extra_safe.items()})
             for pair in pairs:
                 for b in built:
                     rollouts.append(rollout(b.method, pair, b.field, safe, clf, cfg, case))
                     progress.advance(task)
+                    if b.method not in (ESDF, SEMANTIC):
+                        continue
+                    for k, c in extra_safe.items():
+                        rollouts.append(rollout(f"{b.method}, {k}", pair, b.field, c, clf, cfg, case))
+                        progress.advance(task)
 
     n_pairs = len({r.pair for r in rollouts})
     mp_all = matched(rollouts, METHODS)
     mp_esdf = matched(rollouts, (ESDF, SEMANTIC))
-    t2 = {m: summarise(rollouts, mp_all, m).as_dict() for m in METHODS}
+    t2 = {m: {**summarise(rollouts, mp_all, m).as_dict(), "margin_m": margins[m]} for m in METHODS}
+    # Each no-extra-margin row is matched with the other two methods in place of its own.
+    counterpart = {f"{m}, {v.suffix}": m for m in (ESDF, SEMANTIC) for v in extra}
+    mp_extra: dict = {}
+    for m, base in counterpart.items():
+        trio = tuple(m if x == base else x for x in METHODS)
+        mp_extra.update({k: v for k, v in matched(rollouts, trio).items() if k[0] == m})
+    t_extra = {m: {**summarise(rollouts, mp_extra, m).as_dict(), "margin_m": margins[m]} for m in extra_methods}
+    methods_info = {m: dict(margin_m=margins[m],
+                            barrier=(extra_safe[m.split(", ", 1)[1]] if m in counterpart else safe).barrier,
+                            interpolation=(extra_safe[m.split(", ", 1)[1]] if m in counterpart else safe).interpolation,
+                            field=counterpart.get(m, m)) for m in (*METHODS, *extra_methods)}
     groups = [g.name for g in risk.groups]
     t3 = {g: {"esdf": summarise(rollouts, mp_esdf, ESDF, g).as_dict(),
               "semantic": summarise(rollouts, mp_esdf, SEMANTIC, g).as_dict()} for g in groups}
@@ -142,20 +171,23 @@ def safety(
     md = [f"# riskfield bench safety — perception `{perception}`", "",
           f"{len(cases)} scenes, {n_pairs} matched trajectories, robot radius {robot_radius} m, map budget "
           f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), "",
-          safety_table({**t2, **{f"{m} – {g}": t3[g][k] for g in groups
-                                 for m, k in ((ESDF, "esdf"), (SEMANTIC, "semantic"))}}, n_pairs), ""]
+          safety_table({**t2, **t_extra, **{f"{m} – {g}": {**t3[g][k], "margin_m": margins[m]} for g in groups
+                                            for m, k in ((ESDF, "esdf"), (SEMANTIC, "semantic"))}}, n_pairs,
+                       barrier=safe.barrier), ""]
     (out / "tables.md").write_text("\n".join(md))
     per_traj = [dict(pair=r.pair, scene=r.scene, method=r.method, group=r.group, progress=r.progress,
-                     reached=r.reached, mp_clearance_all=mp_all[(r.method, r.pair)],
+                     reached=r.reached,
+                     mp_clearance_all=mp_all.get((r.method, r.pair), mp_extra.get((r.method, r.pair))),
                      mp_clearance_esdf=mp_esdf.get((r.method, r.pair)), min_clearance=r.min_clearance,
                      relaxed_steps=r.relaxed_steps,
                      steps=len(r.filter_times), filter_time_mean_s=float(r.filter_times.mean()),
                      start=r.start, goal=r.goal) for r in rollouts]
     write_json(out / "summary.json", dict(
         benchmark="safety", config=cfg.__dict__, risk=risk.model_dump(mode="json"), wall_time_s=wall,
-        trajectories=n_pairs, table2=t2, table3=t3, table3_overall=t3_all, maps=maps_info,
+        trajectories=n_pairs, methods=methods_info, table2=t2, no_extra_margin=t_extra, table3=t3,
+        table3_overall=t3_all, maps=maps_info,
         filter_time_median_s={m: float(np.median(np.concatenate([r.filter_times for r in rollouts if r.method == m])))
-                              for m in METHODS},
+                              for m in (*METHODS, *extra_methods)},
         per_trajectory=per_traj))
     plot_safety(out,
                 {m: [mp_all[(m, r.pair)] for r in rollouts if r.method == m] for m in METHODS},
@@ -165,12 +197,13 @@ def safety(
                      "Semantic": [mp_esdf[(SEMANTIC, r.pair)] for r in rollouts
                                   if r.method == SEMANTIC and r.group == g]} for g in groups})
 
-    table = Table("method", "filter time median (µs)", "p99 (µs)", "progress", "MP clearance (m)", "MP collision",
-                  "collision (full run)", "min clearance (m)", "relaxed steps")
-    for m in METHODS:
+    table = Table("method", "extra margin (m)", "filter time median (µs)", "p99 (µs)", "progress", "MP clearance (m)",
+                  "MP collision", "collision (full run)", "min clearance (m)", "relaxed steps")
+    for m in (*METHODS, *extra_methods):
         t = np.concatenate([r.filter_times for r in rollouts if r.method == m]) * 1e6
-        row = t2[m]
-        table.add_row(m, f"{np.median(t):.0f}", f"{np.percentile(t, 99):.0f}", f"{row['progress']:.3f}",
+        row = t2.get(m) or t_extra[m]
+        table.add_row(m, f"{margins[m]:.3f}", f"{np.median(t):.0f}", f"{np.percentile(t, 99):.0f}",
+                      f"{row['progress']:.3f}",
                       f"{row['mp_clearance_m']:.3f}", f"{row['mp_collision_rate']:.3f}",
                       f"{row['collision_rate']:.3f}", f"{row['min_clearance_m']:.3f}",
                       f"{100 * row['relaxed_fraction']:.2f} %")

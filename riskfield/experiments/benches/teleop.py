@@ -11,6 +11,11 @@ Per run: the **first intervention distance** (ground-truth distance from the loo
 to the obstacle surface when ``SafetyStatus`` first reports a CBF intervention) and the
 **minimum clearance** (smallest such distance over the run); the robot-centre distances too.
 The look-ahead distance is what the filter constrains (the paper's plotted ``d(p_L)``).
+
+``--preset paper`` runs the filter node with the shipped ``paper`` preset
+(``safety_filter/presets/paper.yaml``: the look-ahead point only, no body discs, no robot radius or
+extra margin, no predictive rows, the trilinear field — the paper's filter); the default is the
+product's filter (LIMO body discs, radius 0.15 m, δ + half a voxel: about 0.2 m beyond d(p_L)).
 Outputs: ``summary.json``, ``tables.md`` beside the paper's numbers, ``teleop.png`` (distance,
 linear and angular velocity over time for one run of each class).
 """
@@ -37,13 +42,19 @@ from riskfield.protocol import RobotState, SafetyStatus, VelocityCommand
 app = typer.Typer(add_completion=False)
 
 
-def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, progress, task) -> list[Trace]:
+def filter_args(preset: str | None) -> list[str]:
+    """The filter node's arguments: the bench's rate, and the preset when one is named."""
+    return [*FAST_FILTER, *(["--set", f"preset={preset}"] if preset else [])]
+
+
+def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, progress, task,
+              preset: str | None = None) -> list[Trace]:
     scenario, obj = TELEOP_CASES[cls]
     distance = obstacle_distance(scenario, obj)
     service, args = perception_args(perception)
     stack.start("perception", service, args)
     stack.start("mapping", "mapping", ["--set", "esdf_rate_hz=10"])
-    stack.start("filter", "safety-filter", FAST_FILTER)
+    stack.start("filter", "safety-filter", filter_args(preset))
     traces = []
     k = stack.keys
     keys = {"state": (k.state, RobotState), "ref": (k.cmd_ref, VelocityCommand), "safe": (k.cmd_safe, VelocityCommand),
@@ -107,6 +118,9 @@ def teleop(
     run_s: Annotated[float, typer.Option(help="Seconds each run lasts after the operator starts.")] = 13.0,
     classes: Annotated[str, typer.Option(help="Comma-separated: ball,dog.")] = "ball,dog",
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/teleop"),
+    preset: Annotated[str | None, typer.Option(
+        help="Filter preset (safety_filter/presets): paper = the paper's look-ahead filter; none = the product's.")]
+    = None,
 ) -> None:
     """Scripted-operator teleoperation towards a ball and a dog through the full stack."""
     console = Console()
@@ -120,12 +134,15 @@ def teleop(
         task = progress.add_task("teleop runs", total=runs * len(names))
         for cls in names:
             with Stack(robot=f"teleop_{cls}") as stack:
-                results[cls] = run_class(stack, cls, runs, run_s, perception, progress, task)
+                results[cls] = run_class(stack, cls, runs, run_s, perception, progress, task, preset)
     summary: dict[str, dict] = {}
     table = Table("class", "runs", "first intervention (m)", "paper", "min clearance (m)", "paper",
                   "runs with intervention")
-    md = [f"# riskfield bench teleop — perception `{perception}`", "",
-          "Distances: ground truth, look-ahead point (L = 0.25 m) to the obstacle surface; mean over runs.", "",
+    which = (f"the `{preset}` preset (`services/safety_filter/presets/{preset}.yaml`)" if preset else
+             "the product's default filter (LIMO body discs, robot radius 0.15 m, δ + half a voxel)")
+    md = [f"# riskfield bench teleop — perception `{perception}`" + (f", preset `{preset}`" if preset else ""), "",
+          f"Filter: {which}. Distances: ground truth, look-ahead point (L = 0.25 m) to the obstacle surface; "
+          "mean over runs.", "",
           "| Obstacle | Runs | First intervention (m) | Paper | Min clearance (m) | Paper | Centre: first / min (m) |",
           "|---|---|---|---|---|---|---|"]
     for cls, traces in results.items():
@@ -146,7 +163,8 @@ def teleop(
     plot(out, examples)
     wall = time.perf_counter() - t_start
     (out / "tables.md").write_text("\n".join(md) + "\n")
-    write_json(out / "summary.json", dict(benchmark="teleop", perception=perception, runs=runs, run_s=run_s,
+    write_json(out / "summary.json", dict(benchmark="teleop", perception=perception, preset=preset, runs=runs,
+                                          run_s=run_s,
                                           wall_time_s=wall, classes=summary,
                                           examples={c: {k: getattr(tr, k) for k in tr.__dataclass_fields__}
                                                     for c, tr in examples.items()}))
