@@ -5,18 +5,20 @@ associated with a track across updates, whose velocity is estimated from the fra
 
 **Which voxels.** A voxel belongs to a movable object when it is occupied (the occupancy's risk
 group > 0) in a group of a movable label (``dynamic_labels``, ADE20K names, default person and
-animal), and its fused label is movable — or it has no label of its own (the solid interior and
-the never-observed fill behind a surface carry none; ``occupancy.py`` gives them the group of
-their nearest labelled surface). Only parts that hold at least one movable-labelled voxel become
-objects, so furniture and walls never do, whatever their group.
+animal), and its fused label is movable — or it has no label of its own (the solid interior
+carries none; ``occupancy.py`` gives it the group of its nearest labelled surface). With the
+TSDF at hand, only observed voxels count: the never-observed fill behind a surface reaches up to
+``behind_surface_depth`` (5 m) into the shadow, which keeps the barrier conservative but is no
+part of the person, whose centre and velocity it would drag away. Only parts that hold at least
+one movable-labelled voxel become objects, so furniture and walls never do, whatever their group.
 
 **2-D footprints.** Only the ESDF slice's height band (``band``, ``Mapper.band_indices``) is
 looked at, projected onto the ground: a ground robot's barrier sees obstacles in that band, people
 and animals move on the floor, and a footprint's centre is steadier than a 3-D centroid whose
 height depends on how much of the body the camera saw. Footprint parts up to
 ``object_merge_gap`` apart are one object (a person's legs). An object's position is the centre of its
-voxels in the band, each weighted by its inside fraction: 1 for the interior and the
-never-observed fill, clip(½ − tsdf / voxel, 0, 1) for an observed surface voxel (the TSDF is the
+voxels in the band, each weighted by its inside fraction: 1 for the observed interior,
+clip(½ − tsdf / voxel, 0, 1) for an observed surface voxel (the TSDF is the
 distance to the surface, so this is the part of the voxel behind it). Counted whole, binary cells
 put a centre anywhere within half a voxel of the truth along each axis, and a box whose edges lie
 along the grid jumps by a whole row at once: over 5 maps at 10 Hz that alone is up to 0.15 m/s per
@@ -95,6 +97,8 @@ def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: n
                     label[i, j] = lab
                 elif lab != NO_LABEL:
                     continue
+                elif use_tsdf and weight[i, j, k] < min_weight:
+                    continue  # the never-observed fill is a guess at what hides behind, not the body
                 body[i, j] = True
                 f = 1.0
                 if use_tsdf and weight[i, j, k] >= min_weight:
