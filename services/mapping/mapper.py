@@ -124,6 +124,7 @@ class Mapper:
         self.present: TsdfLayer | None = None
         self.present_semantic: SemanticLayer | None = None
         self._composite: tuple[TsdfLayer, SemanticLayer] | None = None
+        self.read: tuple[TsdfLayer, SemanticLayer] = (self.tsdf, self.semantic)  # what the last occupancy read
         self.overlaid = 0  # voxels the present layer decided in the last occupancy
         self.present_clears = 0
         # Frame time on the layers' ``hit`` clock: ms since the first frame (int32 spans 24 days).
@@ -131,6 +132,7 @@ class Mapper:
         self.now_ms = 0
         self._decayed_ms = NEVER
         self.decayed_voxels = 0
+        self.forgotten_voxels = 0  # walkers' voxels cleared by ``forget``
         self._dynamic = np.zeros(NO_LABEL + 1, bool)
         for name in c.dynamic_labels:
             self._dynamic[ade20k.index(name)] = True
@@ -261,15 +263,56 @@ class Mapper:
             return 0
         self._decayed_ms = self.now_ms
         oldest = self.now_ms - round(self.config.dynamic_persist_s * 1e3)
+        n = self._forget(oldest, None, self.config.dynamic_max_weight)
+        self.decayed_voxels += n
+        return n
+
+    def forget(self, footprints: list[tuple[np.ndarray, float]]) -> int:
+        """Clear people's and animals' voxels in the vertical cylinders ``footprints`` ((x, y, …)
+        centre, radius in m, grown by ``object_gate``) that no current frame has seen at a surface for
+        ``dynamic_moving_persist_s``: walkers who left the view (``ObjectTracker.departed``).
+        Returns the count."""
+        if not footprints or self.volume is None:
+            return 0
+        oldest = self.now_ms - round(self.config.dynamic_moving_persist_s * 1e3)
+        n = self._forget(oldest, footprints)
+        self.forgotten_voxels += n
+        return n
+
+    def _forget(self, oldest: int, footprints: list[tuple[np.ndarray, float]] | None,
+                cap: float | None = None) -> int:
+        """Clear the movable-labelled obstacle voxels last hit before ``oldest`` (ms), in both layers;
+        only inside ``footprints`` when given; cap the others' weight at ``cap``. Free space is kept."""
         n = 0
         layers = [(self.tsdf, self.semantic)]
         if self.present is not None and self.present_semantic is not None:
             layers.append((self.present, self.present_semantic))
+        where = None
+        if footprints is not None:
+            vol = self.volume
+            assert vol is not None
+            nx, ny, _ = vol.shape
+            xy = vol.to_world(np.stack(np.meshgrid(np.arange(nx), np.arange(ny), [0], indexing="ij"), -1))[..., 0, :2]
+            inside = np.zeros((nx, ny), bool)
+            for centre, radius in footprints:
+                # The footprint grown by the association gate: the map shows a walker a frame or
+                # two late, so their trail and the leading edge not yet in the occupancy lie around it.
+                r = radius + self.config.object_gate
+                inside |= np.hypot(xy[..., 0] - centre[0], xy[..., 1] - centre[1]) <= r
+            where = np.flatnonzero(np.repeat(inside.reshape(-1), vol.shape[2]))
         for tsdf, sem in layers:
             # Obstacle voxels first (a few % of the volume), then their labels and times: only
-            # what makes an obstacle decays, free space is kept.
-            cand = np.flatnonzero((tsdf.tsdf.reshape(-1) <= self.config.surface_band) & (tsdf.weight.reshape(-1) > 0))
-            cand = cand[self._dynamic[sem.label.reshape(-1)[cand]] & (tsdf.hit.reshape(-1)[cand] < oldest)]
+            # what makes an obstacle is cleared, free space is kept.
+            flat_t, flat_w = tsdf.tsdf.reshape(-1), tsdf.weight.reshape(-1)
+            if where is None:
+                cand = np.flatnonzero((flat_t <= self.config.surface_band) & (flat_w > 0))
+            else:
+                cand = where[(flat_t[where] <= self.config.surface_band) & (flat_w[where] > 0)]
+            cand = cand[self._dynamic[sem.label.reshape(-1)[cand]]]
+            if cap is not None and (tsdf is self.present or not len(self.keyframes)):
+                # running means only: the keyframes' sums must stay exactly removable
+                flat_w[cand] = np.minimum(flat_w[cand], np.float32(cap))
+            cand = cand[tsdf.hit.reshape(-1)[cand] < oldest]
             stale = np.unravel_index(cand, tsdf.tsdf.shape)
             k = int(cand.size)
             if k:
@@ -281,7 +324,6 @@ class Mapper:
                 sem.vote[stale] = 0.0
                 n += k
         if n:
-            self.decayed_voxels += n
             self.dirty = True
         return n
 
@@ -350,7 +392,7 @@ class Mapper:
         """Per-voxel obstacle risk group (0 = not an obstacle) of the current map."""
         c = self.config
         self.decay()
-        tsdf, semantic = self.layers()
+        tsdf, semantic = self.read = self.layers()
         return semantic_occupancy(tsdf, semantic, self.label_to_group, c.min_weight, c.surface_band,
                                   self.unknown_group_id if c.unknown_is_occupied else 0,
                                   interior=c.obstacle_interior, fill_steps=c.fill_steps,

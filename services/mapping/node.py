@@ -115,6 +115,7 @@ class MappingNode:
             st.update({f"kf_{k}": v for k, v in kf.counts.items()}, kf_bytes=kf.nbytes,
                       present_clears=self.mapper.present_clears)
         st["decayed_voxels"] = self.mapper.decayed_voxels  # people and animals unseen for dynamic_persist_s
+        st["forgotten_voxels"] = self.mapper.forgotten_voxels  # walkers out of view (dynamic_moving_persist_s)
         self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
 
     def on_state(self, state: RobotState) -> None:
@@ -160,6 +161,7 @@ class MappingNode:
             return
         t0 = time.perf_counter()
         objects = self.tracker.update_map(self.mapper, update.occupancy)
+        self.mapper.forget(self.tracker.departed())  # shows in the next ESDF
         self.node.publish(self.node.keys.objects, TrackedObjects(header=update.primary.header.model_copy(),
                                                                  objects=objects))
         self.node.stats.update(objects=len(objects), objects_ms=(time.perf_counter() - t0) * 1e3)

@@ -59,7 +59,7 @@ from scipy import ndimage
 from riskfield.protocol import TrackedObject
 
 from .config import MapperConfig
-from .layers import NO_LABEL
+from .layers import NEVER, NO_LABEL
 
 _EIGHT = np.ones((3, 3), dtype=bool)
 
@@ -72,15 +72,21 @@ class Detection:
     position: np.ndarray  # (3,)
     radius: float
     cells: int
+    #: when a current frame last saw a surface of it (the layers' ``hit`` clock, ms; None: unknown,
+    #: e.g. no TSDF given, which counts as seen now)
+    seen_ms: int | None = None
 
 
 @njit(cache=True, nogil=True)
-def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: np.ndarray, k_lo: int, k_hi: int,
-             group_ok: np.ndarray, is_movable: np.ndarray, min_weight: float, voxel_size: float,
-             use_tsdf: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: np.ndarray, hit: np.ndarray,
+             hit2: np.ndarray, k_lo: int, k_hi: int, group_ok: np.ndarray, is_movable: np.ndarray, min_weight: float,
+             voxel_size: float, use_tsdf: bool, use_hit: bool, use_hit2: bool
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One pass over the height band: per (i, j) column, its movable voxels' fraction sum (0: none),
-    fraction-weighted height sum, labelled-voxel count and a movable label."""
+    fraction-weighted height sum, labelled-voxel count, a movable label and the newest ``hit`` of
+    its voxels (the later of ``hit`` and ``hit2``, the present layer's, when given)."""
     nx, ny = groups.shape[0], groups.shape[1]
+    seen = np.full((nx, ny), NEVER, np.int32)
     frac = np.zeros((nx, ny), np.float64)
     fz = np.zeros((nx, ny), np.float64)
     seeds = np.zeros((nx, ny), np.int32)
@@ -100,6 +106,12 @@ def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: n
                 elif use_tsdf and weight[i, j, k] < min_weight:
                     continue  # the never-observed fill is a guess at what hides behind, not the body
                 body[i, j] = True
+                if use_hit:
+                    h = hit[i, j, k]
+                    if use_hit2 and hit2[i, j, k] > h:
+                        h = hit2[i, j, k]
+                    if h > seen[i, j]:
+                        seen[i, j] = h
                 f = 1.0
                 if use_tsdf and weight[i, j, k] >= min_weight:
                     # the voxel's inside fraction from its signed distance to the surface: a
@@ -107,15 +119,17 @@ def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: n
                     f = min(1.0, max(0.0, 0.5 - tsdf[i, j, k] / voxel_size))
                 frac[i, j] += f
                 fz[i, j] += f * k
-    return body, frac, fz, seeds, label
+    return body, frac, fz, seeds, label, seen
 
 
 def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], origin: np.ndarray,
            voxel_size: float, label_to_group: np.ndarray, params: MapperConfig, tsdf: np.ndarray | None = None,
-           weight: np.ndarray | None = None, min_weight: float = 0.5) -> list[Detection]:
+           weight: np.ndarray | None = None, min_weight: float = 0.5, hit: np.ndarray | None = None,
+           present_hit: np.ndarray | None = None) -> list[Detection]:
     """The movable objects of one semantic occupancy (``groups``, the mapper's per-voxel risk group)
     with the semantic layer's ``labels``, in the height band ``k_range`` = [k_lo, k_hi) of z voxels.
-    With the TSDF layer (``tsdf``, ``weight``), observed voxels count by their inside fraction."""
+    With the TSDF layer (``tsdf``, ``weight``), observed voxels count by their inside fraction; with
+    its ``hit`` times (and the present layer's), each detection says when it was last seen."""
     movable = np.asarray(params.dynamic_indices, dtype=np.int64)
     k_lo, k_hi = max(0, k_range[0]), min(groups.shape[2], k_range[1])
     if movable.size == 0 or k_hi <= k_lo:
@@ -128,10 +142,14 @@ def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], ori
     is_movable = np.zeros(65536, dtype=np.bool_)
     is_movable[movable] = True
     use_tsdf = tsdf is not None and weight is not None
+    use_hit = use_tsdf and hit is not None
     dummy = np.zeros((1, 1, 1), np.float32)
-    body, frac, fz, seeds, col_label = _columns(groups, labels, tsdf if use_tsdf else dummy,
-                                                weight if use_tsdf else dummy, k_lo, k_hi, group_ok, is_movable,
-                                                float(min_weight), float(voxel_size), use_tsdf)
+    no_hit = np.zeros((1, 1, 1), np.int32)
+    body, frac, fz, seeds, col_label, col_seen = _columns(
+        groups, labels, tsdf if use_tsdf else dummy, weight if use_tsdf else dummy,
+        hit if use_hit else no_hit, present_hit if use_hit and present_hit is not None else no_hit, k_lo, k_hi,
+        group_ok, is_movable, float(min_weight), float(voxel_size), use_tsdf, use_hit,
+        use_hit and present_hit is not None)
     if not seeds.any():
         return []
     # Every cell grows by a disc of half the merge gap (whole voxels, rounded up) and touching
@@ -183,7 +201,8 @@ def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], ori
         dx = origin[0] + ci[idx] * voxel_size - centre[0]
         dy = origin[1] + cj[idx] * voxel_size - centre[1]
         radius = float(np.sqrt(dx * dx + dy * dy).max()) + 0.5 * voxel_size
-        out.append(Detection(best[cid][0], centre, radius, int(cells[cid])))
+        seen_ms = int(col_seen[ci[idx], cj[idx]].max()) if use_hit and idx.size else None
+        out.append(Detection(best[cid][0], centre, radius, int(cells[cid]), seen_ms))
     return out
 
 
@@ -197,6 +216,8 @@ class Track:
     last_ns: int
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     history: deque[tuple[int, float, float]] = field(default_factory=deque)  # (stamp, x, y)
+    seen_ms: int | None = None  # the newest sighting of its footprint (``Detection.seen_ms``)
+    released: bool = False  # its footprint was handed to the map to forget (``departed``)
 
 
 class ObjectTracker:
@@ -206,6 +227,7 @@ class ObjectTracker:
         self.params = params or MapperConfig()
         self.tracks: list[Track] = []
         self.stamp_ns = 0
+        self.now_ms: int | None = None  # the map's clock at the last update (``Mapper.now_ms``)
         self._next_id = 0
 
     @classmethod
@@ -224,6 +246,7 @@ class ObjectTracker:
         """Forget every track (ids keep counting up: never reused by one publisher)."""
         self.tracks.clear()
         self.stamp_ns = 0
+        self.now_ms = None
 
     def update_map(self, mapper: object, occupancy: np.ndarray, stamp_ns: int | None = None) -> list[TrackedObject]:
         """One map update of ``mapper`` (a ``Mapper``), whose semantic occupancy is ``occupancy``:
@@ -233,20 +256,26 @@ class ObjectTracker:
             return []
         k_lo, k_hi, _ = mapper.band_indices()  # type: ignore[attr-defined]
         m: Any = mapper
-        dets = detect(occupancy, m.semantic.label, (k_lo, k_hi), volume.origin, volume.voxel_size, m.label_to_group,
-                      self.params, m.tsdf.tsdf, m.tsdf.weight, m.config.min_weight)
-        return self.update(m.stamp_ns if stamp_ns is None else stamp_ns, dets, m.label_to_group)
+        tsdf, semantic = m.read  # the layers the occupancy was made of (the present layer's overlay)
+        present = m.present.hit if m.present is not None else None
+        dets = detect(occupancy, semantic.label, (k_lo, k_hi), volume.origin, volume.voxel_size, m.label_to_group,
+                      self.params, tsdf.tsdf, tsdf.weight, m.config.min_weight, m.tsdf.hit, present)
+        return self.update(m.stamp_ns if stamp_ns is None else stamp_ns, dets, m.label_to_group, m.now_ms)
 
-    def update(self, stamp_ns: int, detections: list[Detection],
-               label_to_group: np.ndarray | None = None) -> list[TrackedObject]:
-        """Associate one update's detections (made from data of ``stamp_ns``) with the tracks, update
-        their velocities, expire old tracks; the objects to publish."""
+    def update(self, stamp_ns: int, detections: list[Detection], label_to_group: np.ndarray | None = None,
+               now_ms: int | None = None) -> list[TrackedObject]:
+        """Associate one update's detections (made from data of ``stamp_ns``; ``now_ms`` on the map's
+        ``hit`` clock) with the tracks, update their velocities, expire old tracks; the objects to
+        publish. A footprint no frame has seen since the last update (``Detection.seen_ms``: out
+        of view, occluded) is no sighting: it neither moves its track nor starts one."""
         p = self.params
         if stamp_ns < self.stamp_ns:  # time went back (a replay, a restarted sender): start over
             self.reset()
         if stamp_ns == self.stamp_ns and self.tracks:  # no newer data: nothing observed anew
             return self.objects(label_to_group)
         self.stamp_ns = stamp_ns
+        since = self.now_ms
+        self.now_ms = now_ms
         pairs = []
         for ti, tr in enumerate(self.tracks):
             dt = (stamp_ns - tr.last_ns) * 1e-9
@@ -264,10 +293,12 @@ class ObjectTracker:
                 continue
             used_t.add(ti)
             used_d.add(di)
-            self._observe(self.tracks[ti], detections[di], stamp_ns)
+            tr, d = self.tracks[ti], detections[di]
+            if d.seen_ms is None or tr.seen_ms is None or d.seen_ms > tr.seen_ms:
+                self._observe(tr, d, stamp_ns)
         for di, d in enumerate(detections):
-            if di not in used_d:
-                tr = Track(self._next_id, d.label, d.position.copy(), d.radius, stamp_ns, stamp_ns)
+            if di not in used_d and (d.seen_ms is None or since is None or d.seen_ms > since):
+                tr = Track(self._next_id, d.label, d.position.copy(), d.radius, stamp_ns, stamp_ns, seen_ms=d.seen_ms)
                 tr.history.append((stamp_ns, float(d.position[0]), float(d.position[1])))
                 self._next_id += 1
                 self.tracks.append(tr)
@@ -278,6 +309,7 @@ class ObjectTracker:
     def _observe(self, tr: Track, d: Detection, stamp_ns: int) -> None:
         p = self.params
         tr.position, tr.radius, tr.last_ns = d.position.copy(), d.radius, stamp_ns
+        tr.seen_ms, tr.released = d.seen_ms, False
         h = tr.history
         h.append((stamp_ns, float(d.position[0]), float(d.position[1])))
         while h and stamp_ns - h[0][0] > p.object_window_s * 1e9:
@@ -298,6 +330,21 @@ class ObjectTracker:
         if speed > p.object_max_speed:
             v *= p.object_max_speed / speed
         tr.velocity = np.array([v[0], v[1], 0.0])
+
+    def departed(self) -> list[tuple[np.ndarray, float]]:
+        """Footprints (position, radius) of tracks last seen walking (speed over ``object_deadband``)
+        and unseen for ``dynamic_moving_persist_s`` on the map's clock: the map holds where they
+        were, not where they are (``Mapper.forget``). Each is handed over once per sighting."""
+        if self.now_ms is None:
+            return []
+        oldest = self.now_ms - round(self.params.dynamic_moving_persist_s * 1e3)
+        out = []
+        for tr in self.tracks:
+            if tr.released or tr.seen_ms is None or tr.seen_ms >= oldest or not tr.velocity.any():
+                continue
+            tr.released = True
+            out.append((tr.position.copy(), tr.radius))
+        return out
 
     def objects(self, label_to_group: np.ndarray | None = None) -> list[TrackedObject]:
         """The tracks as messages, at the tracker's stamp; ``label_to_group`` gives their risk group."""

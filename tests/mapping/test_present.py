@@ -14,6 +14,7 @@ from riskfield.services.geometry.shapes import Box, Plane, render
 from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
+from riskfield.services.mapping.objects import ObjectTracker
 
 CAM = PinholeCamera.centred(160, 120, 125.0)
 K = (CAM.fx, CAM.fy, CAM.cx, CAM.cy)
@@ -31,10 +32,12 @@ def person(x: float = 1.0, y: float = 0.0) -> Box:
 class Feed:
     """A mapper fed 10 Hz frames, ``kind`` None or the keyframe protocol."""
 
-    def __init__(self, protocol: bool, q: float, config: MapperConfig | None = None):
+    def __init__(self, protocol: bool, q: float, config: MapperConfig | None = None, track: bool = False):
         self.m = Mapper(config or MapperConfig())
         self.m.set_robot_position(np.zeros(3))
         self.protocol, self.q, self.t = protocol, q, 1
+        # as the node does: the tracker after each map update, then the walkers it gives up on
+        self.tracker = ObjectTracker(self.m.config) if track else None
 
     def frame(self, scene: list, T: np.ndarray = AHEAD, q: float | None = None, dt_ns: int = STEP) -> None:
         pts, conf, lab = render(scene, T, CAM, confidence=self.q if q is None else q)
@@ -44,7 +47,10 @@ class Feed:
         self.m.integrate_frame(PerceptionFrame(header=Header(stamp_ns=self.t), T_WC=T, points=pts, confidence=conf,
                                                labels=lab, keyframe_id=0, kind=kind, intrinsics=K))
         self.t += dt_ns
-        self.m.update_esdf()
+        update = self.m.update_esdf()
+        if self.tracker is not None and update is not None and update.occupancy is not None:
+            self.tracker.update_map(self.m, update.occupancy)
+            self.m.forget(self.tracker.departed())
 
     def at(self, x: float, y: float = 0.0) -> tuple[float, int]:
         s = self.m.query(np.array([[x, y, 0.3]]))
@@ -134,6 +140,58 @@ def test_people_out_of_view_persist_for_T_then_decay_furniture_stays(protocol: b
     for _ in range(30):  # 30 s more, a frame a second: the chair stays
         feed.frame(ROOM, AWAY, dt_ns=10 * STEP)
     assert feed.at(0.9, 0.45)[0] < 0.1 and feed.at(0.9, 0.45)[1] != 1
+
+
+@pytest.mark.parametrize("protocol", [False, True])
+def test_a_walker_out_of_view_is_forgotten_after_T_w(protocol: bool) -> None:
+    """A person crossing 1 m ahead at 1.2 m/s, then the camera looks away: where they were last seen
+    is free by T_w + 0.3 s with the tracker (``dynamic_moving_persist_s``), where the fixed decay of
+    people (T = 3 s) alone still shows them."""
+    c = MapperConfig()
+    frames = round((c.dynamic_moving_persist_s + 0.3) / 0.1)
+    held = {}
+    for track in (True, False):
+        feed = Feed(protocol, 7.0, track=track)
+        for _ in range(20):
+            feed.frame(ROOM)
+        ys = np.arange(-0.5, 0.3, 0.12)
+        for y in ys:
+            feed.frame([*ROOM, person(1.0, y)])
+        assert feed.shows_person(1.0, ys[-1])
+        for _ in range(frames):
+            feed.frame(ROOM, AWAY)
+        held[track] = feed.shows_person(1.0, ys[-1])
+    assert held == {True: False, False: True}
+
+
+@pytest.mark.parametrize("protocol", [False, True])
+def test_the_space_a_person_left_clears_fast_through_low_confidence_rays(protocol: bool) -> None:
+    """As the ``sim`` backend weighs them: a person at 1 m at confidence 7, the wall 8.9 m behind at
+    1.8 (beyond ``max_depth``: it only carves). The space they left clears within 4 frames; with a
+    person's voxels weighted like the rest (``dynamic_max_weight`` = ``max_weight``), not within 7."""
+    far = [Plane((1, 0, 0), 8.9, ade20k.index("wall")), Plane((0, 0, 1), 0.0, ade20k.index("floor"))]
+
+    def cleared_after(config: MapperConfig) -> int:
+        feed = Feed(protocol, 1.8, config)
+        for _ in range(10):
+            feed.frame(far)
+        for _ in range(30):
+            feed.frame([*far, person()], q=7.0)
+        assert feed.shows_person()
+        return frames_until(feed, far, lambda: feed.at(0.8)[0] > 0.5, limit=10)
+
+    assert cleared_after(MapperConfig()) <= 4
+    assert cleared_after(MapperConfig(dynamic_max_weight=MapperConfig().max_weight)) > 7
+
+
+def test_a_standing_person_out_of_view_is_not_forgotten_early() -> None:
+    """A person who stood still when last seen stays T = ``dynamic_persist_s``, tracker or not."""
+    feed = Feed(False, 7.0, track=True)
+    for _ in range(10):
+        feed.frame([*ROOM, person()])
+    for _ in range(round(feed.m.config.dynamic_persist_s / 0.1) - 2):
+        feed.frame(ROOM, AWAY)
+    assert feed.shows_person() and feed.m.forgotten_voxels == 0
 
 
 def test_the_compiled_overlay_equals_its_array_definition() -> None:
