@@ -210,7 +210,8 @@ class DynamicParams(BaseModel):
     could still turn or back into them; a walker at 1.5 m/s has moved 4.5 m by then, so a longer
     memory mostly keeps a ghost."""
     dynamic_max_weight: Pos = 5.0
-    """Cap of the weight of a person's or animal's surface voxels (applied with the decay, every 0.1 s
+    """Cap of the weight of a person's or animal's voxels (their labelled surface and the unlabelled
+    inside the last occupancy gave their group; applied with the decay, every 0.1 s
     of frame time, to the running means: the default mode's TSDF and the keyframe protocol's
     present layer, not the keyframes' removable sums; other voxels keep ``max_weight``): what moves
     by itself is a running mean over about a frame, so the space it leaves clears within a few
@@ -218,14 +219,14 @@ class DynamicParams(BaseModel):
     person who stood 3 s at 1 m (confidence ≈ 7 from the ``sim`` backend) took 25 frames to clear
     against a far wall seen at confidence ≈ 1.8; with 5, 3 frames."""
     dynamic_moving_persist_s: NonNeg = 0.5
-    """T_w: how long a person or animal last seen *walking* (its track's speed over
-    ``object_deadband``) stays where the map last saw them, once out of view: they are not there any
-    more (at 1 m/s, 0.5 m on after 0.5 s, past their own radius and the high-risk margin), so a
-    longer memory holds a ghost at the edge of the view (a walker who stepped out of the lane kept
-    the robot below 80 % of its reference for 2.7 s with the 3 s of ``dynamic_persist_s``). A
-    walker who stops just out of view is forgotten after T_w: the forward camera sees where the
-    robot drives before it gets there. Needs ``object_tracking`` (the velocities), and below
-    ``object_expire_s`` (the track must still exist)."""
+    """T_w: how long a person's or animal's voxels outlive the last frame that saw them, where the
+    tracker (``map/objects``) places no one standing and sees no one now (``Mapper.forget``,
+    ``ObjectTracker.protected``): a walker who left the view, the place a person stood before
+    walking off, the top of a person too close for the camera's view. They are not there any more
+    (at 1 m/s, 0.5 m on after 0.5 s: past their own radius and the high-risk margin), and holding
+    them for T kept the robot below 80 % of its reference for 2.5–2.7 s after people had left its
+    way. Where someone was last seen standing, T (``dynamic_persist_s``) holds. Needs
+    ``object_tracking``."""
     repose_tolerance: Pos = 0.025
     """A ``keyframe_update`` whose pose moved more than this (m at the camera, or the angle times
     ``max_depth``) re-poses the world the present layer was built in: the present layer is cleared
@@ -305,13 +306,6 @@ class MapperConfig(ObjectParams, DynamicParams, EsdfParams, OccupancyParams, Tsd
     not from here."""
 
     model_config = ConfigDict(extra="forbid")
-
-    @model_validator(mode="after")
-    def _walkers_are_forgotten_while_tracked(self) -> MapperConfig:
-        if self.object_tracking and self.dynamic_moving_persist_s >= self.object_expire_s:
-            raise ValueError(f"dynamic_moving_persist_s ({self.dynamic_moving_persist_s} s) must be below "
-                             f"object_expire_s ({self.object_expire_s} s): a walker's track must outlive it")
-        return self
 
     @classmethod
     def compose(cls, volume: VolumeParams | None = None, tsdf: TsdfParams | None = None,

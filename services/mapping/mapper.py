@@ -133,6 +133,7 @@ class Mapper:
         self._decayed_ms = NEVER
         self.decayed_voxels = 0
         self.forgotten_voxels = 0  # walkers' voxels cleared by ``forget``
+        self._groups: tuple[np.ndarray, np.ndarray] | None = None  # the last occupancy, at its origin index
         self._dynamic = np.zeros(NO_LABEL + 1, bool)
         for name in c.dynamic_labels:
             self._dynamic[ade20k.index(name)] = True
@@ -267,52 +268,63 @@ class Mapper:
         self.decayed_voxels += n
         return n
 
-    def forget(self, footprints: list[tuple[np.ndarray, float]]) -> int:
-        """Clear people's and animals' voxels in the vertical cylinders ``footprints`` ((x, y, …)
-        centre, radius in m, grown by ``object_gate``) that no current frame has seen at a surface for
-        ``dynamic_moving_persist_s``: walkers who left the view (``ObjectTracker.departed``).
-        Returns the count."""
-        if not footprints or self.volume is None:
+    def forget(self, protected: list[tuple[np.ndarray, float]]) -> int:
+        """Clear people's and animals' voxels that no current frame has seen at a surface for
+        ``dynamic_moving_persist_s``, outside the vertical cylinders ``protected`` ((x, y, …) centre,
+        radius in m, each grown by ``object_gate``: ``ObjectTracker.protected``, where people stand
+        or are seen now). Returns the count."""
+        if self.volume is None:
             return 0
         oldest = self.now_ms - round(self.config.dynamic_moving_persist_s * 1e3)
-        n = self._forget(oldest, footprints)
+        n = self._forget(oldest, protected)
         self.forgotten_voxels += n
         return n
 
-    def _forget(self, oldest: int, footprints: list[tuple[np.ndarray, float]] | None,
+    def _forget(self, oldest: int, protected: list[tuple[np.ndarray, float]] | None,
                 cap: float | None = None) -> int:
-        """Clear the movable-labelled obstacle voxels last hit before ``oldest`` (ms), in both layers;
-        only inside ``footprints`` when given; cap the others' weight at ``cap``. Free space is kept."""
+        """Clear people's and animals' obstacle voxels last hit before ``oldest`` (ms), in both
+        layers; only outside the ``protected`` cylinders when given; cap the others' weight at
+        ``cap``. Free space is kept."""
         n = 0
         layers = [(self.tsdf, self.semantic)]
         if self.present is not None and self.present_semantic is not None:
             layers.append((self.present, self.present_semantic))
-        where = None
-        if footprints is not None:
+        keep = None
+        if protected:
             vol = self.volume
             assert vol is not None
             nx, ny, _ = vol.shape
             xy = vol.to_world(np.stack(np.meshgrid(np.arange(nx), np.arange(ny), [0], indexing="ij"), -1))[..., 0, :2]
             inside = np.zeros((nx, ny), bool)
-            for centre, radius in footprints:
-                # The footprint grown by the association gate: the map shows a walker a frame or
-                # two late, so their trail and the leading edge not yet in the occupancy lie around it.
+            for centre, radius in protected:
+                # The footprint grown by the association gate: the map shows a person a frame or
+                # two late, so their leading edge not yet in the occupancy lies around it.
                 r = radius + self.config.object_gate
                 inside |= np.hypot(xy[..., 0] - centre[0], xy[..., 1] - centre[1]) <= r
-            where = np.flatnonzero(np.repeat(inside.reshape(-1), vol.shape[2]))
+            keep = inside
         for tsdf, sem in layers:
             # Obstacle voxels first (a few % of the volume), then their labels and times: only
             # what makes an obstacle is cleared, free space is kept.
             flat_t, flat_w = tsdf.tsdf.reshape(-1), tsdf.weight.reshape(-1)
-            if where is None:
-                cand = np.flatnonzero((flat_t <= self.config.surface_band) & (flat_w > 0))
-            else:
-                cand = where[(flat_t[where] <= self.config.surface_band) & (flat_w[where] > 0)]
-            cand = cand[self._dynamic[sem.label.reshape(-1)[cand]]]
+            cand = np.flatnonzero((flat_t <= self.config.surface_band) & (flat_w > 0))
+            # A person's or animal's voxels: their labelled surface, and the unlabelled inside to
+            # which the last occupancy gave their group (it is out of view when they stand close:
+            # above the camera's view, it would outlive them, kept by a surface still in view).
+            labels = sem.label.reshape(-1)[cand]
+            body = self._dynamic[labels]
+            groups = self._groups
+            if groups is not None and self.volume is not None and (groups[1] == self.volume.origin_index).all():
+                moving = np.zeros(256, bool)
+                moving[self.label_to_group[np.flatnonzero(self._dynamic)]] = True
+                moving[0] = False
+                body |= (labels == NO_LABEL) & moving[groups[0].reshape(-1)[cand]]
+            cand = cand[body]
             if cap is not None and (tsdf is self.present or not len(self.keyframes)):
                 # running means only: the keyframes' sums must stay exactly removable
                 flat_w[cand] = np.minimum(flat_w[cand], np.float32(cap))
             cand = cand[tsdf.hit.reshape(-1)[cand] < oldest]
+            if keep is not None:
+                cand = cand[~keep.reshape(-1)[cand // tsdf.tsdf.shape[2]]]
             stale = np.unravel_index(cand, tsdf.tsdf.shape)
             k = int(cand.size)
             if k:
@@ -393,10 +405,13 @@ class Mapper:
         c = self.config
         self.decay()
         tsdf, semantic = self.read = self.layers()
-        return semantic_occupancy(tsdf, semantic, self.label_to_group, c.min_weight, c.surface_band,
-                                  self.unknown_group_id if c.unknown_is_occupied else 0,
-                                  interior=c.obstacle_interior, fill_steps=c.fill_steps,
-                                  support_steps=c.support_steps)
+        groups = semantic_occupancy(tsdf, semantic, self.label_to_group, c.min_weight, c.surface_band,
+                                    self.unknown_group_id if c.unknown_is_occupied else 0,
+                                    interior=c.obstacle_interior, fill_steps=c.fill_steps,
+                                    support_steps=c.support_steps)
+        if self.volume is not None:
+            self._groups = (groups, self.volume.origin_index.copy())
+        return groups
 
     def band_indices(self) -> tuple[int, int, float]:
         """z-voxel range [k_lo, k_hi) whose centres lie in the height band, and the slice's z."""

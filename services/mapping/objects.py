@@ -217,7 +217,6 @@ class Track:
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     history: deque[tuple[int, float, float]] = field(default_factory=deque)  # (stamp, x, y)
     seen_ms: int | None = None  # the newest sighting of its footprint (``Detection.seen_ms``)
-    released: bool = False  # its footprint was handed to the map to forget (``departed``)
 
 
 class ObjectTracker:
@@ -228,6 +227,9 @@ class ObjectTracker:
         self.tracks: list[Track] = []
         self.stamp_ns = 0
         self.now_ms: int | None = None  # the map's clock at the last update (``Mapper.now_ms``)
+        # Where people and animals were last seen standing: id → (position, radius, seen_ms), kept
+        # for ``dynamic_persist_s`` whether or not the track lives on (``protected``).
+        self.standing: dict[int, tuple[np.ndarray, float, int | None]] = {}
         self._next_id = 0
 
     @classmethod
@@ -245,6 +247,7 @@ class ObjectTracker:
     def reset(self) -> None:
         """Forget every track (ids keep counting up: never reused by one publisher)."""
         self.tracks.clear()
+        self.standing.clear()
         self.stamp_ns = 0
         self.now_ms = None
 
@@ -302,6 +305,15 @@ class ObjectTracker:
                 tr.history.append((stamp_ns, float(d.position[0]), float(d.position[1])))
                 self._next_id += 1
                 self.tracks.append(tr)
+        for tr in self.tracks:
+            if tr.last_ns == stamp_ns:  # seen in this update
+                if tr.velocity.any():
+                    self.standing.pop(tr.id, None)
+                else:
+                    self.standing[tr.id] = (tr.position.copy(), tr.radius, tr.seen_ms)
+        if now_ms is not None:
+            oldest = now_ms - round(p.dynamic_persist_s * 1e3)
+            self.standing = {k: v for k, v in self.standing.items() if v[2] is None or v[2] >= oldest}
         expire_ns = p.object_expire_s * 1e9
         self.tracks = [t for t in self.tracks if stamp_ns - t.last_ns <= expire_ns]
         return self.objects(label_to_group)
@@ -309,7 +321,7 @@ class ObjectTracker:
     def _observe(self, tr: Track, d: Detection, stamp_ns: int) -> None:
         p = self.params
         tr.position, tr.radius, tr.last_ns = d.position.copy(), d.radius, stamp_ns
-        tr.seen_ms, tr.released = d.seen_ms, False
+        tr.seen_ms = d.seen_ms
         h = tr.history
         h.append((stamp_ns, float(d.position[0]), float(d.position[1])))
         while h and stamp_ns - h[0][0] > p.object_window_s * 1e9:
@@ -331,20 +343,19 @@ class ObjectTracker:
             v *= p.object_max_speed / speed
         tr.velocity = np.array([v[0], v[1], 0.0])
 
-    def departed(self) -> list[tuple[np.ndarray, float]]:
-        """Footprints (position, radius) of tracks last seen walking (speed over ``object_deadband``)
-        and unseen for ``dynamic_moving_persist_s`` on the map's clock: the map holds where they
-        were, not where they are (``Mapper.forget``). Each is handed over once per sighting."""
-        if self.now_ms is None:
-            return []
-        oldest = self.now_ms - round(self.params.dynamic_moving_persist_s * 1e3)
-        out = []
-        for tr in self.tracks:
-            if tr.released or tr.seen_ms is None or tr.seen_ms >= oldest or not tr.velocity.any():
-                continue
-            tr.released = True
-            out.append((tr.position.copy(), tr.radius))
-        return out
+    def protected(self) -> list[tuple[np.ndarray, float]]:
+        """Footprints (position, radius) the map must keep people and animals in for
+        ``dynamic_persist_s`` (``Mapper.forget`` forgets their voxels elsewhere after
+        ``dynamic_moving_persist_s``): where each was last seen standing (a track too new for a
+        velocity counts as standing), and where each track seen within ``dynamic_moving_persist_s``
+        is. A walker who left the view, and the place a person stood before walking off, are not."""
+        out = {k: (pos.copy(), radius) for k, (pos, radius, _) in self.standing.items()}
+        if self.now_ms is not None:
+            oldest = self.now_ms - round(self.params.dynamic_moving_persist_s * 1e3)
+            for tr in self.tracks:
+                if tr.seen_ms is None or tr.seen_ms >= oldest:
+                    out[tr.id] = (tr.position.copy(), tr.radius)
+        return list(out.values())
 
     def objects(self, label_to_group: np.ndarray | None = None) -> list[TrackedObject]:
         """The tracks as messages, at the tracker's stamp; ``label_to_group`` gives their risk group."""

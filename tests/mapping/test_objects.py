@@ -368,3 +368,44 @@ def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero
         obj = only(tracker.update_map(mapper, update.occupancy))
         assert obj.label == PERSON and obj.id == 0 and obj.velocity == (0.0, 0.0, 0.0)
         assert 0.8 <= obj.position[0] <= 1.3 and -0.75 <= obj.position[1] <= -0.35  # the box: x 0.8–1.0, y −0.7–−0.4
+
+
+def test_protected_keeps_where_people_stand_and_who_is_seen_not_where_walkers_were() -> None:
+    """``ObjectTracker.protected`` (what ``Mapper.forget`` keeps): a person last seen standing stays
+    protected for ``dynamic_persist_s`` after their track expired; a walker who stopped being seen
+    is not, after ``dynamic_moving_persist_s``; where someone stood before walking off is not."""
+    tracker = ObjectTracker()
+    p = tracker.params
+    T, Tw = round(p.dynamic_persist_s * 1e3), round(p.dynamic_moving_persist_s * 1e3)
+
+    def seen(d: Detection, ms: int) -> Detection:
+        d.seen_ms = ms
+        return d
+
+    stand = Scene().box((0.0, 0.0), (0.3, 0.45), 0.0, PERSON)
+    for n in range(5):  # stands, seen
+        tracker.update(10**18 + n * STEP_NS, [seen(d, 100 * n) for d in stand.detect()], LUT, 100 * n)
+    assert len(tracker.protected()) == 1
+    t = 400
+    while t < 400 + T - 100:  # out of view: the footprint no frame sees (the same seen_ms)
+        t += 100
+        tracker.update(10**18 + t * 10**6, [seen(d, 400) for d in stand.detect()], LUT, t)
+    assert not tracker.tracks or tracker.tracks[0].seen_ms == 400  # no sighting
+    (pos, _), = tracker.protected()
+    assert abs(pos[0]) < 0.1 and abs(pos[1]) < 0.1
+    tracker.update(10**18 + (400 + T + 100) * 10**6, [], LUT, 400 + T + 100)
+    assert tracker.protected() == []
+    # a walker, seen, then unseen: protected while seen, not T_w after
+    walker = ObjectTracker()
+    t = 0
+    for n in range(8):
+        t = 100 * n
+        s = Scene().box((0.12 * n, 0.0), (0.3, 0.45), 0.0, PERSON)
+        walker.update(10**18 + t * 10**6, [seen(d, t) for d in s.detect()], LUT, t)
+    assert walker.tracks[0].velocity.any() and len(walker.protected()) == 1
+    assert walker.standing == {}  # it stood in its first frames: that memory went when it walked
+    last = t
+    while t < last + Tw + 100:
+        t += 100
+        walker.update(10**18 + t * 10**6, [seen(d, last) for d in s.detect()], LUT, t)
+    assert walker.protected() == []
