@@ -292,6 +292,10 @@ class ObjectParams(BaseModel):
     object_deadband: NonNeg = 0.1
     """Speeds below this (m/s) read zero: a static person's footprint jitter (a voxel over the window
     is 0.1 m/s) is not motion, so a static scene has ∂h/∂t = 0."""
+    object_body_radius: Pos = 0.4
+    """What ``ObjectTracker.protected`` keeps around a person or animal (m, before ``object_gate``)
+    at most: a footprint wider than a body (1.6 m was seen) is a person joined with the trail or
+    the ghost the map still holds, which must not be kept for ``dynamic_persist_s``."""
     object_expire_s: Pos = 1.0
     """A track unobserved for longer than this (s) is dropped; until then it is published with its
     last position and velocity and a growing ``age_ms``."""

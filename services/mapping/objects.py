@@ -344,17 +344,18 @@ class ObjectTracker:
         tr.velocity = np.array([v[0], v[1], 0.0])
 
     def protected(self) -> list[tuple[np.ndarray, float]]:
-        """Footprints (position, radius) the map must keep people and animals in for
+        """Footprints (position, radius ≤ ``object_body_radius``) the map must keep people and animals in for
         ``dynamic_persist_s`` (``Mapper.forget`` forgets their voxels elsewhere after
         ``dynamic_moving_persist_s``): where each was last seen standing (a track too new for a
         velocity counts as standing), and where each track seen within ``dynamic_moving_persist_s``
         is. A walker who left the view, and the place a person stood before walking off, are not."""
-        out = {k: (pos.copy(), radius) for k, (pos, radius, _) in self.standing.items()}
+        body = self.params.object_body_radius
+        out = {k: (pos.copy(), min(radius, body)) for k, (pos, radius, _) in self.standing.items()}
         if self.now_ms is not None:
             oldest = self.now_ms - round(self.params.dynamic_moving_persist_s * 1e3)
             for tr in self.tracks:
                 if tr.seen_ms is None or tr.seen_ms >= oldest:
-                    out[tr.id] = (tr.position.copy(), tr.radius)
+                    out[tr.id] = (tr.position.copy(), min(tr.radius, body))
         return list(out.values())
 
     def objects(self, label_to_group: np.ndarray | None = None) -> list[TrackedObject]:
