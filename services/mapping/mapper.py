@@ -134,6 +134,8 @@ class Mapper:
         self.decayed_voxels = 0
         self.forgotten_voxels = 0  # walkers' voxels cleared by ``forget``
         self._groups: tuple[np.ndarray, np.ndarray] | None = None  # the last occupancy, at its origin index
+        #: where the tracker keeps people for T (``ObjectTracker.protected``; ``decay``); None: no tracker
+        self.protected: list[tuple[np.ndarray, float]] | None = None
         self._dynamic = np.zeros(NO_LABEL + 1, bool)
         for name in c.dynamic_labels:
             self._dynamic[ade20k.index(name)] = True
@@ -259,38 +261,32 @@ class Mapper:
 
     def decay(self) -> int:
         """Clear people's and animals' voxels no current frame has seen at a surface for
-        ``dynamic_persist_s`` (module doc); at most every 0.1 s of frame time. Returns the count."""
+        ``dynamic_persist_s`` (module doc), or for ``dynamic_moving_persist_s`` outside the
+        vertical cylinders ``protected`` (set by the node from ``ObjectTracker.protected``: where
+        people stand or are seen now; None: no tracker, T everywhere); cap the weight of the rest
+        at ``dynamic_max_weight``. At most every 0.1 s of frame time. Returns the count."""
         if self.now_ms - self._decayed_ms < 100:
             return 0
         self._decayed_ms = self.now_ms
-        oldest = self.now_ms - round(self.config.dynamic_persist_s * 1e3)
-        n = self._forget(oldest, None, self.config.dynamic_max_weight)
+        c = self.config
+        oldest = self.now_ms - round(c.dynamic_persist_s * 1e3)
+        gone = self.now_ms - round(c.dynamic_moving_persist_s * 1e3) if self.protected is not None else None
+        n, forgotten = self._forget(oldest, gone, self.protected, c.dynamic_max_weight)
         self.decayed_voxels += n
+        self.forgotten_voxels += forgotten
         return n
 
-    def forget(self, protected: list[tuple[np.ndarray, float]]) -> int:
-        """Clear people's and animals' voxels that no current frame has seen at a surface for
-        ``dynamic_moving_persist_s``, outside the vertical cylinders ``protected`` ((x, y, …) centre,
-        radius in m, each grown by ``object_gate``: ``ObjectTracker.protected``, where people stand
-        or are seen now). Returns the count."""
-        if self.volume is None:
-            return 0
-        oldest = self.now_ms - round(self.config.dynamic_moving_persist_s * 1e3)
-        n = self._forget(oldest, protected)
-        self.forgotten_voxels += n
-        return n
-
-    def _forget(self, oldest: int, protected: list[tuple[np.ndarray, float]] | None,
-                cap: float | None = None) -> int:
-        """Clear people's and animals' obstacle voxels last hit before ``oldest`` (ms), in both
-        layers; only outside the ``protected`` cylinders when given; cap the others' weight at
-        ``cap``. Free space is kept."""
-        n = 0
+    def _forget(self, oldest: int, gone: int | None, protected: list[tuple[np.ndarray, float]] | None,
+                cap: float | None = None) -> tuple[int, int]:
+        """Clear people's and animals' obstacle voxels last hit before ``oldest`` (ms), or before
+        ``gone`` outside the ``protected`` cylinders, in both layers; cap the others' weight at
+        ``cap``. Free space is kept. Returns (voxels cleared, of which for ``gone``)."""
+        n = forgotten = 0
         layers = [(self.tsdf, self.semantic)]
         if self.present is not None and self.present_semantic is not None:
             layers.append((self.present, self.present_semantic))
         keep = None
-        if protected:
+        if gone is not None and protected:
             vol = self.volume
             assert vol is not None
             nx, ny, _ = vol.shape
@@ -322,9 +318,15 @@ class Mapper:
             if cap is not None and (tsdf is self.present or not len(self.keyframes)):
                 # running means only: the keyframes' sums must stay exactly removable
                 flat_w[cand] = np.minimum(flat_w[cand], np.float32(cap))
-            cand = cand[tsdf.hit.reshape(-1)[cand] < oldest]
-            if keep is not None:
-                cand = cand[~keep.reshape(-1)[cand // tsdf.tsdf.shape[2]]]
+            hit = tsdf.hit.reshape(-1)[cand]
+            if gone is None:
+                cand = cand[hit < oldest]
+            else:
+                away = hit < gone
+                if keep is not None:
+                    away &= ~keep.reshape(-1)[cand // tsdf.tsdf.shape[2]]
+                forgotten += int((away & (hit >= oldest)).sum())
+                cand = cand[(hit < oldest) | away]
             stale = np.unravel_index(cand, tsdf.tsdf.shape)
             k = int(cand.size)
             if k:
@@ -337,7 +339,7 @@ class Mapper:
                 n += k
         if n:
             self.dirty = True
-        return n
+        return n, forgotten
 
     def layers(self) -> tuple[TsdfLayer, SemanticLayer]:
         """What the occupancy reads: the keyframes' TSDF, overlaid by the present layer where the

@@ -161,7 +161,7 @@ class MappingNode:
             return
         t0 = time.perf_counter()
         objects = self.tracker.update_map(self.mapper, update.occupancy)
-        self.mapper.forget(self.tracker.protected())  # shows in the next ESDF
+        self.mapper.protected = self.tracker.protected()  # the next decay forgets the rest (T_w)
         self.node.publish(self.node.keys.objects, TrackedObjects(header=update.primary.header.model_copy(),
                                                                  objects=objects))
         self.node.stats.update(objects=len(objects), objects_ms=(time.perf_counter() - t0) * 1e3)

@@ -50,7 +50,7 @@ class Feed:
         update = self.m.update_esdf()
         if self.tracker is not None and update is not None and update.occupancy is not None:
             self.tracker.update_map(self.m, update.occupancy)
-            self.m.forget(self.tracker.protected())
+            self.m.protected = self.tracker.protected()
 
     def at(self, x: float, y: float = 0.0) -> tuple[float, int]:
         s = self.m.query(np.array([[x, y, 0.3]]))
