@@ -140,7 +140,8 @@ class QpParams(BaseModel):
     (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
     ``backend``: ``numba`` runs each step on an ``EsdfField`` as one compiled call
     (``compiled``: same results), ``numpy`` the plain path, ``auto`` the compiled one when numba
-    is installed and the active-set QP is in use.
+    is installed and the active-set QP is in use. A core parameter, not a node setting
+    (``REFERENCE_IMPLEMENTATIONS``): the node always runs ``auto``.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -154,6 +155,16 @@ class QpParams(BaseModel):
     interpolation: Interpolation = "bspline_smooth"
     slack: bool = True
     backend: Literal["auto", "numba", "numpy"] = "auto"
+
+
+#: ``FilterConfig`` fields that choose a reference implementation, kept so the tests and the bench
+#: can compare against it: core parameters (``FilterConfig(backend="numpy")``), not node settings
+#: (``FilterSettings.REFERENCE_ONLY``: setting one is an error saying this), as the mapping's are.
+REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
+    "backend": "the numpy step is the compiled step's test reference and the bench's comparison "
+               "(FilterConfig(backend='numpy')); the node runs the compiled step whenever numba is installed "
+               "and the active-set QP is in use (solver), the numpy one otherwise",
+}
 
 
 class MotionParams(BaseModel):
