@@ -23,6 +23,10 @@ from pathlib import Path
 
 import pytest
 
+# One xdist worker runs the whole module (``make check``: ``--dist loadgroup``):
+# the copied package tree and grimp's cache of it are built once per worker.
+pytestmark = pytest.mark.xdist_group("test_layers")
+
 ROOT = Path(__file__).resolve().parents[2]
 PYPROJECT = ROOT / "pyproject.toml"
 #: repository folder → where it sits in the ``riskfield`` package (as setup.py maps it)
