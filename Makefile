@@ -15,10 +15,14 @@ test: setup
 	.venv/bin/ruff check .
 	.venv/bin/python -m pytest -q -p no:cacheprovider
 
-# The development loop: lint plus every test not marked `slow` (under 3 minutes here).
+# The development loop: lint plus every test not marked `slow` (under 3 minutes here), on CHECK_JOBS
+# pytest-xdist workers (each its own session router on a free port; a module whose fixtures are costly
+# stays on one worker, pytest.mark.xdist_group). Not `make test`: the slow tests' wall-clock bounds are
+# for one test at a time.
+CHECK_JOBS ?= 2
 check: setup
 	.venv/bin/ruff check .
-	.venv/bin/python -m pytest -q -p no:cacheprovider -m "not slow"
+	.venv/bin/python -m pytest -q -p no:cacheprovider -m "not slow" -n $(CHECK_JOBS) --dist loadgroup
 
 lint: setup
 	.venv/bin/ruff check .

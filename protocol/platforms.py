@@ -2,7 +2,8 @@
 
 Everything that models a LIMO reads ``LIMO`` from here: the serial bridge's command limits
 (``edge/limo/kinematics.LimoLimits``), the chassis emulator (``edge/limo/emulator``), the
-simulator's LIMO models (``services/simulator/robots``) and the safety filter's footprint. It
+simulator's LIMO models (``services/simulator/robots``) and the safety filter's unicycle (its
+footprint and input bounds, ``services/safety_filter/config``). It
 lives in the wire-contract package because both ``edge/`` and ``services/`` may import it, and an
 external client modelling the robot can too (pydantic only).
 
@@ -19,7 +20,9 @@ Sources, and which value won where the copies disagreed:
   differential ω could reach 2·1.0/0.172 ≈ 11.6 rad/s). The bridge's 2.0 wins over the
   simulator's 2.5: it is what the real robot obeys, and the filter plans with 2.0 too.
 * acceleration 1.5 m/s², yaw acceleration 6 rad/s²: no datasheet figure either; the simulator's
-  gentle first-order actuator for a 4.2 kg robot. A real unit should be measured.
+  gentle first-order actuator for a 4.2 kg robot. A real unit should be measured. The filter's
+  unicycle assumed 3.0 m/s² of deceleration; it now plans with these 1.5 (its gain cap 2 a / v
+  halves, still above every default risk group's gain).
 """
 
 from __future__ import annotations

@@ -48,24 +48,16 @@ longer be subtracted.
 
 from __future__ import annotations
 
-import time
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from riskfield.protocol import PerceptionFrame
-
 from .config import MapperConfig
 from .layers import NO_LABEL, SemanticLayer, TsdfLayer
-from .pointmap import check_pointmap, check_pose
 from .semantic_integrator import SemanticIntegrator
 from .tsdf_integrator import TsdfIntegrator
 from .volume import Volume, shift_array
-
-if TYPE_CHECKING:  # the mapper owns a KeyframeMap; no import cycle at run time
-    from .mapper import FrameResult, Mapper
 
 NEW, UPDATE, TRACKING = "keyframe_new", "keyframe_update", "tracking"
 LABEL_SLOTS = 4
@@ -239,7 +231,10 @@ class ContributionIntegrator:
 
 
 class KeyframeMap:
-    """Per-keyframe contributions of the mapper's TSDF, and the protocol's three message kinds."""
+    """Per-keyframe contributions of the mapper's TSDF, and the protocol's three message kinds.
+
+    The bookkeeping only: the ``Mapper`` owns one, hands it the layers to change and applies what it
+    returns (a re-pose clears its present layer), so this module knows no mapper."""
 
     def __init__(self, config: MapperConfig, max_keyframes: int = 512, max_bytes: int = 512 * 2**20):
         if max_keyframes < 1 or max_bytes < 1:
@@ -257,51 +252,44 @@ class KeyframeMap:
     def __len__(self) -> int:
         return len(self.records)
 
-    def integrate_frame(self, mapper: Mapper, frame: PerceptionFrame) -> FrameResult:
-        from .mapper import FrameResult
-
-        t0 = time.perf_counter()
-        kind, kid = frame.kind, int(frame.keyframe_id)
-        check_pose(frame.T_WC)
-        check_pointmap(frame.points, frame.confidence, frame.labels, self.config.max_pixels)
-        shifted = False
-        if mapper.robot_position is None:
-            shifted = mapper._follow(np.asarray(frame.T_WC, dtype=np.float64)[:3, 3])
-        assert mapper.volume is not None
-        T_WC = np.asarray(frame.T_WC, dtype=np.float64)
-        stamp = int(frame.header.stamp_ns)
-        rays = votes = 0
-        current = kind != UPDATE  # new keyframes and tracked frames show the camera's present view
+    def admit(self, kind: str | None, kid: int) -> bool:
+        """Does a frame of ``kind`` for keyframe ``kid`` change the keyframes' contributions? An
+        update of a frozen keyframe does not (it could no longer be subtracted): counted, ignored."""
         if kind == UPDATE and kid in self.frozen:
             self.counts["frozen_updates"] += 1
-        elif kind in (NEW, UPDATE):
-            now = mapper.clock(stamp or time.time_ns())
-            old = self.records.pop(kid, None) if kind == UPDATE else None
-            if old is not None:
-                self.nbytes -= old.nbytes
-                self.integrator.apply(mapper.volume, mapper.tsdf, old, -1.0, mapper.semantic)
-                if self._reposed(self.poses[kid], T_WC, mapper.volume.voxel_size):
-                    mapper.clear_present()
-            elif kind == NEW and kid in self.records:  # an id reused (a restarted sender): keep both
-                self.nbytes -= self.records.pop(kid).nbytes
-            if kind == NEW or kid not in self.seen_ms:
-                self.seen_ms[kid] = now
-            contrib, rays, votes = self.integrator.contribution(mapper.volume, frame.points, frame.confidence,
-                                                                frame.labels, frame.T_WC)
-            self.integrator.apply(mapper.volume, mapper.tsdf, contrib, +1.0, mapper.semantic, self.seen_ms[kid])
-            self.records[kid] = contrib
-            self.poses[kid] = T_WC.copy()
-            self.frozen.discard(kid)
-            self.nbytes += contrib.nbytes
-            self._bound()
-            mapper.dirty = True
-            if kind == UPDATE:
-                mapper.frames += 1
-        if current:
-            rays, votes = mapper.integrate_present(frame)
-            mapper.changed(stamp if rays > 0 else None, frame.header.frame_id)
+            return False
+        return kind in (NEW, UPDATE)
+
+    def integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer, kind: str, kid: int,
+                  points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray,
+                  now_ms: int) -> tuple[int, int, bool]:
+        """A ``keyframe_new`` or ``keyframe_update`` (one ``admit`` let through) into the mapper's
+        ``tsdf``/``semantic``: the keyframe's last contribution out, the new one in. Returns the
+        new contribution's rays and votes, and whether the keyframe was re-posed (its pose moved
+        over ``repose_tolerance``: the caller's present layer is then in an old frame of reference)."""
+        pose = np.asarray(T_WC, dtype=np.float64)
+        reposed = False
+        old = self.records.pop(kid, None) if kind == UPDATE else None
+        if old is not None:
+            self.nbytes -= old.nbytes
+            self.integrator.apply(volume, tsdf, old, -1.0, semantic)
+            reposed = self._reposed(self.poses[kid], pose, volume.voxel_size)
+        elif kind == NEW and kid in self.records:  # an id reused (a restarted sender): keep both
+            self.nbytes -= self.records.pop(kid).nbytes
+        if kind == NEW or kid not in self.seen_ms:
+            self.seen_ms[kid] = now_ms
+        contrib, rays, votes = self.integrator.contribution(volume, points, confidence, labels, T_WC)
+        self.integrator.apply(volume, tsdf, contrib, +1.0, semantic, self.seen_ms[kid])
+        self.records[kid] = contrib
+        self.poses[kid] = pose.copy()
+        self.frozen.discard(kid)
+        self.nbytes += contrib.nbytes
+        self._bound()
+        return rays, votes, reposed
+
+    def count(self, kind: str | None) -> None:
+        """One more frame of ``kind`` seen (anything that is no keyframe counts as tracking)."""
         self.counts[kind if kind in self.counts else TRACKING] += 1
-        return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
 
     def _reposed(self, before: np.ndarray, after: np.ndarray, voxel_size: float) -> bool:
         """Did a keyframe's pose move enough to re-pose the world (``repose_tolerance``)?"""

@@ -60,7 +60,7 @@ from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig, ad
 from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import MapperConfig
 from .esdf_integrator import EsdfIntegrator
-from .keyframes import KeyframeMap
+from .keyframes import NEW, UPDATE, KeyframeMap
 from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
@@ -194,17 +194,22 @@ class Mapper:
         Raises ``FrameRejected`` (nothing changed) for a non-rigid pose or an absurd pointmap.
         """
         t0 = time.perf_counter()
-        check_pose(T_WC)
-        check_pointmap(points, confidence, labels, self.config.max_pixels)
-        shifted = False
-        if self.robot_position is None:
-            shifted = self._follow(np.asarray(T_WC, dtype=np.float64)[:3, 3])
+        shifted = self._accept(points, confidence, labels, T_WC)
         # An unstamped pointmap counts as data of now (its integration), never of a later rebuild.
         stamp = int(stamp_ns) if stamp_ns is not None else time.time_ns()
         rays, votes = self._integrate_into(self.tsdf, self.semantic, self._integrators(), points, confidence,
                                            labels, T_WC, intrinsics, self.clock(stamp or time.time_ns()))
         self.changed(stamp if rays > 0 else None, frame_id)
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
+
+    def _accept(self, points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray) -> bool:
+        """Check a frame (``FrameRejected``: nothing changed) and, before any robot state, follow
+        its camera. True if the volume shifted."""
+        check_pose(T_WC)
+        check_pointmap(points, confidence, labels, self.config.max_pixels)
+        if self.robot_position is None:
+            return self._follow(np.asarray(T_WC, dtype=np.float64)[:3, 3])
+        return False
 
     def _integrators(self) -> tuple[TsdfIntegrator, SemanticIntegrator, ProjectiveIntegrator]:
         return self.tsdf_integrator, self.semantic_integrator, self.projective_integrator
@@ -375,10 +380,35 @@ class Mapper:
 
     def integrate_frame(self, frame: PerceptionFrame) -> FrameResult:
         if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
-            return self.keyframes.integrate_frame(self, frame)
+            return self._integrate_keyframe_protocol(frame)
         return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,
                               stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id,
                               intrinsics=frame.intrinsics)
+
+    def _integrate_keyframe_protocol(self, frame: PerceptionFrame) -> FrameResult:
+        """A frame with ``kind``: the keyframe bookkeeping (``self.keyframes``) changes the TSDF's
+        contributions; a current frame (``keyframe_new``, ``tracking``) also reaches the present layer."""
+        t0 = time.perf_counter()
+        kind, kid = frame.kind, int(frame.keyframe_id)
+        shifted = self._accept(frame.points, frame.confidence, frame.labels, frame.T_WC)
+        assert self.volume is not None
+        stamp = int(frame.header.stamp_ns)
+        rays = votes = 0
+        if self.keyframes.admit(kind, kid):
+            assert kind in (NEW, UPDATE)
+            rays, votes, reposed = self.keyframes.integrate(
+                self.volume, self.tsdf, self.semantic, kind, kid, frame.points, frame.confidence, frame.labels,
+                frame.T_WC, self.clock(stamp or time.time_ns()))
+            if reposed:
+                self.clear_present()
+            self.dirty = True
+            if kind == UPDATE:
+                self.frames += 1
+        if kind != UPDATE:  # new keyframes and tracked frames show the camera's present view
+            rays, votes = self.integrate_present(frame)
+            self.changed(stamp if rays > 0 else None, frame.header.frame_id)
+        self.keyframes.count(kind)
+        return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel before serving, on a scratch volume,

@@ -17,7 +17,7 @@ filter reads an ESDF grid with the smoothing cubic B-spline of ``fields.spline``
 Modules, one concept each: ``state`` (robot state), ``barriers`` (dynamics, h, CBF rows per
 model, footprint disc cover), ``qp`` (exact active-set path and OSQP), ``filter`` (one filter
 step, gains per risk group, slack-relaxed fallback), ``compiled`` (the same step as one numba
-call on an ESDF grid; ``backend`` auto|numba|numpy), ``config`` (the core's settings),
+call on an ESDF grid; ``backend`` auto|numba|numpy, a core parameter), ``config`` (the core's settings),
 ``supervisor`` (timeouts and fail-safe reasons → messages). Node side: ``settings``,
 ``node`` (the runtime holds the risk file); the bench is ``riskfield bench filter``.
 """

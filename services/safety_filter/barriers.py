@@ -52,6 +52,8 @@ import math
 
 import numpy as np
 
+from riskfield.protocol.platforms import LIMO
+
 from ..fields import DistanceField, FieldSample
 from . import model as mdl
 from .model import ALPHA, ALPHA1, ALPHA2, MARGIN, ModelSpec
@@ -257,7 +259,7 @@ class UnicycleLookahead(BarrierModel):
     passed through. Points are body-frame (x fwd, y left)."""
 
     def __init__(self, lookahead: float = 0.25, radius: float = 0.15, lambda_v: float = 1.0,
-                 lambda_w: float = 0.5, v_max: float = 1.0, w_max: float = 2.0,
+                 lambda_w: float = 0.5, v_max: float = LIMO.max_linear, w_max: float = LIMO.max_angular,
                  extra_points: list[tuple[float, float, float]] | None = None,
                  body: tuple[np.ndarray, np.ndarray] | None = None):
         """``body``: (offsets, radii) of the footprint's discs, after the look-ahead point (the

@@ -16,6 +16,8 @@ from typing import Annotated, Literal, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from riskfield.protocol.platforms import LIMO
+
 from ..fields.grid import Interpolation
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
 
@@ -27,8 +29,14 @@ ModelName = Literal["unicycle", "single2d", "single3d", "double3d"]
 P = TypeVar("P", bound=BaseModel)
 
 
-#: The AgileX LIMO's footprint (m), the unicycle model's default body.
-LIMO_LENGTH, LIMO_WIDTH = 0.322, 0.220
+#: The AgileX LIMO's footprint (m), the unicycle model's default body (``protocol.platforms.LIMO``).
+LIMO_LENGTH, LIMO_WIDTH = LIMO.length, LIMO.width
+
+#: The input bounds a model defaults to where the configuration sets none, over ``BoundsParams``'
+#: (a generic robot's): the unicycle is the LIMO, whose limits live in ``protocol.platforms``.
+MODEL_BOUNDS: dict[str, dict[str, float]] = {
+    "unicycle": {"v_max": LIMO.max_linear, "w_max": LIMO.max_angular, "a_max": LIMO.max_accel},
+}
 
 
 class Footprint(BaseModel):
@@ -90,7 +98,11 @@ class BoundsParams(BaseModel):
     """The input box. Bounds are symmetric: |v| ≤ v_max (per axis for single integrators),
     |ω| ≤ w_max, |v_z| ≤ vz_max, |a_i| ≤ a_max. For velocity-controlled models ``a_max`` is the
     platform's deceleration: it caps the first-order gains at 2 a_max / v_point_max so the robot
-    can shed any speed the CBF allows within h (``barriers``)."""
+    can shed any speed the CBF allows within h (``barriers``).
+
+    The defaults here are a generic robot's; a model of a real platform takes that platform's
+    limits instead where none is set (``MODEL_BOUNDS``: the ``unicycle`` is the LIMO, so 1 m/s,
+    2 rad/s and 1.5 m/s² from ``protocol.platforms.LIMO``)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -128,7 +140,8 @@ class QpParams(BaseModel):
     (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
     ``backend``: ``numba`` runs each step on an ``EsdfField`` as one compiled call
     (``compiled``: same results), ``numpy`` the plain path, ``auto`` the compiled one when numba
-    is installed and the active-set QP is in use.
+    is installed and the active-set QP is in use. A core parameter, not a node setting
+    (``REFERENCE_IMPLEMENTATIONS``): the node always runs ``auto``.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -142,6 +155,16 @@ class QpParams(BaseModel):
     interpolation: Interpolation = "bspline_smooth"
     slack: bool = True
     backend: Literal["auto", "numba", "numpy"] = "auto"
+
+
+#: ``FilterConfig`` fields that choose a reference implementation, kept so the tests and the bench
+#: can compare against it: core parameters (``FilterConfig(backend="numpy")``), not node settings
+#: (``FilterSettings.REFERENCE_ONLY``: setting one is an error saying this), as the mapping's are.
+REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
+    "backend": "the numpy step is the compiled step's test reference and the bench's comparison "
+               "(FilterConfig(backend='numpy')); the node runs the compiled step whenever numba is installed "
+               "and the active-set QP is in use (solver), the numpy one otherwise",
+}
 
 
 class MotionParams(BaseModel):
@@ -180,8 +203,18 @@ class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
     @classmethod
     def compose(cls, barrier: BarrierParams | None = None, bounds: BoundsParams | None = None,
                 qp: QpParams | None = None, motion: MotionParams | None = None) -> FilterConfig:
+        # Only what each part sets: a part's defaults are the composed config's, except the
+        # bounds a platform's model takes from the platform (``MODEL_BOUNDS``).
         parts = (barrier, bounds, qp, motion)
-        return cls.model_validate({k: v for p in parts if p is not None for k, v in p.model_dump().items()})
+        return cls.model_validate({k: v for p in parts if p is not None
+                                   for k, v in p.model_dump(exclude_unset=True).items()})
+
+    @model_validator(mode="after")
+    def _the_platforms_bounds(self) -> FilterConfig:
+        for key, value in MODEL_BOUNDS.get(self.model, {}).items():
+            if key not in self.model_fields_set:
+                setattr(self, key, value)
+        return self
 
     def part(self, params: type[P]) -> P:
         """One part's own struct, with this configuration's values."""

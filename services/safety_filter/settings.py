@@ -10,7 +10,7 @@ from typing import Annotated, Any, ClassVar
 from pydantic import Field, model_validator
 
 from ..runtime.settings import NodeSettings, read_config_file
-from .config import FilterConfig
+from .config import REFERENCE_IMPLEMENTATIONS, FilterConfig
 
 #: Named filter configurations shipped with the package (``presets/<name>.yaml``, a config file's
 #: ``safety-filter`` section): ``paper`` is the paper's teleoperation filter.
@@ -21,6 +21,7 @@ Seconds = Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)]
 
 class FilterSettings(NodeSettings, FilterConfig):
     SERVICE: ClassVar[str] = "safety-filter"
+    REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
 
     map_timeout_s: Seconds = 0.3
     state_timeout_s: Seconds = 0.3

@@ -27,6 +27,10 @@ from riskfield.services.runtime import SERVICES
 from riskfield.services.runtime.service import EXTRAS, ServiceUnavailable, build_settings, load_service
 from riskfield.services.runtime.settings import parse_overrides
 
+# One xdist worker runs the whole module (``make check``: ``--dist loadgroup``):
+# the resolved compose files and the secrets are made once per worker.
+pytestmark = pytest.mark.xdist_group("test_compose")
+
 REPO = Path(__file__).resolve().parents[2]
 COMPOSE = REPO / "docker-compose.yml"
 SECURE = REPO / "deploy" / "compose.secure.yml"

@@ -251,3 +251,18 @@ def test_a_reference_implementation_is_no_setting_and_the_error_says_what_to_use
         MappingSettings()
     env.delenv("RISKFIELD_ESDF_UPDATE")
     assert MappingSettings(esdf_incremental="wave").mapper_config().esdf_kernel == "numba"  # a real option stays
+
+
+def test_the_filters_numpy_step_is_no_setting_and_the_error_says_what_runs(env, tmp_path):
+    """The filter's ``backend`` chose an oracle: a core parameter now; the node runs ``auto``."""
+    from riskfield.services.safety_filter.config import FilterConfig
+
+    assert FilterConfig(backend="numpy").backend == "numpy"
+    assert FilterSettings().filter_config().backend == "auto"
+    with pytest.raises(UnknownSetting, match=r"'backend' is not a setting of safety-filter: the numpy step .*"
+                                             r"FilterConfig\(backend='numpy'\).*compiled step whenever numba"):
+        FilterSettings(backend="numpy")
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("safety-filter:\n  backend: numba\n")
+    with pytest.raises(UnknownSetting, match=r"'backend' \(section 'safety-filter' .*\) is not a setting"):
+        FilterSettings(config=cfg)

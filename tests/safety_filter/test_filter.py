@@ -223,6 +223,23 @@ def test_the_limo_footprint_protects_the_rear_by_default():
     assert res.intervening and res.u[0] == pytest.approx(-1.5 * (0.4 + rear_x - r - filt.delta), abs=1e-6)
 
 
+def test_the_unicycle_is_the_limo_and_takes_its_limits_from_the_platform():
+    """The LIMO's figures are written once (``protocol.platforms.LIMO``): the unicycle's body and
+    bounds default to them, the point models keep the generic bounds, a set bound always wins."""
+    from riskfield.protocol.platforms import LIMO
+    from riskfield.services.safety_filter.config import BoundsParams
+
+    limo = FilterConfig()
+    assert (limo.v_max, limo.w_max, limo.a_max) == (LIMO.max_linear, LIMO.max_angular, LIMO.max_accel)
+    assert (limo.body().length, limo.body().width) == (LIMO.length, LIMO.width)
+    assert limo.build_model().spec.hi.tolist() == [LIMO.max_linear, LIMO.max_angular]
+    generic = BoundsParams()
+    assert FilterConfig(model="double3d").a_max == generic.a_max != LIMO.max_accel
+    assert FilterConfig(a_max=2.5).a_max == 2.5 and FilterConfig(model="unicycle", w_max=1.0).a_max == LIMO.max_accel
+    assert FilterConfig.compose(bounds=BoundsParams(v_max=0.5)).a_max == LIMO.max_accel
+    assert FilterConfig.compose(bounds=BoundsParams(a_max=3.0)).a_max == 3.0
+
+
 def test_footprints_build_their_disc_covers_and_bad_ones_are_clear_errors():
     from pydantic import ValidationError
 
