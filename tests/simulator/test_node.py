@@ -155,6 +155,9 @@ def test_simulator_publishes_actors_stamped_like_the_image_and_starts_over_on_re
         forward = VelocityCommand(linear=(0.4, 0, 0), angular=(0, 0, 0), source="test")
         assert wait_until(lambda: (put(s, f"rf/{robot}/cmd/safe", forward),
                                    states.items[-1].position[0] > -1.2)[1], 10.0, period_s=0.05)
+        # No command in flight when it resets (cmd/safe and sim/reset are separate subscriptions: a
+        # late forward would drive the new world): the watchdog has stopped the robot first.
+        assert wait_until(lambda: abs(states.items[-1].linear_velocity[0]) < 1e-9, 10)
         put(s, f"rf/{robot}/sim/reset", b"")
         put(s, f"rf/{robot}/sim/reset", b"\xff\xfe not a scenario")
         assert wait_until(lambda: abs(states.items[-1].position[0] + 1.5) < 1e-9, 10)
