@@ -11,6 +11,7 @@ flat, so every setting keeps its one name (``--set robot_radius=0.2``, ``config.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal, TypeVar
 
 import numpy as np
@@ -82,8 +83,8 @@ class BarrierParams(BaseModel):
     footprint: Footprint | None = None
     barrier: Literal["braking", "hocbf"] = "braking"
     brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
-    brake_rate_length: Annotated[float, Field(gt=0)] = 0.02
-    brake_speed_floor: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 0.1
+    brake_rate_length: Annotated[float, Field(gt=0)] = math.inf
+    brake_speed_floor: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
 
 
 class BoundsParams(BaseModel):
