@@ -327,9 +327,10 @@ class DoubleIntegrator(BarrierModel):
     the row ḣ_b ≥ -k₁ h_b below is, times k₂, the paper's HOCBF ḧ + α₁ ḣ + α₂ h ≥ 0. Above s₀ the
     parabola keeps the braking distance within the bounds. At h_b = 0 the row still holds for
     u = a_max ∇d/|∇d| when |∇d| = 1 and vᵀ∇²d v ≥ 0 (c = max(s, s₀)/a_b: c a_max ≥ s because
-    a_max ≥ a_b and s ≤ max(s, s₀)), so the paper's filter is kept where it is feasible and
-    braking takes over where it is not. Outside the safe set with h > 0 the row recovers at the
-    HOCBF's rate γ = (1 + 2|h_b|/h)/c (``model.point_row``: ψ₁ = h_b/c, k_fast = 1/c).
+    a_max ≥ a_b and s ≤ max(s, s₀)): from its safe set the rows stay feasible within the
+    bounds, which eq. 14 as written (``hocbf``, whose safe set admits any speed) cannot promise.
+    Outside the safe set the row recovers at the HOCBF's rate γ = (1 + 2|h_b|/max(h, 1 mm))/c
+    (``model.point_row``: ψ₁ = h_b/c, k_fast = 1/c); with a fixed floor at κ, as before issue 25.
 
     A fixed speed floor s₀ (``brake_speed_floor``) keeps the input's coefficient c ≥ s₀/a_b: with
     φ = s²/(2a_b) alone, c vanishes at rest and a robot at rest just inside its barrier (a
