@@ -138,7 +138,7 @@ def _previous_sections(text: str) -> dict[str, str]:
     out: dict[str, str] = {}
     parts = re.split(r"(?m)^(?=## )", text)
     for part in parts:
-        m = re.match(r"## `([^`]+)`", part)
+        m = re.match(r"## [^`\n]*`([^`]+)`", part)  # also "## Crowd: `command` (...)"
         if m:
             out[m.group(1)] = part.strip()
     return out
