@@ -204,6 +204,11 @@ class SafetyFilter:
             self._osqp = OsqpSolver(self.model.n, self.rows_max)
         return self._osqp
 
+    def gains_at(self, field: DistanceField, sample: FieldSample) -> np.ndarray:
+        """[α, α₁, α₂, margin] of each sample's risk group (``GainTable``) on ``field``."""
+        table = self.gains.for_groups(field.groups)
+        return table[np.minimum(sample.risk_group, table.shape[0] - 1)]
+
     def barrier(self, state: FilterState, field: DistanceField) -> tuple[float, int, bool]:
         """(h = d - r at the critical point, its risk group id, all points inside the map)."""
         sample = self.field_for(field).query(self.model.points(state))
@@ -278,8 +283,7 @@ class SafetyFilter:
         both = field.query(pts, hessian=model.needs_hessian)
         sample = _rows_of(both, slice(0, m))
         clearance = sample.distance - model.radius
-        table = self.gains.for_groups(field.groups)
-        gains = table[np.minimum(both.risk_group, table.shape[0] - 1)]
+        gains = self.gains_at(field, both)
         if self._first_order:
             gains = gains.copy()
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)

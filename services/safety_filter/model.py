@@ -69,7 +69,8 @@ DESC = Layout("Desc", [("lin", (3, "n")), ("ang", (3, "n")), ("passthrough", (3,
                        ("radii", ("m",)), ("weights", ("n",)), ("lo", ("n",)), ("hi", ("n",)),
                        ("brake", (4,))])
 _D = DESC.slot
-# The braking constants (DESC "brake"): a_b, the speed floor s₀, the rate length ℓ, a_max.
+# The braking constants (DESC "brake"): a_b, the speed floor s₀ (0: a_b / k₂ of each row's gains,
+# ``speed_floor``), the rate length ℓ, a_max.
 A_BRAKE, SPEED_FLOOR, RATE_LENGTH, A_MAX = 0, 1, 2, 3
 # Columns of a moving-object row (closing_speeds): centre at the map's stamp, velocity, radius,
 # the field's risk group id.
@@ -92,7 +93,8 @@ class ModelSpec:
     ``offsets`` (m × 3, body frame; world frame without attitude) and ``radii`` (m): the barrier
     points, h_i = d(p + R o_i) - r_i. ``weights``, ``lo``, ``hi`` (n): the QP's weights and box
     (the box contains 0: braking). ``barrier``: ``cbf`` for order 1; ``braking`` or ``hocbf``
-    for order 2 with the constants ``a_brake``, ``speed_floor``, ``rate_length``, ``a_max``.
+    for order 2 with the constants ``a_brake``, ``speed_floor`` (0: a_b / k₂ from each row's gains,
+    :func:`speed_floor`), ``rate_length``, ``a_max``.
     ``k_v``, ``dt``: order 2 tracks a desired velocity with u = k_v (v_des - v) and commands the
     velocity v + u dt. ``point_speed``: order 2's nominal largest point speed (velocity is a
     state there); ``w_max`` bounds the passed-through rates for the sampled-data margin.
@@ -305,14 +307,31 @@ def braking(approach, s0, a_brake):
 
 
 @jit
-def barrier_value(di, df, dl, hb, grad, vel, closing):
-    """The barrier the rows keep non-negative at one point, from hb = d - r - δ: hb itself, or for
-    the braking barrier hb - φ(s) with s the approach speed relative to the obstacle."""
+def speed_floor(brake, gain):
+    """The braking barrier's speed floor s₀ for a row with gains [α, α₁, α₂, ...]: the configured
+    one, or (configured 0) a_b / k₂ with k₂ the faster root of s² + α₁ s + α₂. Below s₀ the
+    braking distance is φ(s) = s / k₂ and h_b = h + ḣ / k₂ = ψ₁ / k₂: the row ḣ_b ≥ -k₁ h_b is then
+    the paper's HOCBF ḧ + α₁ ḣ + α₂ h ≥ 0 (``barriers.DoubleIntegrator``)."""
+    if brake[SPEED_FLOOR] > 0.0:
+        return brake[SPEED_FLOOR]
+    a1, a2 = gain[ALPHA1], gain[ALPHA2]
+    k_fast = 0.5 * (a1 + math.sqrt(max(a1 * a1 - 4 * a2, 0.0)))
+    return brake[A_BRAKE] / max(k_fast, 1e-9)
+
+
+@jit
+def barrier_value(di, df, dl, hb, grad, vel, closing, gain):
+    """The barrier whose non-negativity is the safe set at one point, from hb = d - r - δ: hb itself,
+    or for the braking barrier min(hb, h_b), h_b = hb - φ(s) with s the approach speed relative to
+    the obstacle (``gain``: the row's gains, which set the speed floor). The rows keep h_b ≥ 0; a
+    receding robot (s < 0) is credited φ(s) < 0, so h_b ≥ 0 alone would call a robot inside an
+    obstacle that backs out safe. With hb ≥ 0 as well it is: h falls only while s > 0, and then
+    hb ≥ φ(s) > 0 (``barriers.DoubleIntegrator``)."""
     if di[DescInts.BARRIER] != BRAKING:
         return hb
     brake = view1(df, dl, _D.brake)
     hdot = grad[0] * vel[0] + grad[1] * vel[1] + grad[2] * vel[2] - closing
-    return hb - braking(-hdot, brake[SPEED_FLOOR], brake[A_BRAKE])[0]
+    return min(hb, hb - braking(-hdot, speed_floor(brake, gain), brake[A_BRAKE])[0])
 
 
 @jit
@@ -327,7 +346,7 @@ def barriers(di, df, dl, dist, grad, vel, gains, closing, delta, margins, age, h
             hb[i] = hb[i] - gains[i, MARGIN]
         if closing[i] > 0.0:
             hb[i] = hb[i] - closing[i] * age
-        val = barrier_value(di, df, dl, hb[i], grad[i], vel, closing[i])
+        val = barrier_value(di, df, dl, hb[i], grad[i], vel, closing[i], gains[i])
         if val < best or i == 0:
             kbest, best = i, val
     return kbest
@@ -360,10 +379,19 @@ def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, closing, a_row
     disc = math.sqrt(max(a1 * a1 - 4 * a2, 0.0))
     if di[DescInts.BARRIER] == BRAKING:
         brake = view1(df, dl, _D.brake)
-        phi, cc = braking(-hdot, brake[SPEED_FLOOR], brake[A_BRAKE])
+        phi, cc = braking(-hdot, speed_floor(brake, gain), brake[A_BRAKE])
         hbrake = hb - phi
         kappa = 0.5 * (a1 - disc)
         rate = kappa * hbrake * (1.0 + max(hbrake, 0.0) / brake[RATE_LENGTH])  # α(h_b), DoubleIntegrator
+        if hbrake < 0.0 and brake[SPEED_FLOOR] <= 0.0:
+            # Outside the safe set (too fast for the clearance: a ridge crossed, the nearest obstacle
+            # changed, a point cloud's nearest point switched) with the speed floor a_b/k₂, where
+            # the barrier is the HOCBF: its recovery below with ψ₁ = h_b / c, k_fast = 1 / c, so h
+            # stays positive instead of h_b creeping back at κ while the robot slides on into the
+            # obstacle (on the sim point cloud of the safety benchmark 0.74 of the roll-outs
+            # collided with κ, 0.02 with this, as with ``hocbf``). A fixed floor keeps κ: the
+            # braking barrier as it was before issue 25.
+            rate = max(kappa, (1.0 + 2 * abs(hbrake) / max(hb, 1e-3)) / cc) * hbrake
         for j in range(di[DescInts.N]):
             a_row[j] = a_row[j] * cc
         return -rate - hdot - cc * curv

@@ -77,7 +77,7 @@ def can_stop(filt: SafetyFilter, field: AnalyticField, s: FilterState, whole: bo
     for part in field.shapes:
         ps = AnalyticField(part, field.groups).query(model.points(s), hessian=model.needs_hessian)
         hb = ps.distance - model.radius - filt.delta
-        if model.barrier(s, ps, hb)[b].min() < 0:
+        if model.barrier(s, ps, hb, gains=filt.gains_at(field, ps))[b].min() < 0:
             return False
     return True
 

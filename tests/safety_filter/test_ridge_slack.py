@@ -56,7 +56,9 @@ def test_the_class_k_function_is_the_linear_one_at_the_boundary() -> None:
     hb = np.array([1e-4])
     assert new.rows(s, sample, hb, GAINS, np.zeros(3))[1] == pytest.approx(
         lin.rows(s, sample, hb, GAINS, np.zeros(3))[1], abs=1e-6)
-    assert FilterConfig(model="double3d").build_model().rate_length == 0.02
+    # The default is the linear κ h_b (issue 25): a steeper rate far out brought the robot within
+    # millimetres of the map's surface, where any error of the map is a collision.
+    assert FilterConfig(model="double3d").build_model().rate_length == math.inf
     with pytest.raises(ValueError):
         DoubleIntegrator(0.15, brake_rate_length=0.0)
 
@@ -123,8 +125,12 @@ def test_crossing_a_ridge_the_predictive_rows_are_soft(backend: str) -> None:
                     [-1.0, -1.0, -0.5], [1.0, 1.0, 0.5], 0.05)
 
     def make(slack: bool) -> SafetyFilter:
+        # The braking barrier of the benchmark step (s₀ = 0.1 m/s, ℓ = 2 cm): under the default,
+        # whose speed floor a_b/k₂ makes it the paper's HOCBF at low speed, this state approaches
+        # too fast for its clearance and is outside the safe set.
         return SafetyFilter(FilterConfig(model="double3d", robot_radius=0.15, a_max=A_MAX, v_max=0.5, rate_hz=20,
-                                         slack=slack, backend=backend), risk)
+                                         slack=slack, backend=backend, brake_speed_floor=0.1,
+                                         brake_rate_length=0.02), risk)
 
     s = FilterState(np.array([-0.014, -0.245, 0.0]), velocity=np.array([0.176, 0.414, 0.0]))
     u_ref = 2.0 * (np.array([0.0, 0.5, 0.0]) - s.velocity)
@@ -139,4 +145,4 @@ def test_crossing_a_ridge_the_predictive_rows_are_soft(backend: str) -> None:
     gains = f.gains.for_groups(ff.groups)[sample.risk_group]
     a, b = f.model.rows(s, sample, hb, gains, np.zeros(3))
     assert np.all(a @ res.u >= b - 1e-7)
-    assert f.model.barrier(s, sample, hb).min() > 0  # inside the safe set: nothing to relax
+    assert f.model.barrier(s, sample, hb, gains=gains).min() > 0  # inside the safe set: nothing to relax

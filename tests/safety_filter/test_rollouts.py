@@ -60,7 +60,7 @@ def start_state(rng, filt: SafetyFilter, field, planar: bool, truth: AnalyticFie
             for part in truth.shapes:
                 ps = AnalyticField(part, truth.groups).query(model.points(s))
                 hb_part = ps.distance - model.radius - filt.delta
-                safe &= bool(model.barrier(s, ps, hb_part).min() >= 0)
+                safe &= bool(model.barrier(s, ps, hb_part, gains=filt.gains_at(truth, ps)).min() >= 0)
             if not safe:
                 continue
         return s
