@@ -149,6 +149,16 @@ def stale_modules(old: dict[str, str], new: dict[str, str], files: dict[str, Pat
     return out & set(files)
 
 
+def to_drop(old: dict[str, Any], now: dict[str, Any], files: dict[str, Path]) -> set[str]:
+    """The modules whose cache entries go, from the old stamp (``{}``: none) and the new one."""
+    if not old or any(old.get(k) != now[k] for k in now if k != "sources"):
+        # No stamp: what is cached was built from sources nobody recorded (a copied tree, a cache
+        # from before warmup), and numba would keep entries whose inlined callees changed. Another
+        # numba, Python or CPU: numba keys its entries by those anyway.
+        return set(files)
+    return stale_modules(old.get("sources", {}), now["sources"], files)
+
+
 def drop_cache(modules: Iterable[str], files: dict[str, Path]) -> int:
     """Delete numba's cache entries (``<file stem>.<kernel>-<line>.pyXY.nbi/.nbc``,
     ``CacheImpl.get_filename_base``) of ``modules``; how many files went."""
@@ -216,11 +226,8 @@ def warm_up(services: Sequence[str] | None = None, *, force: bool = False,
     if not todo:
         say(f"warmup: kernels of {', '.join(wanted)} are compiled (numba cache: {where})")
         return 0
-    if old and any(old.get(k) != now[k] for k in now):
-        if any(old.get(k) != now[k] for k in now if k != "sources"):
-            stale = set(files)  # another numba, Python or CPU: numba keys its entries by those anyway
-        else:
-            stale = stale_modules(old.get("sources", {}), now["sources"], files)
+    if not old or any(old.get(k) != now[k] for k in now):
+        stale = to_drop(old, now, files)
         dropped = drop_cache(stale, files)
         if dropped:
             say(f"warmup: dropped {dropped} cache file(s) of {len(stale)} changed module(s) and their importers")

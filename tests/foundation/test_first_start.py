@@ -19,7 +19,14 @@ import pytest
 
 from riskfield.services.runtime import SERVICES
 from riskfield.services.runtime.processes import ProcessRunner, client_session
-from riskfield.services.runtime.warmup import KERNEL_SERVICES, drop_cache, importers, stale_modules, warm_up
+from riskfield.services.runtime.warmup import (
+    KERNEL_SERVICES,
+    drop_cache,
+    importers,
+    stale_modules,
+    to_drop,
+    warm_up,
+)
 from riskfield.testing import StatusWatch
 
 REPO = Path(__file__).resolve().parents[2]
@@ -123,6 +130,18 @@ def test_stale_modules_follow_importers(tmp_path):
     assert stale_modules(old, {**old, "pkg.a": "h2"}, files) == {"pkg.a", "pkg.b", "pkg.c"}
     assert stale_modules(old, {**old, "pkg.d": "h2"}, files) == {"pkg.d"}
     assert stale_modules(old, old, files) == set()
+
+
+def test_a_cache_without_a_stamp_is_dropped_whole(tmp_path):
+    """A cache nobody stamped (a copied tree: its kernels inlined an older model.py) goes entirely;
+    a stamp that differs only in sources drops the changed modules and their importers."""
+    files = {m: tmp_path / f"{m.split('.')[-1]}.py" for m in ("pkg.a", "pkg.b")}
+    files["pkg.a"].write_text("X = 1\n")
+    files["pkg.b"].write_text("from pkg.a import X\n")
+    now = {"sources": {"pkg.a": "h2", "pkg.b": "h"}, "numba": "1"}
+    assert to_drop({}, now, files) == {"pkg.a", "pkg.b"}
+    assert to_drop({**now, "numba": "0"}, now, files) == {"pkg.a", "pkg.b"}
+    assert to_drop({**now, "sources": {"pkg.a": "h2", "pkg.b": "h0"}}, now, files) == {"pkg.b"}
 
 
 def test_drop_cache_removes_only_the_modules_entries(tmp_path, monkeypatch):
