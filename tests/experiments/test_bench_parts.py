@@ -111,3 +111,20 @@ def test_paced_filter_steps_are_timed_one_by_one() -> None:
     assert set(r) == {"step_p50", "step_p99", "wake_p50", "wake_p99", "wake_back_to_back_p50"}
     assert all(np.isfinite(v) and v > 0 for v in r.values())
     assert r["step_p99"] >= r["step_p50"] and r["wake_p99"] >= r["wake_p50"]
+
+
+def test_bench_mapping_runs_end_to_end_on_a_small_map(tmp_path) -> None:
+    """`riskfield bench mapping` at a toy size, without the node: every row is measured and the
+    summary written (a renamed timing key once broke its last line, after all the work)."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from riskfield.experiments.benches import mapping
+
+    out = tmp_path / "bm"
+    result = CliRunner().invoke(mapping.app, ["--node-seconds", "0", "--repeat", "2", "--frames", "4", "--width", "128",
+                                              "--height", "96", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["results"]["objects"]["median"] > 0 and summary["results"]["esdf3d_exact"]["median"] > 0

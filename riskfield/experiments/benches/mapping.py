@@ -445,8 +445,8 @@ def main(
     console.print(f"occupied voxels: {int((groups > 0).sum())}; dilation vs exact |Δd| near obstacles: "
                   f"max {margin_error.max():.3f} m, mean {margin_error.mean():.4f} m")
     console.print(f"objects: {len(tracked)} tracked ({', '.join(ade20k.CLASSES[o.label] for o in tracked)}) in "
-                  f"{results['objects']['median_ms']:.2f} ms median per map update, beside the ESDF's "
-                  f"{results['esdf3d_exact']['median_ms']:.2f} ms (3-D) and {results['esdf2d_exact']['median_ms']:.2f} "
+                  f"{results['objects']['median']:.2f} ms median per map update, beside the ESDF's "
+                  f"{results['esdf3d_exact']['median']:.2f} ms (3-D) and {results['esdf2d_exact']['median']:.2f} "
                   f"ms (2-D slice)")
     budget = 50.0
     for k in ("update_2d_total", "update_3d_total"):
