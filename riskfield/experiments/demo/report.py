@@ -9,26 +9,15 @@ saved run: ``riskfield demo --report-only --out DIR``. The metrics are the exper
   surface (open3d, at the body's heights) minus the robot radius; < 0 is a collision;
 - first intervention distance = that clearance when the safety filter first modifies the
   operator's command while the robot is heading at the object;
-- command latency = time from a ``cmd/ref`` sample to the next ``cmd/safe`` sample (both as
-  received by the recorder, so both Zenoh hops are included);
-- camera → ``cmd/safe`` latency = from a camera frame's stamp (carried by the ESDF built from it:
-  its ``header.stamp_ns`` is the newest integrated frame's, the image's stamp) to the first
-  ``cmd/safe`` received after that ESDF; ESDF content age = at each ``cmd/safe``, its receive time
-  minus the stamp of the newest ESDF received before it (the age of what the map shows, where the
-  filter reports the same content age as ``SafetyStatus.esdf_age_ms``, by its own clock); ESDF
-  arrival age = at each ``cmd/safe``, its receive time minus the receive time of the newest ESDF
-  before it (how long the filter has held the map). Stamps and receive times are both wall clock
-  of this machine;
+- command latency, camera → ``cmd/safe`` latency, ESDF content and arrival age, and the time per
+  stage (``pipeline_stages``): as defined in ``riskfield/experiments/latency.py``, where they are
+  computed; the nodes' own timings (render, perception, integration, ESDF) come from their
+  ``status/*`` snapshots;
 - people (``people_summary``): the simulator's ground truth of the walking people (``sim/actors``)
   against the robot's body, as ``riskfield bench crowd`` measures it (``riskfield.experiments.people``):
   the smallest clearance between the LIMO rectangle and a person's cylinder, contacts at fault (the
   robot moving towards the person) or the person's, and the ghost time after the crossing walker
-  left the robot's way (fail-safe brakes not counted);
-- per stage (``pipeline_stages``): a camera frame's stamp travels unchanged through the image,
-  ``perception/frame`` and the ESDF built from it; the time from the stamp to the first arrival
-  of each, and how many camera frames never reached it (perception or mapping skipped them as
-  superseded or rate-limited), locate where the content age is spent. The nodes' own timings
-  (render, perception, integration, ESDF) come from their ``status/*`` snapshots.
+  left the robot's way (fail-safe brakes not counted).
 """
 
 from __future__ import annotations
