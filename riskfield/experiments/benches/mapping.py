@@ -322,7 +322,7 @@ def main(
     width: int = 512,
     height: int = 384,
     pixel_stride: Annotated[int, typer.Option(help="Integrate every n-th pixel (default config: 2).")] = 2,
-    threads: Annotated[int, typer.Option(help="Threads of the EDT.")] = 2,
+    threads: Annotated[int, typer.Option(help="Threads of the EDT.")] = MapperConfig.model_fields["threads"].default,
     node_seconds: Annotated[float, typer.Option(help="Feed the mapping node over Zenoh this long (0: skip).")] = 6.0,
     node_rate: Annotated[float, typer.Option(help="Pointmaps per second fed to the node.")] = 30.0,
     node_wave: Annotated[bool, typer.Option(help="Also run the 3-D node with esdf_incremental=wave.")] = True,
