@@ -145,3 +145,25 @@ if HAVE_NUMBA:
                 for j in range(3):
                     noisy[v, u, j] = np.float32(np.float64(points[v, u, j]) * s)
                 conf[v, u] = np.float32(1.0 + np.float64(g * c) * e[v, u])
+
+    @njit(cache=True, nogil=True)
+    def current_frame_kernel(T_CK: np.ndarray, X: np.ndarray, labels_k: np.ndarray, idx: np.ndarray,
+                             valid_match: np.ndarray, Qk: np.ndarray, Q_conf: float, with_points: bool,
+                             points: np.ndarray, labels: np.ndarray) -> None:
+        """The current frame's message (``SimBackend._message``): over trusted matches (valid and
+        Qk > Q_conf), the keyframe's fused label ``labels_k[ξ]`` written at its frame pixel
+        ``idx[ξ]`` (``fusion.scatter_to_frame``) and, ``with_points``, its fused point moved into the
+        camera by ``T_CK`` (float64, stored as float32 like ``transform_points(..., np.float32)``).
+        ``points`` and ``labels`` are the frame's own copies, written in place; a pixel two keyframe
+        pixels land on keeps the later one, as numpy's fancy assignment does."""
+        for k in range(X.shape[0]):
+            if not (valid_match[k] and Qk[k] > Q_conf):
+                continue
+            i = idx[k]
+            labels[i] = labels_k[k]
+            if with_points:
+                x0 = np.float64(X[k, 0])
+                y0 = np.float64(X[k, 1])
+                z0 = np.float64(X[k, 2])
+                for j in range(3):
+                    points[i, j] = np.float32(T_CK[j, 0] * x0 + T_CK[j, 1] * y0 + T_CK[j, 2] * z0 + T_CK[j, 3])

@@ -330,7 +330,18 @@ class SimBackend:
         cam = self._camera  # the keyframe's pixel grid is the camera's: the same intrinsics
         K = (cam.fx, cam.fy, cam.cx, cam.cy)
         labels, points = obs.labels, obs.points
-        if m is not None:
+        if m is not None and self.compiled:
+            from .kernels import current_frame_kernel
+
+            keyframe_points = self.config.publish == "keyframe"
+            labels = np.array(obs.labels, np.uint16)
+            if keyframe_points:
+                points = np.array(obs.points, np.float32)
+            current_frame_kernel(np.ascontiguousarray(_inv(T_WC_true) @ kf.T_WK_true), f.X, f.labels,
+                                 m.idx_f2k.reshape(-1), m.valid_match_k.reshape(-1), m.Qk.reshape(-1),
+                                 float(self.config.Q_conf), keyframe_points, points.reshape(-1, 3),
+                                 labels.reshape(-1))
+        elif m is not None:
             trusted = m.valid_match_k & (m.Qk > self.config.Q_conf)
             labels = scatter_to_frame(f.labels, m.idx_f2k, trusted, obs.labels)
             if self.config.publish == "keyframe":
