@@ -113,6 +113,8 @@ STAGE_WORK = {"simulator render": ("simulator", "render_ms"),
               "mapping: stamp → frame arrives": ("mapping", "frame_arrival_age_ms"),
               "mapping: frame arrives → handled (queue, decode)": ("mapping", "frame_wait_ms"),
               "mapping integrate": ("mapping", "integrate_ms"), "mapping ESDF update": ("mapping", "total_ms"),
+              "mapping ESDF update: occupancy (decay, solid fill)": ("mapping", "occupancy_ms"),
+              "mapping ESDF update: the 2-D slice": ("mapping", "esdf2d_ms"),
               "mapping: stamp → ESDF published": ("mapping", "esdf_content_age_ms")}
 
 
