@@ -1,10 +1,11 @@
-"""Compiled per-pixel kernels of the ``sim`` backend: keyframe matching and fusion in one pass each.
+"""Compiled per-pixel kernels of the ``sim`` backend: keyframe matching, fusion and the current
+frame's message in one pass each.
 
 They compute exactly what the numpy reference does (``SimBackend.match`` with ``numpy=True``,
-``transform_points`` + ``KeyframeFusion.fuse``), in the same dtypes and operation order, so their
-outputs are bit-identical (tests/perception/test_kernels.py checks this on real frames). The numpy
-path allocates a dozen full-frame temporaries per step; on the two shared cores that was 25 of the
-backend's ~37 ms per frame. Without numba (the ``perception`` extra alone) the numpy path runs.
+``transform_points`` + ``KeyframeFusion.fuse``, ``SimBackend._message``), in the same dtypes and
+operation order, so their outputs are bit-identical (tests/perception/test_kernels.py checks this on
+real frames). The numpy path allocates a dozen full-frame temporaries per step; on the two shared
+cores that was 25 of the backend's ~37 ms per frame. Without numba (the ``perception`` extra alone) the numpy path runs.
 """
 
 from __future__ import annotations
