@@ -49,6 +49,9 @@ class LimoSettings(NodeSettings):
     wheelbase: float = Field(default=0.2, gt=0)
     track: float = Field(default=0.172, gt=0)
     state_frame: str = "map"
+    publish_state: bool = Field(default=True, description=(
+        "publish the chassis odometry as `state`; false where another source is the robot's state "
+        "(a simulator moved by the same `cmd/safe`, deploy/compose.limo-emulator.yml): one source only"))
 
     def bridge_config(self) -> BridgeConfig:
         limits = LimoLimits(self.max_linear, self.max_lateral, self.max_angular, self.max_wheel_speed,
@@ -111,7 +114,7 @@ class LimoNode:
             except ConnectionError as exc:
                 self._lost(str(exc))
                 data = b""
-            if data and self.core.on_bytes(data, now):
+            if data and self.core.on_bytes(data, now) and self.s.publish_state:
                 state = self.core.state(now)
                 if state is not None:
                     self.node.publish(self.node.keys.state, to_robot_state(state, self.s.state_frame))
