@@ -228,12 +228,13 @@ def deployment_secrets(tmp_path: Path) -> tuple[Path, dict[str, str]]:
     """The deployment's secrets by its own scripts: the server's router answers to `router` (its
     compose name, dialled by the robot's router) and to localhost (the host's test client)."""
     root = tmp_path / "secrets"
+    # The default set first: a re-run re-issues the names it is given (the CA is kept).
+    subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(root / "certs")], check=True,
+                   capture_output=True, timeout=120)
     subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(root / "certs"),
                     "router-server=DNS:router,DNS:localhost,IP:127.0.0.1",
                     "router-robot=DNS:robot-router,DNS:localhost,IP:127.0.0.1"], check=True, capture_output=True,
                    timeout=60)
-    subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(root / "certs")], check=True,
-                   capture_output=True, timeout=120)
     subprocess.run(["bash", str(REPO / "deploy" / "make-users.sh"), "-o", str(root)], check=True,
                    capture_output=True, timeout=60)
     # The containers' user (uid 10001) reads the mounted keys and env files.
