@@ -45,7 +45,7 @@ ROBOT = "limo1"
 KEYS = Keys(robot=ROBOT)
 SIM = ("router", "simulator", "perception", "mapping", "safety-filter", "navigator", "operator")
 SERVER = ("router", "simulator", "perception", "mapping", "operator")
-ROBOT_SIDE = ("robot-router", "robot-safety-filter", "limo-emulated")
+ROBOT_SIDE = ("robot-router", "robot-safety-filter", "limo")
 
 
 def docker(*args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
@@ -219,7 +219,7 @@ def _secure_client(certs: Path, passwords: dict[str, str], endpoint: str, user: 
 
 def _emulator_events(robot: Compose) -> list[tuple[float, str]]:
     """(wall time, "move" | "stop") of every change the emulated chassis received on its serial link."""
-    out = docker("logs", robot.containers()["limo-emulated"], check=False).stdout
+    out = docker("logs", robot.containers()["limo"], check=False).stdout
     return [(float(t), what) for t, what in re.findall(r"limo-emulator: ([\d.]+) (move|stop) ", out)]
 
 
@@ -255,6 +255,7 @@ def two_sites(images: str, deployment_secrets: tuple[Path, dict[str, str]],
                      {"RISKFIELD_ROUTER_PORT": str(port), "RISKFIELD_SECRETS": str(secrets)}, tmp_path)
     robot = Compose(f"rftestrobot{tag}", [COMPOSE, SECURE, EMULATOR, ROBOT_SITE], "robot",
                     {"RISKFIELD_ROBOT_ROUTER_PORT": str(free_port()), "RISKFIELD_SECRETS": str(secrets),
+                     "RISKFIELD_LIMO_PORT": "/dev/null",
                      "RISKFIELD_SERVER": "tls/router:7447", "RISKFIELD_SERVER_NETWORK": f"{server.name}_default"},
                     tmp_path)
     try:
