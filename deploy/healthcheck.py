@@ -57,9 +57,20 @@ def main() -> int:
         print(f"healthcheck: router {'listens' if ok else 'does not listen'} on {port}")
         return 0 if ok else 1
 
+    import os
+
     from riskfield.protocol import Keys
     from riskfield.services.runtime.session import open_session
-    from riskfield.services.runtime.settings import NodeSettings
+    from riskfield.services.runtime.settings import ENV_PREFIX, NodeSettings, env_names
+
+    # Only the session's settings (connection, identity) matter here. The service's own variables
+    # (the operator's RISKFIELD_TARGETS, ...) would be unknown keys to NodeSettings, which is strict:
+    # they are the node's business, not this check's, and importing the service to know them would
+    # cost every check seconds of CPU (numba, open3d).
+    own = env_names(NodeSettings)
+    for var in [v for v in os.environ if v.upper().startswith(ENV_PREFIX)]:
+        if var.upper().partition("__")[0] not in own:
+            del os.environ[var]
 
     overrides: dict[str, object] = {}
     connect = _option(args, "--connect")

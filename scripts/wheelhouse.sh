@@ -4,7 +4,7 @@
 # from the package index otherwise). For machines whose builds cannot reach the index, and for
 # an air-gapped robot site, where the wheelhouse is carried over with the source.
 #
-#   scripts/wheelhouse.sh               # riskfield[all]: serves the CPU and the robot image
+#   scripts/wheelhouse.sh               # riskfield[robot,mapping,sim]: the CPU image's, a superset of the robot's
 #   EXTRAS=robot scripts/wheelhouse.sh  # the robot image's only
 #
 # The host's Python must match the images' (CPython 3.11, linux x86_64 / aarch64, glibc):
@@ -13,7 +13,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=deploy/wheels
-extras=${EXTRAS:-all}
+extras=${EXTRAS:-robot,mapping,sim}
 py=${PYTHON:-python3}
 [ -x .venv/bin/python ] && py=${PYTHON:-.venv/bin/python}
 

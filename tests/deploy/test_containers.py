@@ -32,7 +32,7 @@ from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
 from riskfield.testing import Collector, client_config, open_when_ready, wait_until
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.docker]
 
 REPO = Path(__file__).resolve().parents[2]
 COMPOSE = REPO / "docker-compose.yml"
@@ -265,8 +265,11 @@ def two_sites(images: str, deployment_secrets: tuple[Path, dict[str, str]],
         robot.wait_healthy(ROBOT_SIDE, 300)
         yield server, robot, port
     finally:
-        robot.down()
-        server.down()
+        # Both projects go whatever failed (the robot's first: it holds an endpoint on the server's network).
+        try:
+            robot.down()
+        finally:
+            server.down()
 
 
 @pytest.mark.timeout(3600)
