@@ -74,12 +74,14 @@ COPY services /src/services
 COPY edge /src/edge
 # The project only (its dependencies are above); the source copy goes, so nothing shadows it.
 RUN pip install --no-deps --no-build-isolation --no-index /src && rm -rf /src
-COPY deploy/warm-kernels.sh deploy/healthcheck.py /opt/riskfield/
+COPY deploy/warm-kernels.sh /opt/riskfield/
 # Numeric: a host or orchestrator (runAsNonRoot) can check it without the image's passwd.
 USER 10001
 # The filter's compiled step into NUMBA_CACHE_DIR, as the image's user (numba uses a cache folder
 # only where it can write): a container's first start loads it instead of compiling for 20 s.
 RUN /opt/riskfield/warm-kernels.sh safety-filter
+# After the warm-up: an edit of the check does not compile the kernels again.
+COPY deploy/healthcheck.py /opt/riskfield/
 WORKDIR /home/riskfield
 ENTRYPOINT ["riskfield"]
 CMD ["services"]

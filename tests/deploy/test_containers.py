@@ -260,7 +260,9 @@ def two_sites(images: str, deployment_secrets: tuple[Path, dict[str, str]],
                     tmp_path)
     try:
         server("up", "-d")
-        robot("up", "-d")
+        # No joystick: without its device it publishes zero cmd/ref (fail-safe), which would fight
+        # the server's operator, the one driver here (docs/deployment.md, "Two sites").
+        robot("up", "-d", *ROBOT_SIDE)
         server.wait_healthy(SERVER, 300)
         robot.wait_healthy(ROBOT_SIDE, 300)
         yield server, robot, port
@@ -290,7 +292,9 @@ def test_two_sites_robot_filter_drives_the_emulated_limo_and_brakes_when_cut_off
         # The robot's filter gets the server's ESDF and drives the emulated LIMO.
         assert wait_until(lambda: any(w == "move" for _, w in _emulator_events(robot)), 180), (
             robot.logs(), server.logs())
-        assert esdf.items and any(abs(c.linear[0]) > 0.05 for c in safe.items)
+        # The host client on the server's router sees both: the server's ESDF, the robot's cmd/safe.
+        assert wait_until(lambda: esdf.items and any(abs(c.linear[0]) > 0.05 for c in safe.items), 60), (
+            len(esdf.items), len(safe.items))
         # Cut the robot's link to the server: its filter brakes on stale inputs, and a zero command
         # reaches the chassis's serial link within 0.5 s.
         assert wait_until(lambda: _emulator_events(robot)[-1][1] == "move", 60), _emulator_events(robot)[-5:]
@@ -301,6 +305,9 @@ def test_two_sites_robot_filter_drives_the_emulated_limo_and_brakes_when_cut_off
         braked = min(t for t, w in _emulator_events(robot) if t > t_cut and w == "stop")
         print(f"two sites: zero command on the LIMO's serial link {1e3 * (braked - t_cut):.0f} ms after the cut")
         assert braked - t_cut <= 0.5, braked - t_cut
+        # And it stays braked while cut off (that stop was the cut's, not a turn of the operator's).
+        time.sleep(2.0)
+        assert not [t for t, w in _emulator_events(robot) if t > braked and w == "move"], _emulator_events(robot)[-5:]
         # Reconnected, the robot's router dials the server again and the LIMO moves again.
         t_back = time.time()
         docker("network", "connect", network, router)
