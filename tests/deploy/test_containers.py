@@ -20,6 +20,7 @@ import shutil
 import subprocess
 import time
 import uuid
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -193,8 +194,15 @@ def test_sim_stack_comes_up_healthy_drives_on_its_own_and_down_leaves_nothing(im
             time.sleep(10.0)  # a window of the running stack, judged below
             assert len(state.items) > 100 and len(esdf.items) >= 2
             assert status.items, "no safety/status"
-            fallbacks = [s.fallback for s in status.items if s.fallback is not None]
-            assert not fallbacks, (fallbacks[:5], len(fallbacks), len(status.items))
+            fallbacks = Counter(s.fallback for s in status.items if s.fallback is not None)
+            ages = sorted(s.esdf_age_ms for s in status.items)
+            print(f"sim stack: {len(status.items)} safety/status in 10 s, fallbacks {dict(fallbacks)}, map content "
+                  f"age p50 {ages[len(ages) // 2]:.0f} ms, p90 {ages[9 * len(ages) // 10]:.0f} ms, "
+                  f"load {os.getloadavg()[0]:.1f}")
+            # A stale_map here is the filter doing its job on a CPU-starved stack (docs/deployment.md):
+            # the message says how stale, and the load, rather than loosening any bound.
+            assert not fallbacks, (dict(fallbacks), len(status.items), ages[len(ages) // 2], ages[-1],
+                                   os.getloadavg())
             assert any(abs(c.linear[0]) > 0.05 for c in safe.items)
             for c in (esdf, state, safe, status):
                 c.close()
