@@ -9,7 +9,7 @@ starts is removed, and the tests check that ``docker-compose down`` leaves nothi
 
 Compose is Debian's ``docker-compose`` 1.29 (scripts/setup.sh installs it), the oldest the files
 support. Wall-clock bounds: these tests are ``slow``; ``docker`` marks them too, so that their share of
-CI (budget 20 min: on an idle 2-core machine about 8 min to build both images from nothing, 2-4 min
+CI (budget 20 min: on a 2-core machine at load 1-2.5, 4 min to build both images from nothing, 3 min
 for a source edit, 3 min to run) can be selected or left out (``-m docker`` / ``-m "not docker"``).
 """
 
