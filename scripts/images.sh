@@ -44,8 +44,15 @@ for role in $images; do
     *) args=(--build-arg "PYTHON_IMAGE=$base") ;;
   esac
   echo "images: building $prefix-$role:$tag (base $base)"
+  : > "out/images-$role.log"
+  # The dependency stage tagged too ($prefix-$role-deps): untagged, `docker image prune` would drop
+  # it and with it the cache that spares a source edit the dependencies' install.
+  if grep -q '^FROM .* AS deps$' "deploy/Dockerfile.$role"; then
+    docker build --network host "${args[@]}" --target deps -f "deploy/Dockerfile.$role" -t "$prefix-$role-deps:$tag" . \
+      >> "out/images-$role.log" 2>&1 || { tail -n 30 "out/images-$role.log" >&2; echo "images: $role failed (out/images-$role.log)" >&2; exit 1; }
+  fi
   docker build --network host "${args[@]}" -f "deploy/Dockerfile.$role" -t "$prefix-$role:$tag" . \
-    > "out/images-$role.log" 2>&1 || { tail -n 30 "out/images-$role.log" >&2; echo "images: $role failed (out/images-$role.log)" >&2; exit 1; }
+    >> "out/images-$role.log" 2>&1 || { tail -n 30 "out/images-$role.log" >&2; echo "images: $role failed (out/images-$role.log)" >&2; exit 1; }
   size=$(docker image inspect -f '{{.Size}}' "$prefix-$role:$tag" | awk '{printf "%.0f MB", $1/1e6}')
   echo "images: $prefix-$role:$tag built in $(( $(date +%s) - start )) s, $size"
 done
