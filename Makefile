@@ -1,6 +1,6 @@
 # The two commands of the README. Both do all set-up first (scripts/setup.sh: system packages,
 # .venv, and the nodes' compiled kernels, `riskfield warmup`; each step skipped when done).
-.PHONY: setup demo test check lint bench
+.PHONY: setup demo test check lint bench images
 
 setup:
 	@bash scripts/setup.sh
@@ -26,3 +26,8 @@ check: setup
 
 lint: setup
 	.venv/bin/ruff check .
+
+# The container images this machine can build (robot, cpu), with or without an image registry:
+# scripts/images.sh (docs/deployment.md). Needs a Docker engine; as root on Debian it starts one.
+images:
+	@bash scripts/images.sh

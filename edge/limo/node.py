@@ -38,6 +38,9 @@ class LimoSettings(NodeSettings, BridgeConfig):
     reconnect_s: float = Field(default=0.5, gt=0, description="a lost port is reopened this often")
     diagnostics_period_s: float = Field(default=0.5, gt=0)
     state_frame: str = "map"
+    publish_state: bool = Field(default=True, description=(
+        "publish the chassis odometry as `state`; false where another source is the robot's state "
+        "(a simulator moved by the same `cmd/safe`, deploy/compose.limo-emulator.yml): one source only"))
 
 
 def to_robot_state(s: PlanarState, frame_id: str) -> RobotState:
@@ -91,7 +94,7 @@ class LimoNode:
             except ConnectionError as exc:
                 self._lost(str(exc))
                 data = b""
-            if data and self.core.on_bytes(data, now):
+            if data and self.core.on_bytes(data, now) and self.s.publish_state:
                 state = self.core.state(now)
                 if state is not None:
                     self.node.publish(self.node.keys.state, to_robot_state(state, self.s.state_frame))

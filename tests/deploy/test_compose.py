@@ -36,7 +36,9 @@ COMPOSE = REPO / "docker-compose.yml"
 SECURE = REPO / "deploy" / "compose.secure.yml"
 
 PROFILES = {
-    "sim": {"router", "simulator", "perception", "mapping", "safety-filter", "navigator"},
+    "sim": {"router", "simulator", "perception", "mapping", "safety-filter", "navigator", "operator"},
+    # The server of a two-site deployment: no safety filter, the robot's is the only one.
+    "server": {"router", "simulator", "perception", "mapping", "operator"},
     "gpu": {"router", "perception-gpu", "mapping"},
     "robot": {"robot-router", "robot-safety-filter", "limo", "joystick"},
     "mavlink": {"robot-router", "robot-safety-filter", "mavlink"},
@@ -149,19 +151,51 @@ def test_every_service_is_restarted_after_a_crash_in_both_files(stack: dict[str,
 # -- routers ----------------------------------------------------------------------------------
 
 
-def test_routers_are_the_zenoh_image_with_the_project_config(stack: dict[str, Any]) -> None:
+def test_routers_are_the_project_router_with_the_project_config(stack: dict[str, Any],
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """No registry needed: the routers are `riskfield run router` in the project's images, in router
+    mode (the images default to client), with deploy/zenoh/router.json5 and a port to publish."""
     for name in ROUTERS:
         svc = stack[name]
-        assert re.fullmatch(r"eclipse/zenoh:\d+\.\d+\.\d+", svc["image"]), svc["image"]
+        assert _check_riskfield_container(name, svc, monkeypatch) == "settings"
         cmd = svc["command"]
-        config_in_container = cmd[cmd.index("-c") + 1]
+        assert cmd[:2] == ["run", "router"] and cmd[cmd.index("--mode") + 1] == "router"
+        assert cmd[cmd.index("--listen") + 1] == "tcp/[::]:7447"
+        config_in_container = cmd[cmd.index("--set") + 1].split("=", 1)[1]
         mounts = {v.split(":")[1]: _host_path(v) for v in svc["volumes"]}
         host = mounts[config_in_container]
         assert host.parent == REPO / "deploy" / "zenoh" and host.is_file()
         zenoh.Config.from_file(str(host))  # zenoh itself accepts it
+        assert [str(p.get("target", p)) if isinstance(p, dict) else p.rsplit(":", 1)[1]
+                for p in svc["ports"]] == ["7447"]
+    assert stack["router"]["image"].endswith("-cpu:latest")
+    assert stack["robot-router"]["image"].endswith("-robot:latest")
     # The robot's router dials the server's router given at deploy time.
     cmd = stack["robot-router"]["command"]
+    assert cmd[cmd.index("--connect") + 1] == ENV["RISKFIELD_SERVER"]
+
+
+def test_zenohd_overlay_swaps_in_the_eclipse_zenoh_image_with_the_same_config(tmp_path: Path) -> None:
+    services = load([COMPOSE, REPO / "deploy" / "compose.zenohd.yml"], ENV, tmp_path)
+    base = load([COMPOSE], ENV, tmp_path)
+    for name in ROUTERS:
+        svc = services[name]
+        assert re.fullmatch(r"eclipse/zenoh:\d+\.\d+\.\d+", svc["image"]), svc["image"]
+        cmd = svc["command"]
+        mounts = {v.split(":")[1]: _host_path(v) for v in svc["volumes"]}
+        base_mounts = {_host_path(v) for v in base[name]["volumes"]}
+        assert mounts[cmd[cmd.index("-c") + 1]] in base_mounts
+        assert services[name]["ports"][0] == base[name]["ports"][0]
+    cmd = services["robot-router"]["command"]
     assert cmd[cmd.index("-e") + 1] == ENV["RISKFIELD_SERVER"]
+
+
+def test_every_service_has_a_healthcheck_and_nodes_wait_for_a_healthy_router(stack: dict[str, Any]) -> None:
+    for name, svc in stack.items():
+        assert svc["healthcheck"]["test"][-1] == "/opt/riskfield/healthcheck.py", name
+        if name not in ROUTERS:
+            router = "robot-router" if "robot" in svc["profiles"] or "mavlink" in svc["profiles"] else "router"
+            assert svc["depends_on"] == [router], name
 
 
 # -- riskfield containers -----------------------------------------------------------------------
@@ -204,7 +238,7 @@ def _check_riskfield_container(name: str, svc: dict[str, Any], monkeypatch: pyte
 def test_every_container_command_is_a_valid_riskfield_command(stack: dict[str, Any],
                                                               monkeypatch: pytest.MonkeyPatch) -> None:
     nodes = _riskfield_services(stack)
-    assert set(nodes) == set().union(*PROFILES.values()) - ROUTERS
+    assert set(nodes) == set().union(*PROFILES.values())  # the routers are riskfield's too
     checked = {name: _check_riskfield_container(name, svc, monkeypatch) for name, svc in nodes.items()}
     # The dev install (`.[all,dev]`) imports every service: each one is fully checked.
     assert all(c == "settings" for c in checked.values()), checked
@@ -314,9 +348,11 @@ def test_dockerfile_passes_hadolint(role: str) -> None:
     proc = subprocess.run([_hadolint(), "--no-color", "--failure-threshold", "info", str(path)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    # The build context is trimmed by a per-Dockerfile ignore file that starts from "exclude all".
-    ignore = (REPO / "deploy" / f"Dockerfile.{role}.dockerignore").read_text().splitlines()
-    assert "**" in ignore
+    # The build context is trimmed by the root .dockerignore (the classic builder reads only that
+    # one), which starts from "exclude all": no .venv, out/ or deploy/secrets in an image.
+    ignore = (REPO / ".dockerignore").read_text().splitlines()
+    assert "**" in ignore and not any(line.startswith(("!.venv", "!out", "!deploy/secrets")) for line in ignore)
+    assert not list((REPO / "deploy").glob("Dockerfile.*.dockerignore"))  # BuildKit would prefer those
 
 
 def test_hadolint_reports_a_bad_dockerfile(tmp_path: Path) -> None:

@@ -371,6 +371,13 @@ def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
             # The routers link asynchronously: publish until the far subscriber hears it.
             assert wait_until(lambda: (put(filt, KEYS.cmd_safe, cmd("filter")), bool(at_server.items))[1],
                               timeout_s=15, period_s=0.2)
+            # And the other way: the server's map reaches the robot's side (the robot's router takes
+            # the server's router, which it dialled, by its certificate: subject server-router).
+            with session(secrets, server, "mapping", "mapping") as mapper:
+                map_at_robot = Collector(local, KEYS.esdf)
+                assert wait_until(lambda: (put(mapper, KEYS.esdf, cmd("map")), bool(map_at_robot.items))[1],
+                                  timeout_s=15, period_s=0.2)
+                map_at_robot.close()
             # The teleop's allowed cmd/ref, put after its forged cmd/safe, marks when the latter
             # would have arrived at each site (one session's puts travel its links in order).
             ref_server = Collector(remote, KEYS.cmd_ref, VelocityCommand)
@@ -504,6 +511,7 @@ PUTS = {
 ROS_PUTS = {"ros2-bridge": ["cmd_vel", "riskfield/costmap", "diagnostics", "tf"],
             "zenoh-bridge-ros2dds": ["cmd_vel_smoothed", "odom", "tf", "tf_static"]}
 SERVICE_OF = {"teleop": "keyboard"}  # the role whose node has another service name
+ROUTER_SUBJECTS = ("routers", "server-router")  # the sites' routers: forward, no role of their own
 
 
 def test_every_key_the_product_publishes_has_exactly_its_roles() -> None:
@@ -514,7 +522,7 @@ def test_every_key_the_product_publishes_has_exactly_its_roles() -> None:
     keys = Keys(robot="limo1")
     published = {k for ks in PUTS.values() for k in ks}
     assert set(TOPICS) - {"map/esdf/query"} <= published  # every key of the contract has a publisher
-    roles = [s["id"] for s in acl["subjects"] if s["id"] not in ("everyone", "routers")]
+    roles = [s["id"] for s in acl["subjects"] if s["id"] not in ("everyone", *ROUTER_SUBJECTS)]
     for role in roles:
         service = SERVICE_OF.get(role, role)
         own = {keys.key(k) for k in PUTS.get(role, [])} | ({keys.status(service)} if role in PUTS else set())
@@ -534,5 +542,11 @@ def test_every_key_the_product_publishes_has_exactly_its_roles() -> None:
     assert not any(_allowed(acl, "everyone", m, keys.cmd_safe) for m in ("put", "delete", "liveliness_token"))
     # certificates bound to users: one identity per subject, user name = certificate common name
     for s in acl["subjects"]:
-        if s["id"] not in ("everyone", "routers"):
+        if s["id"] not in ("everyone", *ROUTER_SUBJECTS):
             assert s["usernames"] == s["cert_common_names"] == [s["id"]], s
+    # The server's router, seen from the robot's (which dialled it: usrpwd authenticates only the
+    # dialler, so that link has no user name), is known by its certificate alone; like the routers
+    # subject it may only forward.
+    server_router = next(s for s in acl["subjects"] if s["id"] == "server-router")
+    assert server_router["cert_common_names"] == ["router-server"] and not server_router.get("usernames")
+    assert [p["rules"] for p in acl["policies"] if "server-router" in p["subjects"]] == [["forward-router"]]

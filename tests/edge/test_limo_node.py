@@ -97,6 +97,25 @@ def test_limo_node_drives_publishes_state_and_stops(router_endpoint: str, tmp_pa
         diags.close()
 
 
+def test_limo_node_without_publish_state_drives_but_leaves_state_to_another_source(router_endpoint: str,
+                                                                                   tmp_path: Path) -> None:
+    """publish_state=false (a simulator is the robot's one `state`, deploy/compose.limo-emulator.yml):
+    the chassis still obeys `cmd/safe` and reports diagnostics, and no `state` comes from it."""
+    robot = f"t_limo_{uuid.uuid4().hex[:6]}"
+    keys = Keys(robot)
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu, client_session(router_endpoint) as s:
+        states = Collector(s, keys.state, RobotState)
+        diags = Collector(s, keys.key("limo/diagnostics"))
+        with start(robot, router_endpoint, emu.port, "--set", "publish_state=false") as node:
+            assert wait_alive(s, keys.alive("limo")), node.output
+            assert wait_until(lambda: (put(s, keys.cmd_safe, cmd(0.4)), emu.model.x > 0.1)[1], 10.0,
+                              period_s=0.04), node.output
+            assert wait_until(lambda: diags.items and diag(diags).frames_ok > 10, 5.0)
+            assert states.items == []
+        states.close()
+        diags.close()
+
+
 def test_limo_node_survives_bad_input_and_a_vanishing_port(router_endpoint: str, tmp_path: Path,
                                                            bad_velocity_payloads: list[bytes]) -> None:
     robot = f"t_limo_{uuid.uuid4().hex[:6]}"
