@@ -263,26 +263,32 @@ ROBOT_MODULES = ("riskfield.services.safety_filter.node", "riskfield.edge.limo.n
                  "riskfield.edge.mavlink.node")
 
 
-def _build_context(dockerfile: Path, dest: Path) -> None:
-    """Copy what the Dockerfile's first (build) stage COPYs from the repository into ``dest``."""
-    for line in dockerfile.read_text().split("\nFROM ")[1].splitlines():
+def _build_context(dockerfile: Path, dest: Path, root: str = "/src") -> None:
+    """Copy what the Dockerfile COPYs from the repository into its project folder ``root`` (the
+    final stage's source, installed there; the dependencies come from the ``deps`` stage's
+    layer, which ``pip install ".[robot]"`` stands for here) into ``dest``."""
+    for line in dockerfile.read_text().splitlines():
         words = line.split()
-        if words[:1] == ["COPY"] and not any(w.startswith("--from") for w in words):
-            *sources, target = words[1:]
-            for src in sources:
-                to = dest / (src if target.endswith("/") or target == "./" else target)
-                if (REPO / src).is_dir():
-                    shutil.copytree(REPO / src, to, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-                else:
-                    to.parent.mkdir(parents=True, exist_ok=True)
-                    shutil.copy(REPO / src, to)
+        if words[:1] != ["COPY"] or any(w.startswith("--") for w in words):
+            continue
+        *sources, target = words[1:]
+        if target.rstrip("/") != root and not target.startswith(root + "/"):
+            continue
+        for src in sources:
+            rel = Path(src).name if target.endswith("/") else target[len(root) + 1:]
+            to = dest / rel
+            if (REPO / src).is_dir():
+                shutil.copytree(REPO / src, to, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+            else:
+                to.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(REPO / src, to)
 
 
 @pytest.mark.slow
 def test_robot_image_install_step_works_in_a_clean_venv_without_open3d_or_torch(tmp_path: Path) -> None:
-    """deploy/Dockerfile.robot's build stage without Docker: its COPYs into a context, then
-    `pip install ".[robot]"` into a fresh venv. Every robot service loads from it, and neither
-    open3d nor torch is installed or imported."""
+    """deploy/Dockerfile.robot's install without Docker: the source it COPYs into /src, then
+    `pip install ".[robot]"` (its deps stage and its project install) into a fresh venv. Every
+    robot service loads from it, and neither open3d nor torch is installed or imported."""
     import venv
 
     context, env_dir = tmp_path / "src", tmp_path / "venv"
