@@ -256,15 +256,39 @@ class ChassisEmulator:
                 self.on_frame(t, msg)
 
 
+def command_logger(now: Callable[[], float] = time.time) -> Callable[[float, object], None]:
+    """An ``on_frame`` that prints every change between moving and stopped motion commands reaching
+    the serial link, with the wall-clock time (the host's, which containers share), so that a test
+    can tell when a zero command arrived after a network cut::
+
+        limo-emulator: 1764662400.123456 stop v=+0.000 w=+0.000
+    """
+    last: list[bool | None] = [None]
+
+    def on_frame(_t: float, msg: object) -> None:
+        if not isinstance(msg, MotionCommand):
+            return
+        moving = not msg.is_stop
+        if moving != last[0]:
+            last[0] = moving
+            print(f"limo-emulator: {now():.6f} {'move' if moving else 'stop'} v={msg.linear:+.3f} w={msg.angular:+.3f}",
+                  flush=True)
+
+    return on_frame
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="Emulate an AgileX LIMO chassis on a pseudo-terminal.")
     ap.add_argument("--link", help="symlink to create for the pty (e.g. /tmp/limo)")
     ap.add_argument("--mode", default="differential", help="differential, ackermann or mecanum")
     ap.add_argument("--rate", type=float, default=50.0, help="feedback rate (Hz)")
+    ap.add_argument("--log-commands", action="store_true",
+                    help="print every move/stop change of the commands reaching the link (command_logger)")
     args = ap.parse_args(argv)
     model = ChassisModel(motion_mode=MotionMode.parse(args.mode))
     stop = stop_event()
-    with ChassisEmulator(model, rate_hz=args.rate, link=args.link) as emu:
+    on_frame = command_logger() if args.log_commands else None
+    with ChassisEmulator(model, rate_hz=args.rate, link=args.link, on_frame=on_frame) as emu:
         print(f"LIMO emulator ({model.motion_mode.name.lower()}) on {emu.path}"
               + (f" (link {args.link})" if args.link else ""), flush=True)
         while not stop.wait(1.0):

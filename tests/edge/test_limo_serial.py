@@ -89,3 +89,19 @@ def test_open_of_a_missing_port_fails_cleanly(tmp_path: Path) -> None:
     assert not link.try_open(1.0)  # retry not due yet
     assert link.read() == b""
     link.write(b"\x00")  # a write with no port is a no-op, not an exception
+
+
+def test_command_logger_prints_each_move_stop_change_once(capsys) -> None:
+    """``--log-commands``: one line per change between moving and stopped commands, with the time
+    (the container tests find a network cut's brake by it), and nothing for other frames."""
+    from riskfield.edge.limo.emulator import command_logger
+
+    clock = iter([100.0, 101.5, 102.25])
+    log = command_logger(lambda: next(clock))
+    for msg in (p.MotionCommand(0.3, 0.1), p.MotionCommand(0.3, 0.0), p.ControlModeCommand(True),
+                p.MotionCommand(0.0, 0.0), p.MotionCommand(0.0, 0.0), p.MotionCommand(-0.2, 0.0)):
+        log(0.0, msg)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == ["limo-emulator: 100.000000 move v=+0.300 w=+0.100",
+                     "limo-emulator: 101.500000 stop v=+0.000 w=+0.000",
+                     "limo-emulator: 102.250000 move v=-0.200 w=+0.000"]
