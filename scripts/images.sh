@@ -37,6 +37,12 @@ if [ "${WHEELHOUSE:-1}" != 0 ] && { [ ! -f "$stamp" ] || [ pyproject.toml -nt "$
 fi
 
 mkdir -p out
+# build ROLE DOCKER-BUILD-ARGS...: one `docker build` of deploy/Dockerfile.ROLE into out/images-ROLE.log
+build() {
+  local role=$1; shift
+  docker build --network host "$@" -f "deploy/Dockerfile.$role" . >> "out/images-$role.log" 2>&1 \
+    || { tail -n 30 "out/images-$role.log" >&2; echo "images: $role failed (out/images-$role.log)" >&2; exit 1; }
+}
 for role in $images; do
   start=$(date +%s)
   case $role in
@@ -48,11 +54,9 @@ for role in $images; do
   # The dependency stage tagged too ($prefix-$role-deps): untagged, `docker image prune` would drop
   # it and with it the cache that spares a source edit the dependencies' install.
   if grep -q '^FROM .* AS deps$' "deploy/Dockerfile.$role"; then
-    docker build --network host "${args[@]}" --target deps -f "deploy/Dockerfile.$role" -t "$prefix-$role-deps:$tag" . \
-      >> "out/images-$role.log" 2>&1 || { tail -n 30 "out/images-$role.log" >&2; echo "images: $role failed (out/images-$role.log)" >&2; exit 1; }
+    build "$role" "${args[@]}" --target deps -t "$prefix-$role-deps:$tag"
   fi
-  docker build --network host "${args[@]}" -f "deploy/Dockerfile.$role" -t "$prefix-$role:$tag" . \
-    >> "out/images-$role.log" 2>&1 || { tail -n 30 "out/images-$role.log" >&2; echo "images: $role failed (out/images-$role.log)" >&2; exit 1; }
+  build "$role" "${args[@]}" -t "$prefix-$role:$tag"
   size=$(docker image inspect -f '{{.Size}}' "$prefix-$role:$tag" | awk '{printf "%.0f MB", $1/1e6}')
   echo "images: $prefix-$role:$tag built in $(( $(date +%s) - start )) s, $size"
 done
