@@ -29,11 +29,15 @@ STAGES = ("camera/image", "perception/frame", "map/esdf")
 
 
 
-def command_latency_ms(ref_t: list[float], safe_t: list[float]) -> list[float]:
-    """For each reference, the delay to the next filtered command (ms)."""
+def command_latency_ms(ref_t: list[float], safe_t: list[float], since: float = -np.inf) -> list[float]:
+    """For each reference sent at or after ``since``, the delay to the next filtered command (ms).
+    ``since``: when the filter is up (the demo: every service said so); a command sent before then
+    waits for the filter's start, which is not the filter's latency."""
     safe = np.asarray(safe_t)
     out = []
     for t in ref_t:
+        if t < since:
+            continue
         i = int(np.searchsorted(safe, t, side="left"))
         if i < len(safe):
             out.append((safe[i] - t) * 1e3)

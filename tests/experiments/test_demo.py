@@ -20,6 +20,9 @@ def test_report_helpers_on_hand_made_series():
     assert collisions(np.array([0.3, -0.01, -0.02, 0.1, -0.5])) == 2
     lat = command_latency_ms([0.0, 1.0, 2.0], [0.001, 1.004, 1.5])
     np.testing.assert_allclose(lat, [1.0, 4.0])  # the last reference got no answer: not counted
+    # sent before the filter was up: waiting for its start is not its latency
+    np.testing.assert_allclose(command_latency_ms([0.0, 1.0], [0.9, 1.004]), [900.0, 4.0])
+    np.testing.assert_allclose(command_latency_ms([0.0, 1.0], [0.9, 1.004], since=0.5), [4.0])
     t = np.array([0.0, 1.0, 2.0, 3.0])
     assert first_intervention(t, np.array([1, 0, 1, 1], bool), (0.5, 3.0)) == 2.0
     assert first_intervention(t, np.zeros(4, bool), (0.0, 3.0)) is None

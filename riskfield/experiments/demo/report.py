@@ -224,7 +224,8 @@ def make_report(cfg: DemoConfig, console: Console) -> dict:
              if not k.startswith(("status/", "invalid:"))}
     ages = [x.esdf_age_ms for x in st.status if x.esdf_age_ms >= 0]
     solve = [x.solve_us for x in st.status if x.fallback is None]
-    latency = command_latency_ms(st.ref_t, st.safe_t)
+    up = ph.get("services_alive", -np.inf)
+    latency = command_latency_ms(st.ref_t, st.safe_t, since=up)
     fallbacks: dict[str, int] = {}
     for x in st.status:
         if x.fallback:
@@ -236,6 +237,7 @@ def make_report(cfg: DemoConfig, console: Console) -> dict:
                                        if n != "all" and np.isfinite(np.min(v))},
         "rates_hz": rates, "filter_step_us": timing_stats(solve),
         "command_latency_ms": timing_stats(latency), "fallbacks": fallbacks,
+        "commands_before_up": sum(1 for x in st.ref_t if x < up),
         "robot_radius_m": cfg.robot_radius,
     })
     summary["people"] = people_summary(st, (ph.get("walker_crossing", nav[0]), nav[1]))
@@ -325,9 +327,10 @@ def _print(summary: dict, console: Console) -> None:
                              ("esdf_arrival_age_ms", " ms", "ESDF arrival age at cmd/safe"),
                              ("camera_to_cmd_safe_ms", " ms", "camera frame → first cmd/safe using it"),
                              ("filter_step_us", " µs", "filter step (field + QP)"),
-                             ("command_latency_ms", " ms", "cmd/ref → cmd/safe latency")):
+                             ("command_latency_ms", " ms", "cmd/ref → cmd/safe latency, once the stack is up")):
         s = summary[key]
         t3.add_row(f"{label} median / p99", "–" if s is None else f"{f(s['median'], unit)} / {f(s['p99'], unit)}")
+    t3.add_row("cmd/ref sent before the stack was up (not timed)", str(summary.get("commands_before_up", 0)))
     t3.add_row("braking reasons", ", ".join(f"{k}: {v}" for k, v in summary["fallbacks"].items()) or "none")
     out = Console()
     out.print(t1)
