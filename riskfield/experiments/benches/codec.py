@@ -97,7 +97,8 @@ def codec(
         payload, kind = encode(msg), type(msg)
         rows.append((f"encode {name} ({len(payload) / 1e6:.2f} MB)", _times(lambda m=msg: encode(m), repeat)))
         rows.append((f"decode {name}", _times(lambda p=payload, t=kind: decode(p, t), repeat)))
-    for size in (64, 1_000_000):
+    # the last: an encoded 512x384 pointmap, the camera path's sim/truth and perception/frame hops
+    for size in (64, 1_000_000, len(encode(_frame(384, 512)))):
         rows.append((f"zenoh round trip, {size} B, 2 processes", _round_trips(b"x" * size, repeat)))
     table = Table("operation", "median ms", "p99 ms", title="riskfield bench codec")
     summary = {}
