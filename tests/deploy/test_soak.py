@@ -327,20 +327,29 @@ CI_ROUTER_KB = [
 ]
 
 
+def _series(label: str, kb: list[int]) -> list[dict]:
+    """A recorded RSS series (kB every 5 s from 5 s) as the soak samples it."""
+    return [{"t_s": 5.0 * (i + 1), label: v} for i, v in enumerate(kb)]
+
+
+def _growth(series: list[dict], label: str) -> float:
+    """The soak's bound, over a 600 s run: the second half's floor over the warm level."""
+    lo = warm_level(series, label)
+    return (rss_level(series, label, *end_window(600.0)) - lo) / lo
+
+
+def _leaky(series: list[dict], label: str, kb_per_restart: int) -> list[dict]:
+    """The same run with ``kb_per_restart`` kept at every perception restart."""
+    return [{**s, label: s[label] + kb_per_restart * int(s["t_s"] // KILL_EVERY_S)} for s in series]
+
+
 def test_end_level_passes_a_session_hold_and_fails_a_leak_per_restart() -> None:
-    series = [{"t_s": 5.0 * (i + 1), "router": kb} for i, kb in enumerate(CI_ROUTER_KB)]
-
-    def growth(s: list[dict]) -> float:
-        lo = warm_level(s, "router")
-        hi = rss_level(s, "router", *end_window(600.0))
-        return (hi - lo) / lo
-
-    assert growth(series) < RSS_GROWTH
+    series = _series("router", CI_ROUTER_KB)
+    assert _growth(series, "router") < RSS_GROWTH
     last_minute = rss_level(series, "router", 540.0, 600.0) / rss_level(series, "router", 60.0, 120.0) - 1.0
     assert last_minute > RSS_GROWTH  # what failed CI: the last minute alone is one held incarnation
     # The same run with 1.5 MB that every restart keeps: the floor of the second half sees it.
-    leaky = [{**s, "router": s["router"] + 1536 * int(s["t_s"] // KILL_EVERY_S)} for s in series]
-    assert growth(leaky) > RSS_GROWTH
+    assert _growth(_leaky(series, "router", 1536), "router") > RSS_GROWTH
 
 
 def test_quiet_growth_passes_a_steady_router_and_fails_a_leak_per_restart() -> None:
@@ -369,15 +378,9 @@ MAPPING_KB = [
 
 
 def test_warm_level_passes_a_release_after_the_warm_up_and_fails_a_leak_per_restart() -> None:
-    series = [{"t_s": 5.0 * (i + 1), "mapping": kb} for i, kb in enumerate(MAPPING_KB)]
-
-    def growth(s: list[dict]) -> float:
-        lo = warm_level(s, "mapping")
-        return (rss_level(s, "mapping", *end_window(600.0)) - lo) / lo
-
-    assert growth(series) < 0.01
+    series = _series("mapping", MAPPING_KB)
+    assert _growth(series, "mapping") < 0.01
     floor = rss_level(series, "mapping", WARMUP_S, WARMUP_S + KILL_EVERY_S)
     assert rss_level(series, "mapping", *end_window(600.0)) / floor - 1.0 > RSS_GROWTH  # what the floor read
     # 5 MB that every restart keeps (45 MB by the end, 17 %) raises the median as much as the end
-    leaky = [{**s, "mapping": s["mapping"] + 5120 * int(s["t_s"] // KILL_EVERY_S)} for s in series]
-    assert growth(leaky) > RSS_GROWTH
+    assert _growth(_leaky(series, "mapping", 5120), "mapping") > RSS_GROWTH
