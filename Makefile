@@ -1,12 +1,17 @@
-# The two commands of the README. Both do all set-up first (scripts/setup.sh: system packages,
-# .venv, and the nodes' compiled kernels, `riskfield warmup`; each step skipped when done).
-.PHONY: setup demo test check lint bench images
+# The two commands of the README. Both do their set-up first (scripts/setup.sh: system packages,
+# .venv, riskfield's extras and the nodes' compiled kernels, `riskfield warmup`; each step skipped
+# when done): `setup-demo` only what the demo runs, `setup` everything the tests use (Docker's
+# compose tooling, iproute2, openssl and the dev extra too).
+.PHONY: setup setup-demo demo test check lint bench images
 
 setup:
-	@bash scripts/setup.sh
+	@bash scripts/setup.sh test
+
+setup-demo:
+	@bash scripts/setup.sh demo
 
 # The main job: the embedded full stack on this machine (no Docker, no GPU).
-demo: setup
+demo: setup-demo
 	.venv/bin/riskfield demo --out out/demo
 
 # The test suite (what CI runs): everything, `slow` full-stack tests included.

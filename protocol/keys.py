@@ -33,6 +33,7 @@ TOPICS: dict[str, type[Message]] = {
     "map/esdf3d": EsdfGrid,  # the 3-D grid when map/esdf carries the ground robot's 2-D slice
     "map/esdf/query": DistanceQuery,
     "state": RobotState,
+    "state/relocalise": RobotState,  # additive: an announced jump of the state (relocalisation, reset)
     "cmd/ref": VelocityCommand,
     "cmd/safe": VelocityCommand,
     "safety/status": SafetyStatus,
@@ -43,6 +44,61 @@ TOPICS: dict[str, type[Message]] = {
     "map/objects": TrackedObjects,  # additive: tracked people/animals with velocities, stamped like map/esdf
     "sim/actors": SimActors,  # additive, simulation only: ground truth of the moving objects
 }
+
+
+@dataclass(frozen=True)
+class Qos:
+    """How a key crosses a congested link: Zenoh's per-sample QoS, as plain names so that the wire
+    contract does not import zenoh (the runtime maps them onto ``zenoh.Priority`` and
+    ``zenoh.CongestionControl`` where it declares its publishers).
+
+    ``priority`` is one of Zenoh's priorities by name (``real_time`` highest … ``background``); ``drop``
+    lets a full transmission queue drop the sample (the newest value supersedes it anyway) instead
+    of blocking the publisher; ``express`` sends it at once instead of batching it with others."""
+
+    priority: str = "data"
+    drop: bool = True
+    express: bool = False
+
+    def __post_init__(self) -> None:
+        if self.priority not in PRIORITIES:
+            raise ValueError(f"priority {self.priority!r}: use one of {', '.join(PRIORITIES)}")
+
+
+#: Zenoh's priorities, highest first (zenoh ``Priority``: REAL_TIME … BACKGROUND).
+PRIORITIES = ("real_time", "interactive_high", "interactive_low", "data_high", "data", "data_low", "background")
+
+#: Relative key → its QoS, the one declaration of the link policy: commands and state above maps,
+#: maps above images and frames; what only the newest value matters for may be dropped on a full
+#: queue, a goal or a risk configuration (sent once) must arrive. Keys not listed get ``Qos()``;
+#: ``status/*`` (every node's counters) is ``STATUS_QOS``.
+QOS: dict[str, Qos] = {
+    "cmd/safe": Qos("real_time", express=True),
+    "cmd/ref": Qos("real_time", express=True),
+    "state": Qos("interactive_high", express=True),
+    "state/relocalise": Qos("interactive_high", drop=False, express=True),  # sent once per jump: must arrive
+    "safety/status": Qos("interactive_low"),
+    "nav/goal": Qos("interactive_low", drop=False),
+    "config/risk": Qos("interactive_low", drop=False),
+    "map/esdf": Qos("data_high"),
+    "map/objects": Qos("data_high"),
+    "map/esdf3d": Qos("data"),
+    "camera/image": Qos("data_low"),
+    "camera/depth": Qos("data_low"),
+    "perception/frame": Qos("data_low"),
+    "sim/truth": Qos("data_low"),
+    "limo/diagnostics": Qos("background"),
+}
+STATUS_QOS = Qos("background")
+
+
+def qos_of(relative: str | None) -> Qos:
+    """The QoS of a key given relative to its robot (``Keys.relative``); ``Qos()`` for any other."""
+    if relative is None:
+        return Qos()
+    if relative.startswith("status/"):
+        return STATUS_QOS
+    return QOS.get(relative, Qos())
 
 
 def _check(value: str, what: str, allow_slash: bool) -> str:
@@ -77,6 +133,7 @@ class Keys:
     esdf_query = property(lambda self: self.key("map/esdf/query"))
     esdf3d = property(lambda self: self.key("map/esdf3d"))
     state = property(lambda self: self.key("state"))
+    state_relocalise = property(lambda self: self.key("state/relocalise"))
     cmd_ref = property(lambda self: self.key("cmd/ref"))
     cmd_safe = property(lambda self: self.key("cmd/safe"))
     safety_status = property(lambda self: self.key("safety/status"))

@@ -84,6 +84,11 @@ class Image(Message):
         arr = ArraySpec("|u1", (h, w, 3)).check(value, info)
         return arr
 
+    intrinsics: tuple[PosFloat, PosFloat, FiniteFloat, FiniteFloat] | None = None
+    """Additive: pinhole intrinsics (fx, fy, cx, cy, pixels) of this image's own pixel grid, when the
+    camera is calibrated. Set only on images free of lens distortion (the camera node undistorts
+    them); ``None``: uncalibrated, or distorted pixels."""
+
 
 class PerceptionFrame(Message):
     """A camera-frame pointmap with pose, per-pixel confidence and ADE20K labels."""
@@ -258,6 +263,11 @@ class SafetyStatus(Message):
     # and maps refused since start (stale or future content, seq backwards, older than in force).
     esdf_publishers: Annotated[int, Field(ge=0)] = 0
     esdf_refused: Annotated[int, Field(ge=0)] = 0
+    # Additive: a moving object (or a yielding group: people, animals) asked more than stopping, so
+    # the robot stays stopped and waits (it never drives away on its own); and how many tracked
+    # objects on a collision course had their own barrier row on this step.
+    yielding: bool = False
+    object_rows: Annotated[int, Field(ge=0)] = 0
 
 
 class NavGoal(Message):

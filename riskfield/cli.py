@@ -46,7 +46,7 @@ def _missing_extras_in_one_line(command: Callable[..., Any]) -> Callable[..., An
 
 #: ``riskfield bench NAME`` runs ``riskfield.experiments.benches.NAME:app``, imported only when asked for.
 BENCHES: tuple[str, ...] = ("codec", "filter", "mapping", "latency", "safety", "teleop", "navigation", "sim",
-                            "perception", "crowd", "startup")
+                            "perception", "crowd", "startup", "link")
 
 
 def _version(value: bool) -> None:
@@ -143,19 +143,12 @@ def run(
     raise typer.Exit(code)
 
 
-def _type_name(annotation: Any) -> str:
-    name = getattr(annotation, "__name__", None)
-    text = name if name and not getattr(annotation, "__args__", None) else str(annotation)
-    return text.replace("typing.", "").replace("pathlib.", "").replace("NoneType", "None")
-
-
 def _print_settings(service: str) -> None:
     """The settings of one service from its settings model: its own first, then the ones every
-    node shares (names only)."""
-    from pydantic_core import PydanticUndefined
-
+    node shares, each with its type, bounds, default and description (``riskfield.settings_help``)."""
     from riskfield.services.runtime import ServiceUnavailable, load_service
     from riskfield.services.runtime.settings import NodeSettings
+    from riskfield.settings_help import setting_lines
 
     try:
         spec = load_service(service)
@@ -165,18 +158,11 @@ def _print_settings(service: str) -> None:
     # One line per setting (not a table), so that a narrow terminal or grep keeps each whole.
     print(f"\n{service} settings (--set key=value, the {service} section of a config file, or RISKFIELD_<KEY>):")
     common = NodeSettings.model_fields
-    for name, field in spec.settings.model_fields.items():
-        if name in common or name in spec.settings.REFERENCE_ONLY:
-            continue
-        if field.default_factory is not None:
-            default = repr(field.default_factory())
-        else:
-            value = field.default
-            default = ("(required)" if value is PydanticUndefined
-                       else str(value) if isinstance(value, Path) else repr(value))
-        about = f"  — {field.description}" if field.description else ""
-        print(f"  {name}: {_type_name(field.annotation)} = {default}{about}")
-    print(f"common to every node: {', '.join(common)}")
+    for line in setting_lines(spec.settings, skip={*common, *spec.settings.REFERENCE_ONLY}):
+        print(line)
+    print("\ncommon to every node:")
+    for line in setting_lines(spec.settings, skip=set(spec.settings.model_fields) - set(common)):
+        print(line)
 
 
 @app.command()
@@ -212,7 +198,9 @@ def up(
     names = services or []
     unknown = [n for n in names if n not in SERVICES or n == "router"]
     if unknown:
-        console.print(f"[red]unknown service(s): {', '.join(unknown)}[/red]")
+        from riskfield.services.runtime.service import unknown_service
+
+        console.print(f"[red]{escape('; '.join(unknown_service(n) for n in unknown))}[/red]")
         raise typer.Exit(2)
     common: list[str] = []
     for flag, value in (("--robot", robot), ("--prefix", prefix), ("--config", config)):
@@ -250,7 +238,9 @@ def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
 
 @app.command()
 def record(
-    out: Annotated[Path, typer.Option(help="Folder for recording.mcap and summary.json.")] = Path("out/record"),
+    out: Annotated[Path, typer.Option(help="Folder for recording.mcap and summary.json; an earlier run there "
+                                      "is kept: this one is recording-1.mcap, summary-1.json, ...")] = Path(
+                                          "out/record"),
     keys: Annotated[str | None, typer.Option(help="Key expression (default: every key of the robot).")] = None,
     raw: Annotated[bool, typer.Option("--raw", help="Also keep the wire bytes of every key (pointmaps and images "
                                       "too), so `riskfield replay` can reproduce all of them.")] = False,
@@ -284,11 +274,15 @@ def replay(
     remap_to: Annotated[str | None, typer.Option(help="New key prefix, e.g. rf/replay1.")] = None,
     include_commands: Annotated[bool, typer.Option(
         "--include-commands", help="Also publish cmd/safe, cmd/ref and nav/goal (can drive a live robot).")] = False,
+    include_state: Annotated[bool, typer.Option(
+        "--include-state", help="Also publish state and state/relocalise (moves a live robot's map and "
+        "misleads its filter).")] = False,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List what would be published, then exit.")] = False,
     connect: Connect = None,
 ) -> None:
     """Publish a recording's raw channels back with their original timing. Command keys are
-    withheld unless --include-commands; keys recorded only as views are listed as not reproducible.
+    withheld unless --include-commands, the robot's state unless --include-state; keys recorded
+    only as views are listed as not reproducible.
     Exit codes: 0 played, 1 the file was cut short or corrupt (what was readable was played),
     2 not a recording or a bad option."""
     from rich.markup import escape
@@ -300,7 +294,7 @@ def replay(
         check_recording(file)
         remap = Remap(remap_from, remap_to)
         keys, err = scan(file)
-        p = plan(keys, remap, include_commands=include_commands)
+        p = plan(keys, remap, include_commands=include_commands, include_state=include_state)
     except (RecordingError, ValueError) as exc:
         console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
@@ -317,7 +311,7 @@ def replay(
     from riskfield.services.runtime import ServiceUnavailable, run_service
 
     overrides = dict(file=file, speed=speed, loop=loop, remap_from=remap_from, remap_to=remap_to,
-                     include_commands=include_commands, connect=connect, verify=False)
+                     include_commands=include_commands, include_state=include_state, connect=connect, verify=False)
     try:
         code = run_service("replay", {k: v for k, v in overrides.items() if v is not None})
     except (ServiceUnavailable, FileNotFoundError, ValueError, ConnectionError) as exc:

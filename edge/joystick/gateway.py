@@ -25,7 +25,7 @@ from .source import DeviceInfo, InputEvent
 class GatewayConfig(BaseModel):
     """The gateway core's timing (the stick mapping is ``JoystickMapping``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     rate_hz: float = Field(default=50.0, gt=0, allow_inf_nan=False, description=(
         "cmd/ref rate, always (a changed stick also publishes at once)"))

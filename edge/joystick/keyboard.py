@@ -90,13 +90,21 @@ class KeyboardSettings(NodeSettings):
     SERVICE: ClassVar[str] = "keyboard"
 
     rate_hz: float = Field(default=20.0, gt=0)
+    """cmd/ref rate."""
     step_linear: float = Field(default=0.05, gt=0)
+    """Forward (or lateral) speed change (m/s) per key press."""
     step_angular: float = Field(default=0.2, gt=0)
+    """Yaw rate change (rad/s) per key press."""
     max_linear: float = Field(default=0.5, gt=0)
+    """Largest forward speed (m/s)."""
     max_lateral: float = Field(default=0.3, gt=0)
+    """Largest lateral speed (m/s), mecanum."""
     max_angular: float = Field(default=1.0, gt=0)
+    """Largest yaw rate (rad/s)."""
     hold_s: float = Field(default=1.0, gt=0)
+    """No key for this long: the command falls back to zero (a terminal reports no key releases)."""
     source_name: str = "keyboard"
+    """The source name its commands carry (VelocityCommand.source)."""
 
 
 class KeyboardNode:

@@ -17,7 +17,7 @@ import uuid
 from typing import ClassVar, Literal
 
 import zenoh
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import SettingsConfigDict
 
 from riskfield.protocol import VelocityCommand
@@ -28,27 +28,44 @@ from .mapping import AxisSpec, JoystickMapping, parse_code
 from .source import DeviceLost, DeviceUnavailable, EvdevSource, EventSource, RawEventSource, load_recording
 from .waker import FdWaker
 
+#: The explicit ``deadman`` value of a joystick without a dead-man button.
+NO_DEADMAN = "none"
+
 
 class JoystickSettings(NodeSettings, GatewayConfig):
     model_config = SettingsConfigDict(populate_by_name=True)
     SERVICE: ClassVar[str] = "joystick"
 
     source: Literal["evdev", "raw", "recorded"] = "evdev"
+    """evdev: a joystick device; raw: input_event records from device; recorded: a JSON recording at device."""
     device: str | None = Field(default=None, validation_alias="riskfield_joystick_device",
                                description="evdev path (env RISKFIELD_JOYSTICK_DEVICE), raw path, or recording")
     linear_x: str = "-ABS_Y"
+    """Axis of the forward speed, e.g. -ABS_Y (a leading - inverts it; empty: unused)."""
     linear_y: str = ""
+    """Axis of the lateral speed (mecanum), e.g. -ABS_X; empty: unused."""
     angular_z: str = "-ABS_RZ"
+    """Axis of the yaw rate, e.g. -ABS_RZ (the stick's twist)."""
     speed_scale: str = "-ABS_THROTTLE"
-    deadman: str = "BTN_TRIGGER"
+    """Axis that scales every speed from min_scale to 1 (the throttle slider); empty: always 1."""
+    deadman: str = Field(default="BTN_TRIGGER", description=(
+        "the dead-man button (an input code name or number): released, the command is zero. "
+        f"'{NO_DEADMAN}' drives without one (a bench or a simulator, never a robot near people)"))
     deadzone: float = Field(default=0.08, ge=0, lt=1)
+    """Fraction of each axis' half-range around the centre that reads as zero."""
     max_linear: float = Field(default=0.5, gt=0)
+    """Forward speed (m/s) at full stick."""
     max_lateral: float = Field(default=0.5, gt=0)
+    """Lateral speed (m/s) at full stick (mecanum)."""
     max_angular: float = Field(default=1.0, gt=0)
+    """Yaw rate (rad/s) at full twist."""
     min_scale: float = Field(default=0.0, ge=0, le=1)
+    """Speed scale at the slider's low end."""
     poll_s: float = Field(default=0.01, gt=0)
+    """Polling period of a source without a descriptor; also drives reconnection."""
     wake_on_input: bool = Field(default=True, description="wake on a readable device instead of waiting for poll_s")
     source_name: str = "joystick"
+    """The source name its commands carry (VelocityCommand.source)."""
 
     def mapping(self) -> JoystickMapping:
         return JoystickMapping(
@@ -56,10 +73,23 @@ class JoystickSettings(NodeSettings, GatewayConfig):
             linear_y=AxisSpec.parse(self.linear_y, self.deadzone),
             angular_z=AxisSpec.parse(self.angular_z, self.deadzone),
             speed_scale=AxisSpec.parse(self.speed_scale, 0.0),
-            deadman=parse_code(self.deadman) if self.deadman.strip() else None,
+            deadman=None if self.deadman == NO_DEADMAN else parse_code(self.deadman),
             max_linear=self.max_linear, max_lateral=self.max_lateral, max_angular=self.max_angular,
             min_scale=self.min_scale,
         )
+
+    @field_validator("deadman")
+    @classmethod
+    def _deadman(cls, v: str) -> str:
+        # An empty value once meant "no dead-man": a blank in a config file must not disable it.
+        v = v.strip()
+        if not v:
+            raise ValueError(f"deadman is empty: name the dead-man button (e.g. BTN_TRIGGER), or {NO_DEADMAN!r} "
+                             "to drive without one")
+        if v.lower() == NO_DEADMAN:
+            return NO_DEADMAN
+        parse_code(v)  # an unknown code name is a ValueError naming it
+        return v
 
     def event_source(self) -> EventSource:
         if self.source == "evdev":

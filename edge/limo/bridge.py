@@ -7,12 +7,20 @@ serial link. Rules it enforces:
   repeats the enable every ``enable_retry_s`` until the chassis reports control mode 1. Once
   confirmed it does not insist again on that connection: if the remote control takes over
   (control mode changes), the operator's takeover wins and is reported, not fought.
+  ``motion_mode=mecanum`` sends the mecanum form of the frame (d2 = 1, AgileX's
+  ``enableMcMode``) and, like AgileX's ``use_mcnamu``, drives mecanum whatever ``0x211`` d6 says:
+  the chassis cannot see which wheels are mounted and may report 0 (differential).
 * **Watchdog.** A command older than ``watchdog_s`` is replaced by a stop frame, repeated every
   ``stop_repeat_s`` while no command comes (a frame lost on the line cannot leave the robot
   moving). Shutdown returns a stop frame too.
 * **Limits.** Every command is scaled into the platform limits (``kinematics.command_to_motion``).
 * **State.** Wheel odometry dead reckoning (IMU yaw when present) and the measured velocities
-  of the motion state frame (IMU yaw rate when fresh) give ``PlanarState``.
+  of the motion state frame (IMU yaw rate when fresh) give ``PlanarState``. In Ackermann mode
+  the yaw rate comes from the steering feedback, as AgileX's ``publishOdometry`` computes it:
+  the field scaled to the inner wheel's angle, converted to the central angle, ω = v·tan c / L.
+
+The watchdog here runs on the node's loop; the node adds one on a thread of its own
+(``watchdog.CommandWatchdog``) that stops the chassis even while that loop is stuck.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from dataclasses import dataclass
 
 from pydantic import Field, field_validator
 
+from . import ackermann
 from .kinematics import LimoLimits, MotionMode, Pos, WheelOdometry, command_to_motion
 from .protocol import (
     ControlModeCommand,
@@ -76,6 +85,7 @@ class PlanarState:
     vy: float  # body left, m/s
     wz: float  # yaw rate, rad/s
     stamp: float  # monotonic time of the feedback it was made from
+    steering: float = 0.0  # central (bicycle) steering angle, Ackermann, rad
 
     def world_velocity(self) -> tuple[float, float]:
         c, s = math.cos(self.yaw), math.sin(self.yaw)
@@ -132,6 +142,14 @@ class LimoBridge:
         except ValueError:
             return MotionMode.DIFFERENTIAL
 
+    @property
+    def stopped(self) -> bool:
+        """True once the last motion frame written was a stop (a zero command, the watchdog, shutdown)."""
+        return self._stopped
+
+    def _enable_frame(self) -> bytes:
+        return encode(ControlModeCommand(enable=True, mecanum=self.config.motion_mode == MotionMode.MECANUM))
+
     def on_connected(self, now: float) -> bytes:
         """Bytes to write right after the port opened: enable command mode, then stop."""
         if self.diag.connected:
@@ -144,7 +162,7 @@ class LimoBridge:
         self._stopped = True
         self._last_stop_t = now
         self.last_motion = MotionCommand()
-        return encode(ControlModeCommand(enable=True)) + encode(self.last_motion)
+        return self._enable_frame() + encode(self.last_motion)
 
     def on_disconnected(self) -> None:
         if self.diag.connected:
@@ -170,7 +188,7 @@ class LimoBridge:
             return out
         if not self.diag.command_mode_confirmed and now - self._last_enable_t >= self.config.enable_retry_s:
             self._last_enable_t = now
-            out += encode(ControlModeCommand(enable=True))
+            out += self._enable_frame()
         stale = self._last_cmd_t is None or now - self._last_cmd_t > self.config.watchdog_s
         if stale and not self._stopped:
             self._stopped = True
@@ -212,7 +230,7 @@ class LimoBridge:
             d.battery_v, d.error_bits = msg.battery_v, msg.error_bits
             if msg.control_mode == COMMAND_MODE:
                 d.command_mode_confirmed = True
-            d.mode_mismatch = self.config.motion_mode is not None and msg.motion_mode != int(self.config.motion_mode)
+            d.mode_mismatch = self._mismatch(msg.motion_mode)
         elif isinstance(msg, MotionState):
             self._motion, self._motion_t = msg, now
         elif isinstance(msg, ImuGyro):
@@ -232,6 +250,17 @@ class LimoBridge:
             return moved
         return False
 
+    def _mismatch(self, reported: int) -> bool:
+        forced = self.config.motion_mode
+        if forced is None:
+            return False
+        if forced == MotionMode.MECANUM:
+            # AgileX's driver ignores d6 under use_mcnamu (limo_driver.cpp ``parseFrame``,
+            # MSG_SYSTEM_STATE_ID): mecanum wheels on a chassis reporting 0 is the normal case.
+            # Only the Ackermann latch contradicts mecanum wheels.
+            return reported == MotionMode.ACKERMANN
+        return reported != int(forced)
+
     def feedback_fresh(self, now: float) -> bool:
         return self._last_feedback_t is not None and now - self._last_feedback_t <= self.config.feedback_timeout_s
 
@@ -242,10 +271,23 @@ class LimoBridge:
         fresh = self.config.feedback_timeout_s
         m = self._motion if now - self._motion_t <= fresh else None
         vx, vy, wz = (m.linear, m.lateral, m.angular) if m is not None else (0.0, 0.0, 0.0)
+        central = 0.0
+        if m is not None and self.mode == MotionMode.ACKERMANN:
+            central = self.central_steering(m.steering)
+            # limo_driver.cpp ``publishOdometry`` (MODE_ACKERMANN): ω = ±v / r, r = L / tan|i| + T/2,
+            # which is v·tan(c)/L. Its vx = v·cos c, vy = v·sin c are not followed: the wheel odometry
+            # here is the rear axle's, which moves along the body's x only.
+            vx, vy = m.linear, 0.0
+            wz = m.linear * math.tan(central) / self.config.wheelbase
         if self._gyro_z is not None and now - self._gyro_t <= fresh:
             wz = self._gyro_z
         o = self.odometry
-        return PlanarState(o.x, o.y, o.yaw, vx, vy, wz, self._state_t)
+        return PlanarState(o.x, o.y, o.yaw, vx, vy, wz, self._state_t, central)
+
+    def central_steering(self, feedback_field: float) -> float:
+        """The central (bicycle) angle a ``0x221`` steering field reports: field → inner → central."""
+        inner = ackermann.inner_from_feedback_field(feedback_field)
+        return ackermann.inner_to_central(inner, self.config.wheelbase, self.config.track)
 
     def diagnostics(self, now: float) -> Diagnostics:
         self.diag.feedback_age_s = -1.0 if self._last_feedback_t is None else now - self._last_feedback_t

@@ -4,6 +4,13 @@
 model of the chosen motion mode (unicycle, bicycle or holonomic) and produces the feedback
 frames a LIMO sends (``0x211``, ``0x221``, ``0x311``, ``0x321``, ``0x322``, ``0x323``).
 Like the real chassis it ignores motion frames until serial command mode is enabled.
+In Ackermann mode it reads the steering field and reports the steering feedback with the
+conversions of ``ackermann`` (the bridge's own, so the two agree by construction): the field
+times 1.64 is the inner wheel's angle, clamped to its limit, and the feedback field is that
+angle divided by 2.47 (left) or 1.64 (right). The mecanum form of the ``0x421`` frame (d2 = 1)
+switches it to mecanum; ``reported_mode`` makes ``0x211`` d6 say something else (a chassis
+with mecanum wheels that reports 0). It keeps the last motion command until another comes:
+it has no command timeout, because no AgileX source states one for the chassis.
 
 ``ChassisEmulator`` puts a model behind a pty (``os.openpty``): the bridge opens the slave
 path like a serial device, a thread reads the master side, and feedback goes out at
@@ -33,6 +40,7 @@ from riskfield.protocol.platforms import LIMO
 from riskfield.services.geometry.transforms import wrap_angle
 from riskfield.services.runtime.signals import stop_event
 
+from . import ackermann
 from .kinematics import MotionMode
 from .protocol import (
     ControlModeCommand,
@@ -54,6 +62,8 @@ class ChassisModel:
     motion_mode: MotionMode = MotionMode.DIFFERENTIAL
     wheelbase: float = LIMO.wheelbase
     track: float = LIMO.track
+    max_inner_steering: float = LIMO.max_steering  # the inner wheel's mechanical limit (rad)
+    reported_mode: int | None = None  # 0x211 d6 when it is not the motion mode (None: the mode)
     battery_v: float = 12.1
     error_bits: int = 0
     control_mode: int = 0  # 0 standby until 0x421 enables serial command mode (1)
@@ -65,19 +75,25 @@ class ChassisModel:
     v: float = 0.0
     vy: float = 0.0
     w: float = 0.0
-    steering: float = 0.0
+    steering: float = 0.0  # the 0x221 steering field (Ackermann: the inner angle / 2.47 or / 1.64)
+    inner: float = 0.0  # the inner front wheel's angle (rad), Ackermann
     yaw_offset: float = 0.0  # the IMU's yaw at the start (a real IMU is not aligned with the map)
 
     def apply(self, msg: object) -> None:
         if isinstance(msg, ControlModeCommand):
             self.control_mode = 1 if msg.enable else 0
+            if msg.enable and msg.mecanum:
+                self.motion_mode = MotionMode.MECANUM
             if not msg.enable:
                 self.v = self.vy = self.w = 0.0
         elif isinstance(msg, MotionCommand) and self.control_mode == 1:
             self.v = msg.linear
             if self.motion_mode == MotionMode.ACKERMANN:
-                self.steering = msg.steering
-                self.w = msg.linear * math.tan(msg.steering) / self.wheelbase
+                lim = self.max_inner_steering
+                self.inner = max(-lim, min(lim, ackermann.inner_from_command_field(msg.steering)))
+                self.steering = ackermann.feedback_field(self.inner)
+                central = ackermann.inner_to_central(self.inner, self.wheelbase, self.track)
+                self.w = msg.linear * math.tan(central) / self.wheelbase
                 self.vy = 0.0
             else:
                 self.w = msg.angular
@@ -95,7 +111,8 @@ class ChassisModel:
     def feedback(self) -> bytes:
         return b"".join(encode(m) for m in (
             SystemState(vehicle_state=0, control_mode=self.control_mode, battery_v=self.battery_v,
-                        error_bits=self.error_bits, motion_mode=int(self.motion_mode)),
+                        error_bits=self.error_bits,
+                        motion_mode=int(self.motion_mode) if self.reported_mode is None else self.reported_mode),
             MotionState(self.v, self.w, self.vy, self.steering),
             Odometry(self.left, self.right),
             ImuAccel(0.0, 0.0, 9.81),

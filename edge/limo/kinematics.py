@@ -6,10 +6,12 @@ A ``cmd/safe`` command is a body-frame velocity (vx forward, vy left, ωz counte
 The chassis executes it differently per motion mode:
 
 * **differential** (four-wheel skid steer): linear = vx, angular = ωz; vy cannot be executed.
-* **Ackermann** (bicycle model, wheelbase L): linear = vx and the central steering angle
-  δ = atan(ωz · L / vx), limited to ±``max_steering``. At (near) zero speed the chassis cannot
-  turn, so δ = 0 and ωz is dropped. The curvature actually driven is tan(δ)/L, so a command
-  whose turning radius is below the minimum is driven on the minimum radius instead.
+* **Ackermann** (front wheels steer, rear axle fixed): linear = vx, angular = 0, and the steering
+  field AgileX's driver sends: the curvature κ = ωz/vx gives the central (bicycle) angle
+  c = atan(κ·L), the inner wheel's angle i follows from the geometry and the field is i / 1.64
+  (``ackermann``). ``max_steering`` bounds the *inner* wheel; the central limit and the minimum
+  turning radius (~0.46 m) follow from it, the wheelbase and the track. At (near) zero speed
+  the chassis cannot turn: the wheels stay straight and ωz is dropped.
 * **mecanum**: linear = vx, lateral = vy, angular = ωz.
 
 Limits are applied by **scaling the whole command by one factor λ ∈ [0, 1]**, never by
@@ -19,6 +21,11 @@ the filtered u and zero still does. Clipping one axis (say ω but not v) would c
 direction of motion and could leave the safe set. λ also keeps every wheel below its speed
 limit: for a differential or mecanum base the fastest wheel moves at |vx| + |vy| + |ωz|·r
 with r = track/2 (plus wheelbase/2 for mecanum rollers).
+
+The one clamp that is not a scaling is the Ackermann steering limit, because no λ changes a
+curvature: a command asking for a tighter turn than the chassis can steer is driven on the
+tightest circle instead, at the commanded speed (ω = vx·κ_max, the path the wheels will take),
+and the speed limits then scale (vx, ω) together, so the radius stays the limit's.
 
 Odometry side
 -------------
@@ -40,6 +47,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from riskfield.protocol.platforms import LIMO
 from riskfield.services.geometry.transforms import wrap_angle
 
+from . import ackermann
 from .protocol import MotionCommand
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -60,17 +68,29 @@ class MotionMode(IntEnum):
 class LimoLimits(BaseModel):
     """The limits every command is scaled into (SI), defaults from ``protocol.platforms.LIMO``."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     max_linear: Pos = Field(default=LIMO.max_linear, description="|forward speed| (m/s)")
     max_lateral: Pos = Field(default=LIMO.max_lateral, description="|lateral speed|, mecanum mode (m/s)")
     max_angular: Pos = Field(default=LIMO.max_angular, description="|yaw rate| (rad/s)")
     max_wheel_speed: Pos = Field(default=LIMO.max_wheel_speed, description="|speed| of any wheel (m/s)")
-    max_steering: Pos = Field(default=LIMO.max_steering, description="|central steering angle|, Ackermann (rad)")
+    max_steering: Pos = Field(default=LIMO.max_steering, description=(
+        "|inner front wheel's steering angle|, Ackermann (rad); the central angle's limit and the minimum "
+        "turning radius follow from it, the wheelbase and the track"))
     wheelbase: Pos = Field(default=LIMO.wheelbase, description="axle distance (m)")
     track: Pos = Field(default=LIMO.track, description="wheel distance left to right (m)")
     min_speed_for_steering: Pos = Field(default=1e-3, description=(
         "below this |speed| (m/s) an Ackermann chassis cannot turn: the steering is 0"))
+
+    @property
+    def max_central_steering(self) -> float:
+        """|central (bicycle) angle| at the inner wheel's limit (~0.408 rad for the LIMO)."""
+        return ackermann.max_central_angle(self.wheelbase, self.track, self.max_steering)
+
+    @property
+    def max_curvature(self) -> float:
+        """1 / the minimum turning radius of the rear axle's centre (~1 / 0.46 m for the LIMO)."""
+        return 1.0 / ackermann.min_turning_radius(self.wheelbase, self.track, self.max_steering)
 
 
 def _scale(limits: list[tuple[float, float]]) -> float:
@@ -86,11 +106,43 @@ def steering_angle(vx: float, wz: float, limits: LimoLimits) -> float:
     """Central (bicycle) steering angle that drives curvature ωz/vx, clamped to the limit.
 
     δ = atan(ωz·L/vx) keeps its sign convention when reversing: backing up with ωz > 0 needs
-    the wheels turned right (δ < 0), which the formula gives because vx < 0."""
+    the wheels turned right (δ < 0), which the formula gives because vx < 0 (AgileX's
+    ``twistCmdCallback`` takes r = v/ω and atan(L/r): the same angle)."""
     if abs(vx) < limits.min_speed_for_steering:
         return 0.0
     delta = math.atan(wz * limits.wheelbase / vx)
-    return max(-limits.max_steering, min(limits.max_steering, delta))
+    cap = limits.max_central_steering
+    return max(-cap, min(cap, delta))
+
+
+def ackermann_velocity(vx: float, wz: float, limits: LimoLimits) -> tuple[float, float]:
+    """The (speed, yaw rate) an Ackermann chassis can drive for the command (vx, ωz).
+
+    A curvature beyond the steering limit becomes the limit's (same speed, ω = vx·κ_max): the
+    robot follows the tightest circle it can. Then the speed, yaw-rate and wheel-speed limits
+    scale (vx, ω) by one λ, which keeps the radius. At |vx| below ``min_speed_for_steering``
+    it cannot turn: ω = 0."""
+    if abs(vx) < limits.min_speed_for_steering:
+        w = 0.0
+    else:
+        kmax = limits.max_curvature
+        w = vx * max(-kmax, min(kmax, wz / vx))
+    lam = _scale([(vx, limits.max_linear), (w, limits.max_angular),
+                  (abs(vx) + abs(w) * limits.track / 2, limits.max_wheel_speed)])
+    return lam * vx, lam * w
+
+
+def ackermann_field(v: float, w: float, limits: LimoLimits) -> float:
+    """The ``0x111`` steering field for a drivable (speed, yaw rate): central angle → inner angle
+    (clamped to the inner limit, which only rounding can reach) → / 1.64 (``ackermann``)."""
+    if abs(v) < limits.min_speed_for_steering:
+        return 0.0
+    central = math.atan(w * limits.wheelbase / v)
+    inner = ackermann.central_to_inner(central, limits.wheelbase, limits.track)
+    inner = max(-limits.max_steering, min(limits.max_steering, inner))
+    # Towards zero on the wire's 0.001 grid, as AgileX's int16 cast does (limo_driver.cpp
+    # ``setMotionCommand``): the chassis is never asked for more than the inner wheel's limit.
+    return math.trunc(ackermann.steering_field(inner) * 1e3) / 1e3
 
 
 def command_to_motion(vx: float, vy: float, wz: float, mode: MotionMode, limits: LimoLimits) -> MotionCommand:
@@ -109,12 +161,10 @@ def command_to_motion(vx: float, vy: float, wz: float, mode: MotionMode, limits:
         lam = _scale([(vx, limits.max_linear), (vy, limits.max_lateral), (wz, limits.max_angular),
                       (abs(vx) + abs(vy) + abs(wz) * r, limits.max_wheel_speed)])
         return MotionCommand(linear=lam * vx, angular=lam * wz, lateral=lam * vy)
-    # Ackermann: the steering angle encodes the curvature; only the speed is scaled.
-    lam = _scale([(vx, limits.max_linear)])
-    v = lam * vx
-    delta = steering_angle(vx, wz, limits)
-    # The angular field stays 0: in Ackermann mode the chassis steers by the steering field alone.
-    return MotionCommand(linear=v, steering=delta)
+    v, w = ackermann_velocity(vx, wz, limits)
+    # The angular field stays 0, as AgileX's driver sends it: in Ackermann mode the chassis
+    # steers by the steering field alone (limo_driver.cpp ``twistCmdCallback``).
+    return MotionCommand(linear=v, steering=ackermann_field(v, w, limits))
 
 
 class WheelOdometry:

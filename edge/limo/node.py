@@ -4,6 +4,10 @@ Subscribes ``cmd/safe`` and writes a motion frame per command at once (no rate l
 filter's rate is the robot's rate). A timer every ``poll_s`` reads the serial line, publishes
 ``state`` on each odometry step, runs the watchdog and reopens a lost port. Diagnostics go
 to ``{prefix}/{robot}/limo/diagnostics`` every ``diagnostics_period_s``.
+
+A second watchdog with the same ``watchdog_s`` runs on a thread of its own
+(``watchdog.CommandWatchdog``) and writes the stop frame if the loop cannot (a handler or a
+timer stuck); its counts are in the node's status (``watchdog_thread_stops``).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
 from .bridge import BridgeConfig, LimoBridge, PlanarState
 from .messages import LimoDiagnostics
 from .serial_link import SerialLink
+from .watchdog import CommandWatchdog
 
 
 class LimoSettings(NodeSettings, BridgeConfig):
@@ -34,10 +39,13 @@ class LimoSettings(NodeSettings, BridgeConfig):
     port: str = Field(default="/dev/ttyTHS1", validation_alias="riskfield_limo_port",
                       description="serial device (env RISKFIELD_LIMO_PORT)")
     baudrate: int = Field(default=460800, gt=0)
+    """Serial speed of the LIMO's chassis link."""
     poll_s: float = Field(default=0.005, gt=0, description="serial read, state, watchdog and reopen period")
     reconnect_s: float = Field(default=0.5, gt=0, description="a lost port is reopened this often")
     diagnostics_period_s: float = Field(default=0.5, gt=0)
+    """Period of limo/diagnostics (battery, errors, link counters)."""
     state_frame: str = "map"
+    """frame_id of the chassis odometry published as state."""
     publish_state: bool = Field(default=True, description=(
         "publish the chassis odometry as `state`; false where another source is the robot's state "
         "(a simulator moved by the same `cmd/safe`, deploy/compose.limo-emulator.yml): one source only"))
@@ -58,6 +66,7 @@ class LimoNode:
         self.core = LimoBridge(s)  # the settings are a BridgeConfig
         self.link = SerialLink(s.port, s.baudrate, s.reconnect_s)
         self.diag_key = node.keys.key("limo/diagnostics")
+        self.watchdog = CommandWatchdog(s.watchdog_s, s.stop_repeat_s).start()
         node.subscribe(node.keys.cmd_safe, VelocityCommand, self.on_command)
         node.every(s.poll_s, self.poll)
         node.every(s.diagnostics_period_s, self.publish_diagnostics)
@@ -70,12 +79,15 @@ class LimoNode:
             self._lost(str(exc))
 
     def _lost(self, why: str) -> None:
+        self.watchdog.detach()
         self.core.on_disconnected()
         self.node.ratelog(logging.ERROR, "link", f"LIMO serial link lost ({why}); reopening {self.s.port} "
                           f"every {self.s.reconnect_s} s")
 
     def on_command(self, cmd: VelocityCommand) -> None:
-        frame = self.core.on_command(cmd.linear[0], cmd.linear[1], cmd.angular[2], time.monotonic())
+        now = time.monotonic()
+        frame = self.core.on_command(cmd.linear[0], cmd.linear[1], cmd.angular[2], now)
+        self.watchdog.commanded(not self.core.stopped, now)
         if self.link.is_open:
             self._write(frame)
         else:
@@ -85,6 +97,7 @@ class LimoNode:
         now = time.monotonic()
         if self.link.try_open(now):
             self.node.log.info("opened %s at %d baud", self.s.port, self.s.baudrate)
+            self.watchdog.attach(self.link.fileno())
             self._write(self.core.on_connected(now))
         elif not self.link.is_open:
             self.node.ratelog(logging.WARNING, "open", self.link.last_error or f"{self.s.port} is not open")
@@ -100,6 +113,8 @@ class LimoNode:
                     self.node.publish(self.node.keys.state, to_robot_state(state, self.s.state_frame))
         if self.link.is_open:
             self._write(self.core.tick(now))
+        if self.core.stopped:
+            self.watchdog.settled()
 
     def publish_diagnostics(self) -> None:
         d = self.core.diagnostics(time.monotonic())
@@ -114,6 +129,8 @@ class LimoNode:
         for name in ("frames_ok", "frames_bad", "bytes_skipped", "reconnects", "watchdog_stops", "commands"):
             self.node.stats[name] = float(getattr(d, name))
         self.node.stats["connected"] = float(d.connected)
+        self.node.stats["watchdog_thread_stops"] = float(self.watchdog.fired)
+        self.node.stats["watchdog_thread_write_errors"] = float(self.watchdog.write_errors)
         if d.error_bits:
             self.node.ratelog(logging.WARNING, "chassis-error", f"chassis reports error bits {d.error_bits:#06x}")
         if d.mode_mismatch:
@@ -125,6 +142,7 @@ class LimoNode:
         if self.link.is_open:
             self._write(self.core.shutdown())
             time.sleep(0.01)  # let the stop frame leave the UART before the fd closes
+        self.watchdog.stop()
         self.link.close()
 
 

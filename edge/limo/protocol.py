@@ -71,9 +71,11 @@ class Frame:
 
 @dataclass(frozen=True)
 class MotionCommand:
-    """``0x111``: linear (m/s), angular (rad/s), lateral (m/s, mecanum), steering (rad, Ackermann).
+    """``0x111``: linear (m/s), angular (rad/s), lateral (m/s, mecanum), steering (Ackermann).
 
-    On the wire: int16 mm/s, 0.001 rad/s, mm/s, 0.001 rad, saturated (never wrapped)."""
+    ``steering`` is the chassis's steering field, not an angle of the robot: AgileX sends the
+    inner front wheel's angle divided by 1.64 (``ackermann.steering_field``).
+    On the wire: int16 mm/s, 0.001 rad/s, mm/s, 0.001 (field), saturated (never wrapped)."""
 
     ID: ClassVar[int] = MOTION_COMMAND_ID
     linear: float = 0.0
@@ -99,17 +101,20 @@ class MotionCommand:
 
 @dataclass(frozen=True)
 class ControlModeCommand:
-    """``0x421``: d0 = 1 puts the chassis in serial command mode (0 hands control back)."""
+    """``0x421``: d0 = 1 puts the chassis in serial command mode (0 hands control back);
+    d2 = 1 also switches it to mecanum motion, ``{1, 0, 1, 0, 0, 0, 0, 0}`` (agilexrobotics/limo_ros
+    ``limo_base/src/limo_driver.cpp``, ``LimoDriver::enableMcMode``; ``enableCommandedMode`` sends d2 = 0)."""
 
     ID: ClassVar[int] = CONTROL_MODE_ID
     enable: bool = True
+    mecanum: bool = False
 
     def to_data(self) -> bytes:
-        return bytes((1 if self.enable else 0, 0, 0, 0, 0, 0, 0, 0))
+        return bytes((1 if self.enable else 0, 0, 1 if self.mecanum else 0, 0, 0, 0, 0, 0))
 
     @classmethod
     def from_data(cls, data: bytes) -> ControlModeCommand:
-        return cls(enable=data[0] == 1)
+        return cls(enable=data[0] == 1, mecanum=data[2] == 1)
 
 
 # -- feedback (chassis → computer) -----------------------------------------------------------
@@ -140,7 +145,8 @@ class SystemState:
 
 @dataclass(frozen=True)
 class MotionState:
-    """``0x221``: measured linear (m/s), angular (rad/s), lateral (m/s), steering (rad)."""
+    """``0x221``: measured linear (m/s), angular (rad/s), lateral (m/s), steering field (Ackermann:
+    ×2.47 when positive, ×1.64 otherwise is the inner wheel's angle, ``ackermann.inner_from_feedback_field``)."""
 
     ID: ClassVar[int] = MOTION_STATE_ID
     linear: float = 0.0

@@ -41,6 +41,10 @@ class SerialLink:
         self._serial.reset_input_buffer()
         return True
 
+    def fileno(self) -> int:
+        """The open port's file descriptor (-1 when closed), for a writer on another thread."""
+        return self._serial.fileno() if self._serial is not None else -1
+
     def read(self) -> bytes:
         """Whatever bytes are waiting (maybe none). Raises ``ConnectionError`` once when the port is lost."""
         if self._serial is None:

@@ -11,7 +11,11 @@ Schedule (``tick``):
   vehicle is seen, repeated every ``interval_retry_s`` while they do not stream.
 
 The bridge never arms the vehicle or changes its mode: that stays the pilot's decision.
-Setpoints are addressed to the system and component of the first autopilot heartbeat.
+Only the configured vehicle is listened to (``vehicle_system`` / ``vehicle_component``, the
+MAVLink header's source ids): messages from any other system or component on the link (a second
+vehicle, a camera, another ground station, a forged sender) are dropped and counted
+(``foreign_messages``). Setpoints are addressed to the configured vehicle once its autopilot
+heartbeat is seen.
 """
 
 from __future__ import annotations
@@ -78,6 +82,15 @@ class MavlinkConfig(VelocityLimits):
     stream_hz: Pos = Field(default=30.0, description="LOCAL_POSITION_NED and ATTITUDE rate asked of the vehicle")
     interval_retry_s: Pos = Field(default=5.0, description="the stream request repeats this often until they come")
     state_timeout_s: Pos = Field(default=0.5, description="position and attitude older than this give no state")
+    # 1/1: PX4's MAV_SYS_ID and MAV_COMP_ID defaults (src/modules/mavlink/mavlink_params.c) and
+    # ArduPilot's SYSID_THISMAV with the compid GCS::init sets, MAV_COMP_ID_AUTOPILOT1
+    # (libraries/GCS_MAVLink/GCS_Common.cpp).
+    vehicle_system: int = Field(default=1, ge=1, le=255, description=(
+        "MAVLink system id of the vehicle (PX4 MAV_SYS_ID, ArduPilot SYSID_THISMAV): messages from another "
+        "system are dropped and counted (foreign_messages)"))
+    vehicle_component: int = Field(default=1, ge=0, le=255, description=(
+        "MAVLink component id of its autopilot (1 = MAV_COMP_ID_AUTOPILOT1): messages from other components "
+        "are dropped and counted (foreign_messages)"))
 
     @property
     def limits(self) -> VelocityLimits:
@@ -97,6 +110,7 @@ class Counters:
     commands: int = 0
     watchdog_stops: int = 0
     interval_requests: int = 0
+    foreign_messages: int = 0
 
 
 class MavlinkBridge:
@@ -116,6 +130,13 @@ class MavlinkBridge:
         self._att: tuple[tuple[float, float, float], tuple[float, float, float], float] | None = None
 
     # -- vehicle → bridge ---------------------------------------------------------------------
+    def accepts(self, system: int, component: int) -> bool:
+        """Whether a message with these source ids comes from the configured vehicle (else counted)."""
+        if (system, component) == (self.config.vehicle_system, self.config.vehicle_component):
+            return True
+        self.counters.foreign_messages += 1
+        return False
+
     def on_heartbeat(self, system: int, component: int, mav_type: int, autopilot: int, now: float) -> None:
         if mav_type == MAV_TYPE_GCS or autopilot == MAV_AUTOPILOT_INVALID:
             return  # another ground station, not a vehicle

@@ -55,7 +55,7 @@ def attitude_ned_frd_to_enu_flu(roll: float, pitch: float, yaw: float) -> np.nda
 class VelocityLimits(BaseModel):
     """Bounds of the setpoint; exceeded → the whole command is scaled by one factor (see below)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     max_horizontal: Pos = Field(default=1.0, description="|horizontal velocity| (m/s)")
     max_vertical: Pos = Field(default=0.5, description="|vertical velocity| (m/s)")

@@ -34,8 +34,11 @@ class MavlinkSettings(NodeSettings, MavlinkConfig):
                      description="pymavlink connection string (env RISKFIELD_MAVLINK_URL)")
     baudrate: int = Field(default=115200, gt=0, description="for serial links")
     poll_s: float = Field(default=0.005, gt=0)
+    """Period of reading the MAVLink link (and publishing the state it brings)."""
     source_system: int = Field(default=255, ge=1, le=255)
+    """MAVLink system id this bridge sends as (255: a ground station)."""
     source_component: int = Field(default=MAV.MAV_COMP_ID_MISSIONPLANNER, ge=0, le=255)
+    """MAVLink component id this bridge sends as."""
 
 
 class MavlinkNode:
@@ -79,7 +82,7 @@ class MavlinkNode:
         c = self.core.counters
         self.node.stats.update(setpoints=c.setpoints, zero_setpoints=c.zero_setpoints, heartbeats=c.heartbeats,
                                vehicle_heartbeats=c.vehicle_heartbeats, watchdog_stops=c.watchdog_stops,
-                               bad_messages=self.bad_messages)
+                               bad_messages=self.bad_messages, foreign_messages=c.foreign_messages)
 
     def _handle(self, msg: object, now: float) -> bool:
         kind = msg.get_type()
@@ -87,9 +90,15 @@ class MavlinkNode:
             self.bad_messages += 1
             self.node.ratelog(logging.WARNING, "bad", "undecodable MAVLink bytes received")
             return False
+        system, component = msg.get_srcSystem(), msg.get_srcComponent()
+        if not self.core.accepts(system, component):
+            self.node.ratelog(logging.WARNING, "foreign",
+                              f"dropped {kind} from system {system} component {component}: the vehicle is system "
+                              f"{self.s.vehicle_system} component {self.s.vehicle_component}")
+            return False
         if kind == "HEARTBEAT":
             had = self.core.target
-            self.core.on_heartbeat(msg.get_srcSystem(), msg.get_srcComponent(), msg.type, msg.autopilot, now)
+            self.core.on_heartbeat(system, component, msg.type, msg.autopilot, now)
             if had is None and self.core.target is not None:
                 self.node.log.info("vehicle found: system %d component %d autopilot %d", *self.core.target,
                                    msg.autopilot)

@@ -31,9 +31,10 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 class VolumeParams(BaseModel):
     """The rolling volume: voxel size, extent and how it follows the robot."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     voxel_size: Annotated[float, Field(gt=0.005, le=2.0)] = 0.05
+    """Edge (m) of a voxel of the rolling volume."""
     half_extent: tuple[Pos, Pos, Pos] = (2.5, 2.5, 2.5)
     """Half size (m) of the rolling volume along x, y, z; 2.5 m at 5 cm gives 101 voxels an axis."""
     centre_offset: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
@@ -41,6 +42,7 @@ class VolumeParams(BaseModel):
     recentre_distance: NonNeg = 0.25
     """The volume shifts (keeping the overlap) once the robot is this far from its centre."""
     max_voxels: Annotated[int, Field(gt=0)] = 16_000_000
+    """Largest voxel count the volume may have: a setting that would need more is refused at start."""
 
     @model_validator(mode="after")
     def _voxel_count(self) -> VolumeParams:
@@ -60,7 +62,7 @@ class VolumeParams(BaseModel):
 class TsdfParams(BaseModel):
     """TSDF integration of a pointmap (projective, weighted by confidence; free-space carving)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     truncation: Pos = 0.15
     """TSDF truncation distance (m); the band updated around each observed surface point."""
@@ -74,6 +76,7 @@ class TsdfParams(BaseModel):
     min_confidence: NonNeg = 0.1
     """Pixels whose confidence is below this are skipped."""
     min_depth: NonNeg = 0.05
+    """Points nearer than this (m, along the ray) are skipped."""
     max_depth: Pos = 6.0
     """Points farther than this (m, along the ray) only carve free space up to it."""
     pixel_stride: Annotated[int, Field(ge=1, le=64)] = 2
@@ -115,7 +118,7 @@ class TsdfParams(BaseModel):
 class OccupancyParams(BaseModel):
     """Which voxels are obstacles: TSDF surface support, semantic labels' band, unknown space."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     min_weight: NonNeg = 0.5
     """Surface support needs at least this TSDF weight."""
@@ -156,7 +159,7 @@ class OccupancyParams(BaseModel):
 class EsdfParams(BaseModel):
     """The risk-inflated ESDF: clipping, inflation rule, output form and EDT threads."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     max_distance: Annotated[float, Field(gt=0, le=100.0)] = 2.0
     """Distances are clipped to [-max_distance, max_distance]."""
@@ -202,7 +205,7 @@ class DynamicParams(BaseModel):
     """How the map follows a changing world: the present layer of the keyframe protocol and the
     decay of people and animals (see ``mapper.py``, "The map shows the present")."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     dynamic_labels: tuple[str, ...] = ("person", "animal")
     """ADE20K classes that move by themselves: their voxels decay once no current frame has seen
@@ -270,7 +273,7 @@ class ObjectParams(BaseModel):
     """The tracker of movable obstacles (``objects.py``; which labels move is ``DynamicParams.dynamic_labels``):
     how their footprints are segmented, associated across map updates and turned into velocities (``map/objects``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     object_tracking: bool = True
     """Track movable obstacles after each map update and publish them on ``map/objects``."""
@@ -313,7 +316,7 @@ class MapperConfig(ObjectParams, DynamicParams, EsdfParams, OccupancyParams, Tsd
     doc). Group names, labels and margins come from the ``RiskConfig`` instead (hot-reloadable),
     not from here."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     @classmethod
     def compose(cls, volume: VolumeParams | None = None, tsdf: TsdfParams | None = None,

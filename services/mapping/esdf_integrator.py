@@ -57,8 +57,8 @@ computed exactly and cheaply with 2-D EDTs of the projected per-group occupancy.
 from __future__ import annotations
 
 import math
+from types import ModuleType
 
-import edt
 import numpy as np
 from scipy import ndimage
 
@@ -66,6 +66,15 @@ from ..runtime.jit import threads
 from . import distance_transform
 from .config import MapperConfig
 from .esdf_wave import WaveEsdf
+
+
+def _edt_package() -> ModuleType:
+    """The ``edt`` package, imported only by the reference path (``esdf_edt = "edt"``: the compiled
+    transform's test oracle and the bench's before): a mapping node never runs it, so the package
+    is in the ``dev`` extra, not in ``mapping``."""
+    import edt
+
+    return edt
 
 
 def _bbox(mask: np.ndarray, pad: int) -> tuple[slice, ...] | None:
@@ -306,7 +315,8 @@ class EsdfIntegrator:
         if c.esdf_edt == "compiled":
             return distance_transform.edt(sites, c.voxel_size, c.threads)
         free = np.ascontiguousarray(~np.asarray(sites, dtype=bool)).view(np.uint8)
-        return edt.edt(free, anisotropy=(c.voxel_size,) * free.ndim, black_border=False, parallel=c.threads)
+        return _edt_package().edt(free, anisotropy=(c.voxel_size,) * free.ndim, black_border=False,
+                                  parallel=c.threads)
 
     def _edt_of_label(self, labels: np.ndarray, label: int, equal: bool,
                       site_box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
@@ -327,7 +337,8 @@ class EsdfIntegrator:
             e += self._edt(~union)
             return e
         labels = np.ascontiguousarray(union).view(np.uint8) + np.uint8(1)
-        return edt.edt(labels, anisotropy=(c.voxel_size,) * union.ndim, black_border=False, parallel=c.threads)
+        return _edt_package().edt(labels, anisotropy=(c.voxel_size,) * union.ndim, black_border=False,
+                                  parallel=c.threads)
 
     def _field(self, masks: dict[int, np.ndarray], margins: np.ndarray, shape: tuple[int, ...],
                counts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

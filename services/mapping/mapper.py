@@ -96,6 +96,10 @@ class MapUpdate:
         return grid
 
 
+class FutureFrame(FrameRejected):
+    """A frame stamped later than the receiver's clock allows (``integrate_frame``)."""
+
+
 class Mapper:
     """Semantic TSDF → semantic occupancy → inflated signed ESDF, on a rolling local volume."""
 
@@ -378,7 +382,13 @@ class Mapper:
         occ_t = seen_t & (t.tsdf <= c.surface_band)
         return seen_p & (~seen_t | (occ_p != occ_t))
 
-    def integrate_frame(self, frame: PerceptionFrame) -> FrameResult:
+    def integrate_frame(self, frame: PerceptionFrame, latest_ns: int | None = None) -> FrameResult:
+        """Fuse a frame; with ``latest_ns`` (the receiver's wall clock plus its tolerance), a frame
+        stamped after it raises ``FutureFrame`` before anything changes: taken, its stamp would
+        ratchet ``now_ms`` ahead (the dynamic labels would then decay at once and every later frame
+        look old) and make the ESDF's stamp a time that has not come."""
+        if latest_ns is not None and frame.header.stamp_ns > latest_ns:
+            raise FutureFrame(f"stamped {(frame.header.stamp_ns - latest_ns) / 1e9:.3f} s after this clock allows")
         if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
             return self._integrate_keyframe_protocol(frame)
         return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,

@@ -2,7 +2,10 @@
 
 Subscribes
     ``{prefix}/{robot}/perception/frame``  PerceptionFrame, latest value → ``Mapper.integrate``
-    ``{prefix}/{robot}/state``             RobotState, latest value → the volume follows the robot
+    ``{prefix}/{robot}/state``             RobotState, latest value → the volume follows the robot; a
+                                           sample that jumps farther than the robot can move is refused
+                                           (``runtime.continuity``; ``state_refused``, ``state_refused_<reason>``)
+    ``{prefix}/{robot}/state/relocalise``  RobotState: an announced jump (additive key), taken as it is
     ``{prefix}/{robot}/config/risk``       RiskConfig → margins and obstacle labels of the next ESDF
 Publishes, at most ``esdf_rate_hz`` and only after new data (frame, recentring, risk config);
 right after a frame when the rate allows, else as soon as it does
@@ -17,8 +20,9 @@ Serves
 The ESDF header carries the stamp of the newest frame that changed the map (a re-sent keyframe or a
 frame with no usable pixel does not), also when the grid is only re-published (a risk config, a
 recentring, a keyframe update, people decaying): its content age seen by the safety filter includes
-perception latency and keeps growing while perception is silent. A rejected frame (non-rigid pose, absurd size)
-is counted (``rejected_frames``) and logged at most once per period; the node keeps serving.
+perception latency and keeps growing while perception is silent. A rejected frame (non-rigid pose, absurd size,
+a stamp more than ``clock_tolerance_s`` ahead of this clock) is counted (``rejected_frames``; the last also in
+``future_frames``) and logged at most once per period, and changes nothing; the node keeps serving.
 A risk file (``risk_file``, see ``runtime.risk_file``) is loaded at start and re-read when it
 changes; a bad change keeps the configuration in force and is counted (``risk_errors``).
 """
@@ -41,12 +45,13 @@ from riskfield.protocol import (
     TrackedObjects,
 )
 
+from ..runtime.continuity import StateGate
 from ..runtime.memory import keep_freed_heap
 from ..runtime.node import Node
 from ..runtime.rate import TokenBucket
 from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
-from .mapper import FrameRejected, Mapper, MapUpdate
+from .mapper import FrameRejected, FutureFrame, Mapper, MapUpdate
 from .objects import ObjectTracker
 from .settings import MappingSettings
 
@@ -68,6 +73,8 @@ class MappingNode:
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)
         self.rejected = 0
         self.updates = 0
+        self.gate = StateGate.of(settings, settings.clock_tolerance_s)
+        node.stats.update(state_refused=0, future_frames=0)
         self._period = 1.0 / settings.esdf_rate_hz
         # An average-rate cap that lets a frame that comes a little early through (see rate.py).
         self._bucket = TokenBucket(settings.esdf_rate_hz, burst=2.0)
@@ -82,6 +89,7 @@ class MappingNode:
         node.subscribe(k.perception_frame, PerceptionFrame, self.on_frame, queue="fifo", maxlen=8,
                        limits=frame_limits)
         node.subscribe(k.state, RobotState, self.on_state, queue="latest")
+        node.subscribe(k.state_relocalise, RobotState, self.on_relocalise, queue="fifo", maxlen=4)
         node.subscribe(k.risk_config, RiskConfig, self.on_risk_config, queue="latest")
         node.queryable(k.esdf_query, DistanceQuery, self.on_query,
                        limits=Limits(max_array_bytes=24 * MAX_QUERY_POINTS))
@@ -100,10 +108,13 @@ class MappingNode:
             st["superseded_frames"] = st.get("superseded_frames", 0) + 1
             return
         try:
-            result = self.mapper.integrate_frame(frame)
+            latest = time.time_ns() + round(self.s.clock_tolerance_s * 1e9)
+            result = self.mapper.integrate_frame(frame, latest_ns=latest)
         except FrameRejected as exc:
             self.rejected += 1
             self.node.stats["rejected_frames"] = self.rejected
+            if isinstance(exc, FutureFrame):
+                st["future_frames"] += 1
             self.node.ratelog(logging.WARNING, "frame", f"rejected a perception frame: {exc}")
             return
         st["frames"] = self.mapper.frames
@@ -119,7 +130,27 @@ class MappingNode:
         self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
 
     def on_state(self, state: RobotState) -> None:
+        refused = self.gate.admit(state.position, state.header.stamp_ns, time.monotonic(), time.time_ns())
+        if refused is not None:
+            self._state_refused(state, refused)
+            return
         self.mapper.set_robot_position(np.asarray(state.position))
+
+    def on_relocalise(self, state: RobotState) -> None:
+        refused = self.gate.relocalise(state.position, state.header.stamp_ns, time.monotonic(), time.time_ns())
+        if refused is not None:
+            self._state_refused(state, refused)
+            return
+        self.node.log.info("relocalised at %s", np.round(state.position, 3).tolist())
+        self.mapper.set_robot_position(np.asarray(state.position))
+
+    def _state_refused(self, state: RobotState, reason: str) -> None:
+        st = self.node.stats
+        st["state_refused"] = self.gate.refused_total
+        st[f"state_refused_{reason}"] = self.gate.refused[reason]
+        self.node.ratelog(logging.WARNING, f"state_refused:{reason}",
+                          f"refused a state at {np.round(state.position, 3).tolist()} ({reason}; stamp "
+                          f"{state.header.stamp_ns}): the volume stays where it is")
 
     def on_risk_config(self, risk: RiskConfig) -> None:
         try:

@@ -12,11 +12,12 @@ from typing import Annotated, ClassVar
 
 from pydantic import Field
 
+from ..runtime.continuity import StateGateSettings
 from ..runtime.settings import NodeSettings
 from .config import REFERENCE_IMPLEMENTATIONS, MapperConfig
 
 
-class MappingSettings(NodeSettings, MapperConfig):
+class MappingSettings(NodeSettings, MapperConfig, StateGateSettings):
     SERVICE: ClassVar[str] = "mapping"
     REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
 
@@ -32,6 +33,11 @@ class MappingSettings(NodeSettings, MapperConfig):
     risk_file: Path | None = None
     """A RiskConfig YAML/TOML/JSON file, polled for changes; the ``config/risk`` key overrides it."""
     risk_poll_s: Annotated[float, Field(gt=0)] = 1.0
+    """How often risk_file is checked for changes."""
+    clock_tolerance_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False, description=(
+        "how far after this machine's clock a frame or state may be stamped: a later stamp is "
+        "refused and counted (future_frames, state_refused_future_state), it would advance the "
+        "map's clock and stamp"))] = 0.1
     frame_backlog: Annotated[int, Field(ge=0, le=7)] = 1
     """A tracking frame (outside the keyframe protocol) is skipped as superseded only when more than
     this many newer frames wait behind it. 0 is pure latest-value; 1 lets a pair that arrives back

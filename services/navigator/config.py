@@ -16,26 +16,42 @@ class NavigatorConfig(BaseModel):
     velocity-controlled vehicle (MAVLink, simulator) tracks. ``escape`` enables the
     deadlock escape."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     model: Literal["unicycle", "double_integrator"] = "unicycle"
+    """unicycle: planar LIMO-like robot (v, omega); double_integrator: 3-D point robot (body-frame velocity)."""
     k_rho: float = Field(0.8, gt=0)
+    """unicycle: forward speed per metre of distance to the waypoint (1/s)."""
     k_alpha: float = Field(2.0, gt=0)
+    """unicycle: yaw rate per radian of bearing error (1/s)."""
     k_p: float = Field(1.0, gt=0)
+    """double_integrator: PD position gain."""
     k_d: float = Field(1.6, gt=0)
+    """double_integrator: PD damping gain; the cruise speed is k_p / k_d per metre of error, capped at v_max."""
     v_max: float = Field(0.4, gt=0, le=10)
+    """Largest commanded speed (m/s)."""
     w_max: float = Field(1.5, gt=0, le=20)
+    """unicycle: largest commanded yaw rate (rad/s)."""
     a_max: float = Field(1.0, gt=0, le=50)
+    """double_integrator: largest acceleration of the velocity demand (m/s^2)."""
     allow_reverse: bool = False
+    """unicycle: drive backwards to a waypoint behind instead of turning round first."""
     state_timeout_s: float = Field(0.5, gt=0)
+    """No state newer than this: the command is zero."""
     # Deadlock escape (see ``navigator.Navigator``): a CBF-filtered robot can stop for good in
     # front of an obstacle right on its path; then a side sub-goal is driven to for a while.
     escape: bool = True
+    """Deadlock escape: after a stall, drive to a side sub-goal for escape_s, then resume."""
     stall_s: float = Field(4.0, gt=0)
+    """A stall is stall_s without the distance to the target dropping by stall_progress."""
     stall_progress: float = Field(0.05, ge=0)
+    """Progress (m) towards the target that must be made within stall_s."""
     escape_s: float = Field(4.0, gt=0)
+    """How long the side sub-goal is driven to after a stall."""
     escape_angle_deg: float = Field(90.0, gt=0, lt=180)
+    """Angle of the side sub-goal off the line to the target (degrees); the side alternates."""
     escape_distance: float = Field(0.8, gt=0)
+    """Distance (m) of the side sub-goal from the robot."""
 
     def unicycle(self) -> UnicycleCLF:
         return UnicycleCLF(self.k_rho, self.k_alpha, self.v_max, self.w_max, self.allow_reverse)

@@ -27,9 +27,13 @@ class NavigatorSettings(NodeSettings):
     SERVICE: ClassVar[str] = "navigator"
 
     rate_hz: float = Field(20.0, gt=0, le=1000)
+    """cmd/ref rate while the navigator has a goal."""
     source: str = "navigator"
+    """The source name its commands carry (VelocityCommand.source)."""
     stop_hold_s: float = Field(1.0, ge=0)
+    """Zeros are sent this long after arriving, then the navigator falls silent (a joystick may share cmd/ref)."""
     nav: NavigatorConfig = Field(default_factory=NavigatorConfig)
+    """The CLF controller and its limits (nav.k_rho, nav.v_max, ...)."""
 
 
 class NavigatorNode:

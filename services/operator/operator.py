@@ -34,7 +34,7 @@ class Target:
 class OperatorConfig(BaseModel):
     """How the scripted operator drives: its speed, aim, reaction and stick noise, and its rhythm."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     cruise_speed: Pos = Field(default=0.45, description="forward push (m/s) before the per-run scale")
     speed_spread: Annotated[float, Field(ge=0, lt=1)] = Field(default=0.2, description=(

@@ -40,20 +40,35 @@ class PerceptionSettings(NodeSettings):
     geometry: str = Field("sim", description="sim | mast3r | rgbd")
     labels: str = Field("sim", description="sim | efficientvit")
     publish: Literal["keyframe", "frame", "updates"] = "keyframe"
+    """keyframe: the frame with its keyframe's fused points; frame: the frame's own points; updates: the keyframe
+    map-update protocol."""
     truth_key: str = TRUTH_KEY
+    """Where the simulator's ground-truth frames come from (geometry sim), relative to {prefix}/{robot}/."""
     pair_timeout_s: float = Field(0.5, gt=0)
+    """How long an image waits for its companion of the same stamp (ground truth or depth) before it is dropped."""
     seed: int = 0
+    """Seed of the sim backend's degradation, so that a run is reproducible."""
     # degradation of the sim backend (see degrade.DegradationConfig)
     noise_a: float = Field(0.005, ge=0)
+    """sim: depth noise sigma(z) = noise_a + noise_b z^2, constant term (m)."""
     noise_b: float = Field(0.004, ge=0)
+    """sim: depth noise sigma(z) = noise_a + noise_b z^2, quadratic term (1/m)."""
     c_gain: float = Field(9.0, ge=0)
+    """sim: confidence 1 + c_gain cos(incidence) exp(-z / z_scale) of a valid pixel."""
     z_scale: float = Field(4.0, gt=0)
+    """sim: range (m) over which the confidence decays, exp(-z / z_scale)."""
     boundary_px: int = Field(2, ge=0, le=50)
+    """sim: pixels this close to a label edge may take a neighbour's label (p_boundary)."""
     p_boundary: float = Field(0.3, ge=0, le=1)
+    """sim: probability that a pixel near a label edge takes a neighbour's label."""
     p_confuse: float = Field(0.05, ge=0, le=1)
+    """sim: per frame and object class, probability of relabelling part of it as a plausible confusion."""
     p_salt: float = Field(0.001, ge=0, le=1)
+    """sim: probability of a random label on any pixel (salt noise)."""
     drift_t: float = Field(0.0, ge=0)
+    """sim: pose drift, std (m) per frame of the translation random walk; 0 = no drift."""
     drift_yaw: float = Field(0.0, ge=0)
+    """sim: pose drift, std (rad) per frame of the yaw random walk; 0 = no drift."""
     correct_every: int = Field(0, ge=0, description="sim: a loop closure every n keyframes re-poses them (0: never)")
     update_every: int = Field(5, ge=1, description="re-send a refined keyframe every n tracked frames")
     confidence_threshold: float | None = Field(None, ge=0, description="pixels whose average confidence is "
@@ -61,23 +76,36 @@ class PerceptionSettings(NodeSettings):
                                                "(mast3r 1.5, as MASt3R-SLAM; sim and rgbd 0)")
     # keyframes
     kf_min_overlap: float = Field(0.6, ge=0, le=1)
+    """A new keyframe starts when less than this fraction of the keyframe's pixels is matched in the frame."""
     kf_max_translation: float = Field(1.0, gt=0)
+    """A new keyframe starts when the camera moved farther than this (m) from the keyframe."""
     kf_max_rotation_deg: float = Field(30.0, gt=0)
+    """A new keyframe starts when the camera turned more than this (degrees) from the keyframe."""
     q_conf: float = Field(1.5, ge=0)
+    """Match quality a pixel needs to be fused into its keyframe (MASt3R-SLAM's Q_conf)."""
     # GPU backends
     efficientvit_checkpoint: str | None = None
+    """labels efficientvit: local path of the segmentation checkpoint (never downloaded at run time)."""
     efficientvit_model: str = "efficientvit-seg-l2-ade20k"  # the authors' model
+    """labels efficientvit: model name of the checkpoint (an ADE20K segmentation model)."""
     device: str = "cpu"
+    """Torch device of the EfficientViT labeller, e.g. cpu or cuda:0."""
     mast3r_checkpoints: str = "checkpoints"
+    """geometry mast3r: folder holding the MASt3R checkpoint files."""
     mast3r_config: str | None = Field(None, description="None: config/base.yaml of the installed checkout")
     mast3r_subsample: int = Field(10, ge=1, description="keep every n-th image (the authors' base_subsample10)")
     mast3r_device: str = "cuda:0"
+    """Torch device of MASt3R-SLAM (it wants CUDA)."""
     # rgbd: depth camera + odometry
     depth_key: str = "camera/depth"
+    """geometry rgbd: key of the depth images paired with the camera's, relative to {prefix}/{robot}/."""
     camera_position: tuple[float, float, float] = (0.15, 0.0, 0.1)
+    """geometry rgbd: camera position (m) in the robot's base frame, x forward, y left, z up."""
     camera_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """geometry rgbd: camera roll, pitch, yaw (degrees) in the robot's base frame."""
     rgbd_label: str = Field("wall", description="the ADE20K class of every pixel when labels are not from a network")
     rgbd_max_depth: float = Field(6.0, gt=0)
+    """geometry rgbd: depth beyond this (m) is dropped as invalid."""
 
     @field_validator("geometry", "labels")
     @classmethod
@@ -98,15 +126,20 @@ class PerceptionSettings(NodeSettings):
 
 
 def decode_image(image: Image) -> Image:
-    """An ``rgb8`` image; JPEG is decoded with Pillow (a matplotlib dependency)."""
+    """An ``rgb8`` image; JPEG is decoded with Pillow (a matplotlib dependency). The header and the
+    intrinsics (``Image.intrinsics``, a calibrated camera's) stay with the pixels."""
     if image.encoding == "rgb8":
         return image
     from PIL import Image as PILImage
 
-    rgb = np.asarray(PILImage.open(io.BytesIO(image.data)).convert("RGB"))
+    try:
+        rgb = np.asarray(PILImage.open(io.BytesIO(image.data)).convert("RGB"))
+    except (OSError, SyntaxError) as exc:  # Pillow's UnidentifiedImageError is an OSError
+        raise ValueError(f"undecodable JPEG: {exc}") from exc
     if rgb.shape[:2] != (image.height, image.width):
         raise ValueError(f"JPEG is {rgb.shape[1]}x{rgb.shape[0]}, the header says {image.width}x{image.height}")
-    return Image(header=image.header, encoding="rgb8", width=image.width, height=image.height, data=rgb)
+    return Image(header=image.header, encoding="rgb8", width=image.width, height=image.height, data=rgb,
+                 intrinsics=image.intrinsics)
 
 
 def build_backend(s: PerceptionSettings) -> PerceptionBackend:

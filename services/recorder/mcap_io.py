@@ -22,6 +22,7 @@ crash yields every complete chunk before it reports the cut.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,28 @@ RAW_PREFIX = "raw/"
 KEY_META = "riskfield_key"
 SCHEMA_META = "riskfield_schema"
 MAGIC = b"\x89MCAP0\r\n"
+
+
+def run_names() -> Iterator[tuple[str, str]]:
+    """(file stem, summary file name) of a folder's recording runs in the order they are taken:
+    ``recording`` / ``summary.json``, then ``recording-1`` / ``summary-1.json``, ..."""
+    yield "recording", "summary.json"
+    n = 1
+    while True:
+        yield f"recording-{n}", f"summary-{n}.json"
+        n += 1
+
+
+_RUN = re.compile(r"^recording(?:-([1-9][0-9]*))?\.mcap$")
+
+
+def latest_recording(folder: str | Path) -> Path:
+    """The first file of the newest run ``riskfield record`` left in ``folder`` (the highest
+    ``recording-N.mcap``, else ``recording.mcap``, which is also what is returned when there is none)."""
+    folder = Path(folder)
+    # Split files are <stem>-001.mcap, ...: the leading zero keeps them apart up to the 99th.
+    runs = [(int(m.group(1) or 0), p) for p in folder.glob("recording*.mcap") if (m := _RUN.match(p.name))]
+    return max(runs)[1] if runs else folder / "recording.mcap"
 
 
 def peek_schema(payload: bytes) -> tuple[str, int, int] | None:

@@ -1,4 +1,12 @@
-"""``riskfield record`` and ``riskfield replay``: thin nodes around mcap_io, views and replay."""
+"""``riskfield record`` and ``riskfield replay``: thin nodes around mcap_io, views and replay.
+
+A recording never overwrites a file: a run takes the first free name in its folder,
+``recording.mcap`` (and ``summary.json``), then ``recording-1.mcap`` (``summary-1.json``),
+``recording-2.mcap``, ...; its split files are ``<name>-001.mcap``, ... (``latest_recording``
+finds a folder's newest run). The recorder's queue is bounded by bytes (``max_queue_mb``): a
+recorder that cannot keep up drops the oldest samples, counted in its status (``dropped``,
+``queue_dropped``), instead of growing without bound.
+"""
 
 from __future__ import annotations
 
@@ -20,31 +28,54 @@ from riskfield.protocol.errors import DecodeError
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
-from .mcap_io import RAW_PREFIX, McapRecorder, RecordingError, check_recording, peek_map, read_records, scan
-from .replay import Remap, is_command, is_status, plan, schedule
+from .mcap_io import (
+    RAW_PREFIX,
+    McapRecorder,
+    RecordingError,
+    check_recording,
+    peek_map,
+    read_records,
+    run_names,
+    scan,
+)
+from .replay import Remap, is_command, is_state, is_status, plan, schedule
 from .views import ImageView, View, esdf_view, json_view, pointcloud_view, state_views
 
 #: Keys (relative to the robot root) kept as raw msgpack by default: what drives the safety
 #: filter, so a default recording can replay it. ``raw=true`` keeps every key raw.
-FILTER_INPUTS = ("map/esdf", "state", "cmd/ref", "nav/goal")
+FILTER_INPUTS = ("map/esdf", "state", "state/relocalise", "cmd/ref", "nav/goal")
 MB = 1e6
 
 
 class RecordSettings(NodeSettings):
     SERVICE: ClassVar[str] = "record"
 
-    out: Path = Path("out/record")
-    keys: str = ""  # key expression to subscribe to; default: everything of this robot
-    raw: bool = False  # keep the wire bytes of every key (replayable); default: only FILTER_INPUTS
-    include: list[str] = Field(default_factory=list)  # key expressions (full, or relative to the robot root)
+    out: Path = Field(Path("out/record"), description=(
+        "folder of the recording: recording.mcap and summary.json, or the first free recording-N.mcap and "
+        "summary-N.json when an earlier run is there (never overwritten)"))
+    keys: str = ""
+    """Key expression to subscribe to; empty: every key of this robot."""
+    raw: bool = False
+    """Keep the wire bytes of every key (all replayable), not only the filter's inputs."""
+    include: list[str] = Field(default_factory=list)
+    """Record only keys matching these key expressions (full, or relative to the robot); empty: all."""
     exclude: list[str] = Field(default_factory=list)
-    max_mb: float = Field(0.0, ge=0)  # stop recording when the files reach this size in total; 0: no limit
-    split_mb: float = Field(0.0, ge=0)  # start a new file (recording-001.mcap, ...) past this size; 0: one file
-    flush_s: float = Field(1.0, gt=0, le=10)  # a crash loses at most this much
-    cloud_stride: int = Field(8, ge=1)  # pointmap decimation (every n-th pixel both ways)
+    """Skip keys matching these key expressions, e.g. sim/**."""
+    max_mb: float = Field(0.0, ge=0)
+    """Stop recording when the files reach this size in total (MB); 0: no limit."""
+    split_mb: float = Field(0.0, ge=0)
+    """Start a new file (recording-001.mcap, ...) past this size (MB); 0: one file."""
+    flush_s: float = Field(1.0, gt=0, le=10)
+    """Period of flushing to disk: a crash loses at most this much."""
+    cloud_stride: int = Field(8, ge=1)
+    """Pointmap decimation of the point-cloud view: every n-th pixel both ways."""
     jpeg_quality: int = Field(75, ge=1, le=100)
-    status_line: bool = True  # a live line with MB and MB/s (on a terminal; else a log line every 10 s)
-    max_queue: int = 10000
+    """JPEG quality of the recorded camera view (Pillow's scale)."""
+    status_line: bool = True
+    """A live line with MB and MB/s on a terminal (else a log line every 10 s)."""
+    max_queue_mb: float = Field(256.0, gt=0, le=65536, description=(
+        "bytes of samples (MB) waiting to be written at most; past it the oldest are dropped and counted "
+        "(status: dropped, queue_dropped)"))
 
     @field_validator("include", "exclude", mode="before")
     @classmethod
@@ -89,7 +120,7 @@ class Recording:
         self.filter = KeyFilter(self.root, s.include, s.exclude)
         self.files: list[Path] = []
         self._closed_bytes = 0
-        self._open_file()
+        self._open_first_file()
         self._per_key: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._filtered = 0
@@ -103,18 +134,43 @@ class Recording:
         self._tty = s.status_line and sys.stderr.isatty()
         self.stopped_for_size = False
         self.expr = s.keys or f"{self.root}/**"
-        node.subscribe(self.expr, None, self._on_payload, queue="fifo", maxlen=s.max_queue)
+        # Bounded by bytes, not count: 10 000 pointmaps of 3.5 MB would be 35 GB (inbox.py).
+        node.subscribe(self.expr, None, self._on_payload, queue="fifo", maxlen=10**9,
+                       max_bytes=round(s.max_queue_mb * MB))
         node.every(s.flush_s, self._tick)
         node.on_close(self._end_line)
         node.log.info("recording %s into %s (%s)", self.expr, self.path,
                       "raw: every key" if s.raw else "viewable; raw: " + ", ".join(FILTER_INPUTS))
 
     # -- files ----------------------------------------------------------------------------------
+    def _open_first_file(self) -> None:
+        """The first free run name of the folder (module doc); exclusive creation, so a file that
+        appeared meanwhile (another recorder on the same folder) is never overwritten either."""
+        for stem, summary in run_names():
+            if (self._out / summary).exists():
+                continue
+            try:
+                self._file = open(self._out / f"{stem}.mcap", "xb")
+            except FileExistsError:
+                continue
+            self.stem, self.summary_path, self.path = stem, self._out / summary, self._out / f"{stem}.mcap"
+            break
+        self.files.append(self.path)
+        self._rec = McapRecorder(self._file)
+        if self.stem != "recording":
+            self._node.log.info("%s already holds a recording: this one is %s", self._out, self.path.name)
+
     def _open_file(self) -> None:
         n = len(self.files)
-        self.path = self._out / ("recording.mcap" if n == 0 else f"recording-{n:03d}.mcap")
+        while True:
+            path = self._out / f"{self.stem}-{n:03d}.mcap"
+            try:
+                self._file = open(path, "xb")
+                break
+            except FileExistsError:
+                n += 1
+        self.path = path
         self.files.append(self.path)
-        self._file = open(self.path, "wb")
         self._rec = McapRecorder(self._file)
 
     def _close_file(self) -> None:
@@ -201,7 +257,7 @@ class Recording:
         t_prev, size_prev = self._last
         rate = (size - size_prev) / MB / max(now - t_prev, 1e-3)
         self._last = (now, size)
-        self._node.stats.update(recorded_mb=size / MB, record_mb_per_s=rate)
+        self._node.stats.update(recorded_mb=size / MB, record_mb_per_s=rate, queue_dropped=self._queue_dropped())
         line = (f"recording {self.path.name}: {size / MB:8.1f} MB  {rate:6.2f} MB/s  "
                 f"{sum(self._per_key.values())} messages  {time.time() - self._t0:5.0f} s")
         if self._tty:
@@ -226,10 +282,13 @@ class Recording:
                    "messages": self._rec.count, "skipped_not_messages": self._rec.skipped,
                    "filtered_out": self._filtered, "invalid": self._bad, "duration_s": dur,
                    "size_mb": total / MB, "mb_per_s": total / MB / max(dur, 1e-3),
-                   "stopped_for_size": self.stopped_for_size,
+                   "stopped_for_size": self.stopped_for_size, "queue_dropped": self._queue_dropped(),
                    "per_key": dict(sorted(self._per_key.items())),
                    "payload_mb_per_key": {k: round(v / MB, 3) for k, v in sorted(self._bytes.items())}}
-        (self._out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        self.summary_path.write_text(json.dumps(summary, indent=2) + "\n")
+
+    def _queue_dropped(self) -> int:
+        return sum(self._node.status().dropped.values())
 
 
 def _stamp(obj: dict) -> int:
@@ -249,13 +308,24 @@ class ReplaySettings(NodeSettings):
     SERVICE: ClassVar[str] = "replay"
 
     file: Path = Path("out/record/recording.mcap")
+    """The recording to replay (made by riskfield record)."""
     speed: float = Field(1.0, gt=0)
+    """Time scale: 2 replays twice as fast."""
     loop: bool = False
-    remap_from: str | None = None  # e.g. rf/limo1
-    remap_to: str | None = None  # e.g. rf/replay1
-    include_commands: bool = False  # cmd/safe, cmd/ref and nav/goal are withheld unless this is set
-    skip_status: bool = True  # node counters of the recorded run are not replayed
-    verify: bool = True  # scan the file and check the remap before publishing (the CLI has done it already)
+    """Start again at the end."""
+    remap_from: str | None = None
+    """Key prefix to rewrite, e.g. rf/limo1 (with remap_to)."""
+    remap_to: str | None = None
+    """New key prefix, e.g. rf/replay1."""
+    include_commands: bool = False
+    """Also publish cmd/safe, cmd/ref and nav/goal (withheld by default: they can drive a live robot)."""
+    include_state: bool = Field(False, description=(
+        "also publish the recorded state and state/relocalise: withheld by default, a recorded state beside a "
+        "live robot moves its map and feeds its filter a position it is not at"))
+    skip_status: bool = True
+    """Leave out the recorded run's node status (its counters are not this run's)."""
+    verify: bool = True
+    """Scan the file and check the remap before publishing (the CLI has done it already)."""
 
 
 #: The outcome of the last replay in this process: the runtime's ``run()`` returns 0 for every
@@ -272,7 +342,8 @@ class Replayer:
         if s.verify:
             check_recording(s.file)
             keys, _ = scan(s.file)
-            plan(keys, self.remap, include_commands=s.include_commands, skip_status=s.skip_status)
+            plan(keys, self.remap, include_commands=s.include_commands, skip_status=s.skip_status,
+                 include_state=s.include_state)
         self.published = 0
         self.withheld: Counter[str] = Counter()
         self.error: RecordingError | None = None
@@ -289,6 +360,9 @@ class Replayer:
         if is_command(key) and not self.s.include_commands:
             self.withheld[key] += 1
             return False
+        if is_state(key) and not self.s.include_state:
+            self.withheld[key] += 1
+            return False
         return True
 
     def _run(self) -> None:
@@ -301,7 +375,8 @@ class Replayer:
             self.error, self.exit_code = RecordingError(f"replay failed: {exc!r}"), 1
             self.node.log.error("replay failed: %r", exc)
         if self.withheld:
-            self.node.log.info("withheld command keys (use --include-commands): %s", ", ".join(sorted(self.withheld)))
+            self.node.log.info("withheld command and state keys (use --include-commands, --include-state): %s",
+                               ", ".join(sorted(self.withheld)))
         self.node.log.info("replay finished: %d messages", self.published)
         self.node.stop("replay finished" if not self.exit_code else "replay stopped at a damaged part of the file")
 

@@ -1,7 +1,9 @@
 """Replay planning: remaps of whole key prefixes, command keys withheld, and the schedule.
 
 A replay must never drive a live robot by accident: command keys (``cmd/safe``, ``cmd/ref``,
-``nav/goal``) are withheld unless asked for, a remap rewrites a whole key prefix or is refused
+``nav/goal``) are withheld unless asked for, and so is the robot's ``state`` (``state``,
+``state/relocalise``): a recorded state put beside a live robot's moves its mapping volume and
+feeds its filter a position the robot is not at. A remap rewrites a whole key prefix or is refused
 (no wildcards, no empty chunks, a trailing slash is normalised), and a remap that matches no
 recorded key is an error instead of a silent replay onto the original keys.
 """
@@ -20,8 +22,16 @@ COMMAND_KEYS = ("cmd/safe", "cmd/ref", "nav/goal")
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.~+=@:]+$")
 
 
+#: Keys (relative to a robot root) that say where the robot is; replayed only with ``include_state``.
+STATE_KEYS = ("state", "state/relocalise")
+
+
 def is_command(key: str) -> bool:
     return any(key == c or key.endswith("/" + c) for c in COMMAND_KEYS)
+
+
+def is_state(key: str) -> bool:
+    return any(key == c or key.endswith("/" + c) for c in STATE_KEYS)
 
 
 def _prefix(value: str, what: str) -> str:
@@ -71,6 +81,7 @@ class Plan:
 
     publish: dict[str, tuple[str, int]] = field(default_factory=dict)  # key → (published as, raw messages)
     withheld: list[str] = field(default_factory=list)  # command keys without include_commands
+    withheld_state: list[str] = field(default_factory=list)  # state keys without include_state
     status: list[str] = field(default_factory=list)  # node statuses of the recorded run (never replayed)
     not_reproducible: list[str] = field(default_factory=list)  # recorded only as views
 
@@ -78,6 +89,8 @@ class Plan:
         out = [f"publish   {k} → {to}  ({n} messages)" if to != k else f"publish   {k}  ({n} messages)"
                for k, (to, n) in sorted(self.publish.items())]
         out += [f"withheld  {k}  (a command key: --include-commands to publish it)" for k in sorted(self.withheld)]
+        out += [f"withheld  {k}  (the robot's state: --include-state to publish it)"
+                for k in sorted(self.withheld_state)]
         out += [f"skipped   {k}  (node status of the recorded run)" for k in sorted(self.status)]
         out += [f"cannot    {k}  (recorded only as a view: record with --raw to replay it)"
                 for k in sorted(self.not_reproducible)]
@@ -89,7 +102,7 @@ def is_status(key: str) -> bool:
 
 
 def plan(keys: dict[str, KeyInfo], remap: Remap, *, include_commands: bool = False,
-         skip_status: bool = True) -> Plan:
+         skip_status: bool = True, include_state: bool = False) -> Plan:
     """The replay plan of a scanned recording; a remap that matches no recorded key is an error."""
     p = Plan()
     raw = {k: i for k, i in keys.items() if i.raw}
@@ -105,6 +118,8 @@ def plan(keys: dict[str, KeyInfo], remap: Remap, *, include_commands: bool = Fal
             p.status.append(k)
         elif is_command(k) and not include_commands:
             p.withheld.append(k)
+        elif is_state(k) and not include_state:
+            p.withheld_state.append(k)
         else:
             p.publish[k] = (remap(k), info.raw)
     return p

@@ -19,9 +19,13 @@ class RelaySettings(NodeSettings):
     SERVICE: ClassVar[str] = "relay"
 
     in_key: str = "relay/in"
+    """Key read, relative to {prefix}/{robot}/ (a leading / makes it absolute)."""
     out_key: str = "relay/out"
+    """Key each decoded message is published on again, relative like in_key."""
     schema_name: str = "VelocityCommand/1"
+    """Wire schema of in_key, e.g. VelocityCommand/1: a message that does not decode is dropped and counted."""
     queue: Literal["latest", "fifo"] = "fifo"
+    """fifo forwards every message; latest only the newest when the relay falls behind."""
 
 
 def _absolute(node: Node, key: str) -> str:

@@ -23,7 +23,8 @@ from typing import Any, Literal
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from riskfield.protocol import EsdfGrid, Header, RobotState, SafetyStatus, VelocityCommand
+from riskfield.protocol import EsdfGrid, Header, Image, RobotState, SafetyStatus, VelocityCommand
+from riskfield.protocol.jpeg import jpeg_info
 
 from ..geometry.transforms import quat_mul, quat_rotate
 
@@ -358,3 +359,105 @@ class TwistMux:
             if not i.expired(now) and (best is None or i.priority > best.priority):
                 best = i
         return best is not None and best.name == name
+
+
+# -- camera -------------------------------------------------------------------------------------
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+
+#: sensor_msgs image encodings (ros2/common_interfaces, sensor_msgs/include/sensor_msgs/image_encodings.hpp)
+#: the bridge turns into rgb8: bytes per pixel and where R, G, B sit in a pixel.
+IMAGE_LAYOUTS: dict[str, tuple[int, tuple[int, int, int]]] = {
+    "rgb8": (3, (0, 1, 2)), "bgr8": (3, (2, 1, 0)), "rgba8": (4, (0, 1, 2)), "bgra8": (4, (2, 1, 0)),
+    "mono8": (1, (0, 0, 0)),
+}
+
+STAMP_WINDOW_NS = (10_000_000_000, 1_000_000_000)
+"""A ROS stamp this far in the past / future of the wall clock is taken as the capture time; outside it
+(simulation time, an unsynchronised driver) the arrival time is (``Image`` stamps are wall clock)."""
+
+Intrinsics = tuple[float, float, float, float]
+
+
+def image_stamp(ros_ns: int, now_ns: int) -> tuple[int, bool]:
+    """``(stamp, from_ros)``: the ROS header stamp when it is on the wall clock, else ``now_ns``."""
+    past, future = STAMP_WINDOW_NS
+    if now_ns - past <= ros_ns <= now_ns + future:
+        return ros_ns, True
+    return now_ns, False
+
+
+def decode_image(codec: RosCodec, raw: bytes, now_ns: int, intrinsics: Intrinsics | None = None) -> tuple[Image, bool]:
+    """A ``sensor_msgs/Image`` as an rgb8 ``Image`` (rows as ``step`` pads them; 8-bit RGB, BGR,
+    RGBA, BGRA or mono), and whether its stamp is the ROS one. ``CdrError`` for bad CDR, ``ValueError``
+    for an encoding or a size the bytes do not hold."""
+    msg = codec.decode(raw, IMAGE)
+    enc, w, h, step = str(msg.encoding), int(msg.width), int(msg.height), int(msg.step)
+    if enc not in IMAGE_LAYOUTS:
+        raise ValueError(f"image encoding {enc!r} is not supported; known: {', '.join(IMAGE_LAYOUTS)}")
+    channels, rgb_index = IMAGE_LAYOUTS[enc]
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+    if w <= 0 or h <= 0 or step < w * channels or data.size < step * h:
+        raise ValueError(f"a {w}x{h} {enc} image with step {step} does not fit in {data.size} bytes")
+    pixels = data[: step * h].reshape(h, step)[:, : w * channels].reshape(h, w, channels)
+    rgb = np.ascontiguousarray(pixels[:, :, list(rgb_index)])
+    stamp, from_ros = image_stamp(_stamp_ns(msg.header.stamp), now_ns)
+    return Image(header=Header(stamp_ns=stamp, frame_id=str(msg.header.frame_id)), encoding="rgb8", width=w,
+                 height=h, data=rgb, intrinsics=intrinsics), from_ros
+
+
+def decode_compressed_image(codec: RosCodec, raw: bytes, now_ns: int,
+                            intrinsics: Intrinsics | None = None) -> tuple[Image, bool]:
+    """A ``sensor_msgs/CompressedImage`` holding a JPEG (``format`` "jpeg", or image_transport's
+    "bgr8; jpeg compressed bgr8") as a ``jpeg`` ``Image``, its bytes untouched. A JPEG a decoder
+    could not read alone (no Huffman tables) or another format (png) is a ``ValueError``."""
+    msg = codec.decode(raw, COMPRESSED_IMAGE)
+    fmt = str(msg.format).lower()
+    if "jpeg" not in fmt and "jpg" not in fmt:
+        raise ValueError(f"compressed format {msg.format!r}: only jpeg is carried (Image encoding jpeg)")
+    data = bytes(np.asarray(msg.data, dtype=np.uint8))
+    info = jpeg_info(data)
+    if not info.has_huffman_tables:
+        raise ValueError("a JPEG without Huffman tables (raw UVC MJPEG): republish it decoded")
+    stamp, from_ros = image_stamp(_stamp_ns(msg.header.stamp), now_ns)
+    return Image(header=Header(stamp_ns=stamp, frame_id=str(msg.header.frame_id)), encoding="jpeg",
+                 width=info.width, height=info.height, data=data, intrinsics=intrinsics), from_ros
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    width: int
+    height: int
+    distortion_model: str
+    d: tuple[float, ...]
+    k: tuple[float, ...]
+    r: tuple[float, ...]
+    p: tuple[float, ...]
+
+    def intrinsics(self, rectified: bool) -> Intrinsics | None:
+        """The pinhole intrinsics of the images this camera_info describes, or None: for rectified
+        images (image_proc's ``image_rect``) the projection P (REP 104: P maps the rectified image); for
+        raw images K, but only when there is no distortion (a distorted image has no pinhole model,
+        so perception gets none). An uncalibrated camera (K = 0) has none."""
+        if rectified:
+            fx, fy, cx, cy = self.p[0], self.p[5], self.p[2], self.p[6]
+        else:
+            if any(c != 0 for c in self.d):
+                return None
+            fx, fy, cx, cy = self.k[0], self.k[4], self.k[2], self.k[5]
+        if not (fx > 0 and fy > 0 and all(math.isfinite(v) for v in (fx, fy, cx, cy))):
+            return None
+        return (float(fx), float(fy), float(cx), float(cy))
+
+
+def decode_camera_info(codec: RosCodec, raw: bytes) -> CameraInfo:
+    msg = codec.decode(raw, CAMERA_INFO)
+    d = tuple(float(v) for v in np.asarray(msg.d, dtype=float).reshape(-1))
+    k = tuple(float(v) for v in np.asarray(msg.k, dtype=float).reshape(-1))
+    r = tuple(float(v) for v in np.asarray(msg.r, dtype=float).reshape(-1))
+    p = tuple(float(v) for v in np.asarray(msg.p, dtype=float).reshape(-1))
+    if len(k) != 9 or len(r) != 9 or len(p) != 12:
+        raise CdrError("CameraInfo k, r, p must hold 9, 9 and 12 numbers")
+    _finite(*d, *k, *r, *p)
+    return CameraInfo(int(msg.width), int(msg.height), str(msg.distortion_model), d, k, r, p)

@@ -9,7 +9,8 @@ also for absolute names such as ``/tf``); payloads are the raw CDR samples, put 
 
 In:  velocity input (Nav2's ``cmd_vel_smoothed``) and an optional teleop input, arbitrated like
      twist_mux → ``cmd/ref``; ``odom`` (+ ``tf``/``tf_static`` for ``map → odom``) → ``state`` in
-     the ESDF's frame; a state in another frame is refused and counted.
+     the ESDF's frame; a state in another frame is refused and counted; optionally a camera's
+     Image / CompressedImage (JPEG) + CameraInfo → ``camera/image`` (docs/ros2.md, "Camera images").
 Out: ``cmd/safe`` → Twist/TwistStamped on ``cmd_vel`` (zero commands when it stops);
      ``map/esdf`` → OccupancyGrid with Nav2's costmap values; ``safety/status`` →
      DiagnosticArray; optionally TF (``odom → base_link``, ``map → odom``) from ``state``.
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Annotated, ClassVar
 
 import zenoh
@@ -31,6 +33,7 @@ from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
 from .messages import (
+    CameraInfo,
     CdrError,
     Distro,
     FrameMismatch,
@@ -41,6 +44,9 @@ from .messages import (
     TwistType,
     VelocityInput,
     costmap,
+    decode_camera_info,
+    decode_compressed_image,
+    decode_image,
     diagnostic_level,
     odometry_to_state,
     state_to_tf,
@@ -59,40 +65,75 @@ class Ros2BridgeSettings(NodeSettings):
 
     namespace: str = Field(default="", description="zenoh-bridge-ros2dds `namespace`, e.g. limo1")
     ros_distro: Distro = "jazzy"
+    """ROS 2 distribution whose message definitions encode and decode the CDR samples."""
     # Velocity inputs → cmd/ref (twist_mux-style arbitration).
     cmd_in_topic: str = "cmd_vel_smoothed"
+    """Velocity input arbitrated into cmd/ref (Nav2's smoothed output); empty: off."""
     cmd_in_type: TwistType = "Twist"
+    """Message type of cmd_in_topic: Twist or TwistStamped."""
     cmd_in_priority: Priority = 10
+    """twist_mux priority of cmd_in_topic: the highest live input wins."""
     cmd_in_timeout_s: Seconds = 0.5
+    """cmd_in_topic stops counting as live this long after its last message."""
     teleop_topic: str = ""
+    """Optional teleop velocity input; empty: off."""
     teleop_type: TwistType = "Twist"
+    """Message type of teleop_topic: Twist or TwistStamped."""
     teleop_priority: Priority = 100
+    """twist_mux priority of teleop_topic (above Nav2 by default)."""
     teleop_timeout_s: Seconds = 0.5
+    """teleop_topic stops counting as live this long after its last message."""
     # The safe command out.
     cmd_vel_topic: str = "cmd_vel"
+    """Where cmd/safe goes out to the base; empty: off."""
     cmd_out_type: TwistType = "Twist"
+    """Message type of cmd_vel_topic: Twist or TwistStamped."""
     watchdog_s: float = Field(default=0.2, gt=0, le=10)
+    """No cmd/safe for this long: zero commands go out on cmd_vel_topic."""
     zero_rate_hz: float = Field(default=10.0, gt=0, le=1000)
+    """Rate of those zero commands while cmd/safe is silent."""
     # State in: odometry (+ TF map → odom) into the ESDF's frame.
     odom_topic: str = "odom"
+    """Odometry read as the robot's state (moved into the ESDF's frame by TF); empty: off."""
     tf_topic: str = "tf"
+    """Dynamic TF read for map -> odom; empty: off."""
     tf_static_topic: str = "tf_static"
+    """Static TF (TRANSIENT_LOCAL, its history is fetched on joining); empty: off."""
     tf_timeout_s: float = Field(default=1.0, gt=0, le=60, description="age limit of a dynamic map → odom")
     map_frame: str = Field(default="map", description="the ESDF's frame until the first ESDF names it")
     odom_frame: str = "odom"
+    """Frame of the odometry, the parent of base_frame."""
     base_frame: str = "base_link"
+    """The robot's body frame: the odometry's child frame."""
     # Outputs for RViz / Nav2.
     costmap_topic: str = "riskfield/costmap"
+    """OccupancyGrid with Nav2's cost values made from map/esdf; empty: off."""
     inscribed_radius: Metres = 0.1
+    """Distance (m) at and below which a cell is inscribed (Nav2's 253), as Nav2's inflation layer."""
     inflation_radius: Metres = 0.55
+    """Cells farther than this (m) from any obstacle are free space."""
     cost_scaling_factor: dict[str, Annotated[float, Field(gt=0, le=1000)]] = Field(
         default_factory=lambda: {"high": 3.0, "mid": 5.0, "low": 10.0},
         description="Nav2 cost_scaling_factor per risk group: a smaller factor keeps cost high farther out")
     default_cost_scaling_factor: float = Field(default=10.0, gt=0, le=1000)
+    """cost_scaling_factor of a risk group not in cost_scaling_factor."""
     diagnostics_topic: str = "diagnostics"
+    """DiagnosticArray made from safety/status; empty: off."""
     diagnostics_rate_hz: float = Field(default=2.0, gt=0, le=100)
+    """Most diagnostics per second while the level stays the same (a change goes out at once)."""
     publish_tf: bool = Field(default=False, description="TF from riskfield's state (a simulated robot)")
     max_cdr_bytes: int = Field(default=1 << 20, gt=0, description="larger ROS samples are rejected unparsed")
+    # Camera in: a ROS camera driver's images → camera/image (perception).
+    image_topic: str = Field(default="", description=(
+        "sensor_msgs/Image (8-bit rgb, bgr, rgba, bgra, mono) republished as camera/image rgb8; empty: off"))
+    compressed_image_topic: str = Field(default="", description=(
+        "sensor_msgs/CompressedImage (JPEG, e.g. image_raw/compressed) republished as camera/image jpeg; empty: off"))
+    camera_info_topic: str = Field(default="", description=(
+        "sensor_msgs/CameraInfo of those images: their pinhole intrinsics go out in Image.intrinsics; empty: off"))
+    camera_info_rectified: bool = Field(default=False, description=(
+        "the image topics carry rectified images (image_proc's image_rect): intrinsics from P; false: raw "
+        "images, intrinsics from K only when the camera has no distortion"))
+    max_image_bytes: int = Field(default=64 << 20, gt=0, description="larger image samples are rejected unparsed")
 
     @model_validator(mode="after")
     def _consistent(self) -> Ros2BridgeSettings:
@@ -308,6 +349,9 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
                 history=zenoh_ext.HistoryConfig(detect_late_publishers=True))
             node.on_close(static_sub.undeclare)
 
+    if s.image_topic or s.compressed_image_topic:
+        _camera_in(node, s, core.codec, key, foreign, reject, count)
+
     # Map, status and TF out.
     def on_esdf(esdf: EsdfGrid) -> None:
         core.on_esdf(esdf)  # the ESDF names the frame every state must be in
@@ -337,6 +381,57 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
 
     if s.publish_tf and s.tf_topic:
         node.subscribe(node.keys.state, RobotState, lambda st: cdr_put(key(s.tf_topic), core.on_state_tf(st)))
+
+
+def _camera_in(node: Node, s: Ros2BridgeSettings, codec: RosCodec, key: Callable[[str], str],
+               foreign: Callable[[str, str], bool], reject: Callable[..., None], count: Callable[[str], None]) -> None:
+    """A ROS camera driver's images (+ camera_info) → ``camera/image``, stamped with the driver's
+    stamp when it is on the wall clock (else the arrival, counted in ``image_stamp_fallbacks``)."""
+    info: dict[str, CameraInfo | None] = {"last": None}
+
+    def intrinsics(width: int, height: int) -> tuple[float, float, float, float] | None:
+        ci = info["last"]
+        if ci is None or (ci.width, ci.height) != (width, height):
+            return None  # none yet, or of another resolution: perception treats the image as uncalibrated
+        return ci.intrinsics(s.camera_info_rectified)
+
+    def handler(kind: str, expected: str) -> Callable[[str, bytes], None]:
+        def on_image(k: str, payload: bytes) -> None:
+            if foreign(k, expected):
+                return
+            try:
+                if len(payload) > s.max_image_bytes:
+                    raise CdrError(f"{len(payload)} bytes, over max_image_bytes = {s.max_image_bytes}")
+                decode = decode_image if kind == "Image" else decode_compressed_image
+                image, from_ros = decode(codec, payload, time.time_ns())
+            except ValueError as exc:  # bad CDR, an unsupported encoding, a size the bytes do not hold
+                return reject(f"a {kind}", k, exc, "image_invalid")
+            if not from_ros:
+                count("image_stamp_fallbacks")
+            image.intrinsics = intrinsics(image.width, image.height)
+            node.publish(node.keys.camera_image, image)
+        return on_image
+
+    if s.image_topic:
+        node.subscribe(key(s.image_topic), None, handler("Image", key(s.image_topic)))
+    if s.compressed_image_topic:
+        node.subscribe(key(s.compressed_image_topic), None,
+                       handler("CompressedImage", key(s.compressed_image_topic)))
+    if s.camera_info_topic:
+        def on_info(k: str, payload: bytes) -> None:
+            if foreign(k, key(s.camera_info_topic)):
+                return
+            try:
+                ci = decode_camera_info(codec, payload)
+            except ValueError as exc:
+                return reject("a CameraInfo", k, exc, "camera_info_invalid")
+            if ci.intrinsics(s.camera_info_rectified) is None and any(c != 0 for c in ci.d):
+                node.ratelog(logging.WARNING, "camera_info_distorted",
+                             f"{k}: the camera has distortion and camera_info_rectified is false: images go out "
+                             "without intrinsics (subscribe to a rectified topic, image_proc's image_rect)")
+            info["last"] = ci
+
+        node.subscribe(key(s.camera_info_topic), None, on_info)
 
 
 SERVICE = ServiceSpec("ros2-bridge", Ros2BridgeSettings, setup)

@@ -24,6 +24,7 @@ import numpy as np
 import zenoh
 
 from riskfield.protocol import ENCODING, DecodeError, Keys, Limits, Message, NodeStatus, decode, encode
+from riskfield.protocol.keys import qos_of
 
 from .inbox import Inbox, QueueKind, Slot
 from .logs import RateLimitedLog, process_age_s, setup_logging
@@ -129,13 +130,16 @@ class Node:
         *,
         queue: QueueKind = "latest",
         maxlen: int = 1000,
+        max_bytes: int = 0,
         limits: Limits | None = None,
     ) -> None:
         """Call ``handler(msg)`` on the loop thread for each valid message on ``key``.
 
         With ``msg_type=None`` the handler gets ``(key, payload_bytes)`` undecoded (recorders).
+        A ``fifo`` queue holds at most ``maxlen`` samples and, with ``max_bytes``, that many
+        payload bytes (inbox.py); the oldest go first, counted in ``NodeStatus.dropped``.
         """
-        sub = _Sub(key, self._inbox.slot(key, queue, maxlen), msg_type, handler, limits or Limits())
+        sub = _Sub(key, self._inbox.slot(key, queue, maxlen, max_bytes), msg_type, handler, limits or Limits())
         self._subs.append(sub)
 
         def on_sample(sample: zenoh.Sample, sub: _Sub = sub) -> None:
@@ -149,7 +153,8 @@ class Node:
                 return
             info = sample.source_info
             source = None if info is None else _entity(info.source_id)
-            self._inbox.put(sub.slot, ("sample", key, sample.payload.to_bytes(), time.time_ns(), source))
+            payload = sample.payload.to_bytes()
+            self._inbox.put(sub.slot, ("sample", key, payload, time.time_ns(), source), len(payload))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -194,9 +199,7 @@ class Node:
         seq = self._seq.get(key, 0)
         msg.header.seq = seq
         payload = encode(msg)
-        pub = self._publishers.get(key)
-        if pub is None:
-            pub = self._publishers[key] = self.session.declare_publisher(key, encoding=_ENC)
+        pub = self._publishers.get(key) or self._declare_publisher(key, _ENC)
         pub.put(payload, source_info=zenoh.SourceInfo(pub.id, seq))
         self._seq[key] = seq + 1
         self._published[key] = self._published.get(key, 0) + 1
@@ -205,11 +208,28 @@ class Node:
         """Put bytes as they are (replays, foreign encodings such as ROS 2 CDR)."""
         pub = self._publishers.get(key)
         if pub is None:
-            enc = _ENC if encoding == ENCODING else zenoh.Encoding(encoding)
-            pub = self._publishers[key] = self.session.declare_publisher(key, encoding=enc)
+            pub = self._declare_publisher(key, _ENC if encoding == ENCODING else zenoh.Encoding(encoding))
         # A replay or relay is a publisher of its own, whatever publisher the bytes came from.
         pub.put(payload, source_info=zenoh.SourceInfo(pub.id, self._published.get(key, 0)))
         self._published[key] = self._published.get(key, 0) + 1
+
+    def _declare_publisher(self, key: str, encoding: zenoh.Encoding) -> zenoh.Publisher:
+        """The one publisher of ``key``, with the key's QoS (``riskfield.protocol.keys.QOS``).
+
+        zenoh-python ``Session.declare_publisher(key, priority=, congestion_control=, express=)``
+        (eclipse-zenoh/zenoh-python, src/session.rs) sets them on every sample it puts; routers
+        forward a sample with the QoS it came with (eclipse-zenoh/zenoh,
+        zenoh/src/net/routing/dispatcher/pubsub.rs, ``ext_qos: msg.ext_qos``), and each link has one
+        transmission queue per priority (DEFAULT_CONFIG.json5, ``transport/link/tx/queue/size``), so a
+        command overtakes an image that waits for a slow link, and a droppable image is dropped when
+        its queue stays full (``congestion_control/drop/wait_before_drop``) rather than stall it."""
+        q = qos_of(self.keys.relative(key))
+        pub = self.session.declare_publisher(
+            key, encoding=encoding, priority=getattr(zenoh.Priority, q.priority.upper()),
+            congestion_control=zenoh.CongestionControl.DROP if q.drop else zenoh.CongestionControl.BLOCK,
+            express=q.express)
+        self._publishers[key] = pub
+        return pub
 
     def query(self, key: str, request: Message, reply_type: type[M], timeout_s: float = 1.0) -> list[M]:
         """Blocking query (for clients and tools, not for handlers on the loop thread)."""

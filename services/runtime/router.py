@@ -16,9 +16,12 @@ class RouterSettings(NodeSettings):
     SERVICE: ClassVar[str] = "router"
 
     mode: Literal["peer", "client", "router"] = "router"
+    """The router routes; peer or client turn it into a plain session."""
     listen: Annotated[list[str], NoDecode] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    """Endpoints the router listens on: the nodes and the other routers dial these."""
     # Other routers to mesh with (e.g. the robot's router dialling the server's).
     connect: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    """Other routers to mesh with (e.g. the robot's router dialling the server's)."""
 
 
 def setup(node: Node, settings: RouterSettings) -> Any:

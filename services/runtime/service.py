@@ -7,6 +7,7 @@ return an object with ``close()`` (called after the loop ends).
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import importlib.util
 import os
@@ -30,6 +31,7 @@ SERVICES: dict[str, str] = {
     "safety-filter": "riskfield.services.safety_filter.node:SERVICE",
     "navigator": "riskfield.services.navigator.node:SERVICE",
     "simulator": "riskfield.services.simulator.node:SERVICE",
+    "camera": "riskfield.services.camera.node:SERVICE",
     "limo": "riskfield.edge.limo.node:SERVICE",
     "joystick": "riskfield.edge.joystick.node:SERVICE",
     "mavlink": "riskfield.edge.mavlink.node:SERVICE",
@@ -47,6 +49,7 @@ EXTRAS: dict[str, str] = {
     "mapping": "mapping",
     "safety-filter": "robot",
     "simulator": "sim",
+    "camera": "camera",
     "limo": "robot",
     "joystick": "robot",
     "mavlink": "robot",
@@ -70,12 +73,13 @@ MODULE_EXTRAS: dict[str, str] = {
     "pymavlink": "robot",
     "evdev": "robot",
     "numba": "mapping",
-    "edt": "mapping",
+    "edt": "dev",  # the mapping's reference transform only (esdf_edt = "edt"): tests and benches
     "open3d": "sim",
     "PIL": "sim",
     "torch": "perception",
     "rosbags": "ros2",
     "scipy": "robot",
+    "av": "camera",
 }
 
 #: Modules a service imports only once it runs (so that importing its module stays cheap):
@@ -112,10 +116,17 @@ class ServiceUnavailable(RuntimeError):
     """A service that is unknown, or whose dependencies are not installed."""
 
 
+def unknown_service(name: str) -> str:
+    """The error for a service name nobody answers to: the nearest known name, then all of them."""
+    close = difflib.get_close_matches(name, list(SERVICES), n=1, cutoff=0.6)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"unknown service {name!r}{hint} (known: {', '.join(SERVICES)})"
+
+
 def load_service(name: str) -> ServiceSpec:
     target = SERVICES.get(name)
     if target is None:
-        raise ServiceUnavailable(f"unknown service {name!r}; known: {', '.join(SERVICES)}")
+        raise ServiceUnavailable(unknown_service(name))
     module, attr = target.split(":")
     try:
         spec = getattr(importlib.import_module(module), attr)

@@ -56,13 +56,19 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ENV_PREFIX = "RISKFIELD_"
 
 #: ``RISKFIELD_*`` variables that are no service's settings: the variables docker compose
-#: interpolates (image, tag, router address, secrets, volumes). The bridges' hardware endpoints
+#: interpolates in ``docker-compose.yml`` and ``deploy/*.yml`` (image, tag, router address and
+#: published ports, the robot site's network, secrets, checkpoints), which the docs tell users to
+#: export in the shell that every node of the stack also inherits. The bridges' hardware endpoints
 #: (``RISKFIELD_LIMO_PORT``, ...) are their settings' aliases, known like any other service's.
-NOT_SETTINGS: frozenset[str] = frozenset({"SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME"})
+NOT_SETTINGS: frozenset[str] = frozenset({
+    "SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME", "CHECKPOINTS_DIR",
+    "ROUTER_PORT", "ROBOT_ROUTER_PORT", "ROUTER_REST_PORT", "SERVER_NETWORK",
+})
 
 
 #: Settings that were renamed: the old name's error points at the new one.
-RENAMED: dict[str, str] = {"risk_config": "risk_file", "risk_config_file": "risk_file"}
+RENAMED: dict[str, str] = {"risk_config": "risk_file", "risk_config_file": "risk_file",
+                           "max_queue": "max_queue_mb"}
 
 
 class UnknownSetting(ValueError):
@@ -316,30 +322,49 @@ def _split(value: Any) -> Any:
 class NodeSettings(BaseSettings):
     """What every node needs: Zenoh connection, identity, logging and status period."""
 
-    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid")
+    # A setting's description is the docstring under it (or Field(description=...)): the help
+    # (`riskfield run SERVICE --help`) prints it, and a test fails on a setting without one.
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid",
+                                      use_attribute_docstrings=True)
     SERVICE: ClassVar[str] = ""
     #: Fields of the core configuration a node's settings are composed of that are no settings:
     #: reference implementations kept for tests and benches → what to use instead (the error says it).
     REFERENCE_ONLY: ClassVar[dict[str, str]] = {}
     mode: Literal["peer", "client", "router"] = "client"
+    """Zenoh session mode: a client dials a router, a peer also talks to peers directly, a router routes."""
     connect: Annotated[list[str], NoDecode] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    """Zenoh endpoints to dial, e.g. tcp/192.168.1.10:7447 (RISKFIELD_CONNECT: comma-separated)."""
     listen: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    """Zenoh endpoints to listen on (comma-separated in RISKFIELD_LISTEN); none for a client."""
     robot: str = "limo1"
+    """Robot id: the second part of every key, {prefix}/{robot}/..."""
     prefix: str = "rf"
+    """First part of every key, {prefix}/{robot}/..."""
     config: Path | None = None
+    """YAML or TOML file: keys shared by every node at the top level, one section per service."""
     multicast_scouting: bool = False
+    """Discover routers and peers by UDP multicast, in addition to the connect endpoints."""
     # Optional security (see deploy/zenoh): TLS (mutual when a client cert is given) and user/password.
     tls_root_ca: Path | None = None
+    """CA certificate (PEM) that the router's TLS certificate must chain to."""
     tls_cert: Path | None = None
+    """This node's TLS certificate (PEM), presented with tls_key on tls/ endpoints."""
     tls_key: Path | None = None
+    """Private key (PEM) of tls_cert."""
     tls_mtls: bool = False
+    """Mutual TLS: the router must also check this node's certificate (needs tls_cert and tls_key)."""
     user: str | None = None
+    """Zenoh user/password authentication: the user name (with password or password_file)."""
     password: str | None = None
+    """Password of user; password_file keeps it out of the environment."""
     password_file: Path | None = Field(default=None, description="file holding the password (Docker/systemd secrets)")
     zenoh_config: Path | None = Field(default=None, description="a full zenoh JSON5 config used as the base")
     connect_timeout_s: float = Field(default=30.0, gt=0)
+    """How long a node retries opening its session while no router answers, then exits with code 3."""
     log_level: str = "INFO"
+    """Python logging level: DEBUG, INFO, WARNING or ERROR."""
     status_period_s: float = Field(default=1.0, gt=0)
+    """Period of the node's status message (counters, rates) on {prefix}/{robot}/status/{service}."""
     heap_trim_s: float = Field(default=1.0, ge=0, description=(
         "period of returning freed heap to the OS (glibc malloc_trim; 0 = never): keeps a long-running "
         "node's RSS its live memory (runtime/memory.py)"))

@@ -63,6 +63,7 @@ __all__ = ["ALPHA", "ALPHA1", "ALPHA2", "MARGIN", "BarrierModel", "DoubleIntegra
            "UnicycleLookahead", "disc_cover"]
 
 _NO_HESSIAN = np.zeros((1, 3, 3))
+_STILL = np.zeros(3)  # the velocity of the field's obstacles (model.point_row's wobj)
 
 
 def _f64(a: np.ndarray) -> np.ndarray:
@@ -165,33 +166,31 @@ class BarrierModel:
         return field.query(self.points(s)).distance - self.radius
 
     def barrier(self, s: FilterState, sample: FieldSample, hb: np.ndarray,
-                closing: np.ndarray | None = None, gains: np.ndarray | None = None) -> np.ndarray:
+                gains: np.ndarray | None = None) -> np.ndarray:
         """The barrier the rows keep non-negative, from hb = d - r - δ (the same for first-order
         models; the braking barrier subtracts its braking distance). ``gains`` (m, ≥ 3), the rows'
         [α, α₁, α₂]: the braking barrier's speed floor a_b / k₂ comes from them when none is
         configured (``model.speed_floor``)."""
         grad, vel = _f64(sample.gradient), _f64(s.velocity)
-        c = np.zeros(len(hb)) if closing is None else closing
-        g = np.zeros((len(hb), 4))
+        g = np.zeros((len(hb), mdl.GAIN_COLUMNS))
         if gains is not None:
             g[:, : np.shape(gains)[-1]] = gains
         elif self.spec.barrier == "braking" and self.spec.speed_floor <= 0:
             raise ValueError("the braking barrier's speed floor comes from the rows' gains: pass them")
-        return np.array([mdl.barrier_value(self.di, self.df, self.dl, float(hb[i]), grad[i], vel, float(c[i]), g[i])
+        return np.array([mdl.barrier_value(self.di, self.df, self.dl, float(hb[i]), grad[i], vel, _STILL, g[i])
                          for i in range(len(hb))])
 
     def rows(self, s: FilterState, sample: FieldSample, h: np.ndarray, gains: np.ndarray,
-             angular: np.ndarray, closing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             angular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """CBF rows A u ≥ b at the points (``model.point_row``): ``h`` (m,) barrier values,
-        ``gains`` (m, 4), ``angular`` the reference's body rates, ``closing`` (m,) the closing
-        speeds of moving obstacles (none: a static world)."""
+        ``gains`` (m, ≥ 4), ``angular`` the reference's body rates; the field does not move."""
         m = len(h)
         a, b = np.empty((m, self.n)), np.empty(m)
         hess = _NO_HESSIAN if sample.hessian is None else _f64(sample.hessian)
-        g = np.zeros((m, 4))
+        g = np.zeros((m, mdl.GAIN_COLUMNS))
         g[:, : np.asarray(gains).shape[1]] = gains
         mdl.point_rows(self.di, self.df, self.dl, self.rotation(s), _f64(angular), _f64(s.velocity),
-                       _f64(sample.gradient), hess, _f64(h), g, np.zeros(m) if closing is None else _f64(closing), a, b)
+                       _f64(sample.gradient), hess, _f64(h), g, _STILL, a, b)
         return a, b
 
     def braking_distance(self, approach: np.ndarray, gain: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -230,15 +229,11 @@ class BarrierModel:
         mdl.brake_input(self.di, self.df, self.dl, _f64(s.velocity), self.spec.dt, out)
         return out
 
-    def backup(self, s: FilterState, gradient: np.ndarray, a_row: np.ndarray | None = None,
-               closing: float = 0.0) -> np.ndarray:
-        """The maximal-braking input along the field's gradient (of the row ``a_row`` whose obstacle
-        comes closer at ``closing``): what the slack-relaxed QP must do at least as well as, row by
-        row (``model.backup_input``)."""
+    def backup(self, s: FilterState, gradient: np.ndarray) -> np.ndarray:
+        """The maximal-braking input along the field's gradient: what the slack-relaxed QP must do
+        at least as well as, row by row (``model.backup_input``)."""
         out = np.empty(self.n)
-        a = np.zeros(self.n) if a_row is None else _f64(a_row)
-        mdl.backup_input(self.di, self.df, self.dl, _f64(gradient), _f64(s.velocity), self.spec.dt, a, float(closing),
-                         out)
+        mdl.backup_input(self.di, self.df, self.dl, _f64(gradient), _f64(s.velocity), self.spec.dt, out)
         return out
 
     def alpha_cap(self, a_brake: float) -> float:

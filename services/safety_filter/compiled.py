@@ -32,56 +32,63 @@ import numpy as np
 from ..fields.compiled import HAVE_NUMBA, Layout, jit, kernel_view, query_field, view1, view2, view3
 from ..fields.grid import EsdfField
 from . import model as mdl
-from .model import OBJECT_COLUMNS, DescInts
+from .model import GAIN_COLUMNS, OBJECT_COLUMNS, YIELD, DescInts
 from .qp import FEASIBILITY_TOL
 
 # Outcome codes of the kernel (INTS "out"[0]).
 OK, SLACK, OUTSIDE_MAP, NON_FINITE, INFEASIBLE, HANDBACK = 0, 1, 2, 3, 4, 9
 FALLBACK = {OK: None, SLACK: "slack", OUTSIDE_MAP: "outside_map", NON_FINITE: "non_finite",
             INFEASIBLE: "infeasible"}
-#: Moving objects one step takes at most (``CompiledStep.run`` keeps the nearest).
+#: Moving objects one step takes at most (``motion.object_table`` keeps the nearest), and the
+#: most of them on a collision course that get a row (``max_object_rows``).
 MAX_OBJECTS = 16
 
 _MAX_ITER, _TOL = 50, 1e-12  # as qp.ActiveSetSolver's defaults
 
 #: The float workspace of one filter's step. Dimensions: n inputs, m body points, q = 2m field
-#: samples (the points now and one period ahead), rows = q + 2n QP rows with the box, k objects,
-#: d the packed description's length.
+#: samples (the points now and one period ahead), K object rows, s = q + K samples (the objects'
+#: analytic ones after the field's), r = q + K CBF rows, rows = r + 2n QP rows with the box, k
+#: objects, d the packed description's length.
 FLOATS = Layout("Floats", [
     # the model's description (``model.DESC``), written once
     ("desc", ("d",)),
     # inputs of a step (CompiledStep.run)
     ("position", (3,)), ("rotation", (3, 3)), ("velocity", (3,)), ("u_ref", ("n",)), ("ang", (3,)),
-    ("objects", ("k", OBJECT_COLUMNS)), ("age", (1,)),
+    ("objects", ("k", OBJECT_COLUMNS)),
     # constants of the filter (δ per map: CompiledStep.prepare)
-    ("delta", (1,)), ("alpha_cap", (1,)), ("dt", (1,)), ("match", (1,)),
+    ("delta", (1,)), ("alpha_cap", (1,)), ("dt", (1,)), ("horizon", (1,)), ("a_stop", (1,)),
     # outputs: [h at the critical point, the barrier there], u
     ("out", (2,)), ("u", ("n",)),
     # scratch
-    ("pts", ("q", 3)), ("dist", ("q",)), ("grad", ("q", 3)), ("hess", ("q", 3, 3)), ("gains", ("q", 4)),
-    ("closing", ("q",)), ("hb", ("m",)), ("A", ("q", "n")), ("B", ("q",)), ("A2", ("q", "n")), ("B2", ("q",)),
-    ("u_box", ("n",)), ("u_bk", ("n",)), ("u_c", ("n",)), ("rot", (3, 3)), ("rot1", (3, 3)), ("s1", (3, 3)),
-    ("s2", (3, 3)), ("pos1", (3,)), ("vel1", (3,)), ("w1", (3,)),
+    ("pts", ("q", 3)), ("dist", ("q",)), ("grad", ("s", 3)), ("hess", ("s", 3, 3)), ("gains", ("s", GAIN_COLUMNS)),
+    ("hb", ("m",)), ("A", ("r", "n")), ("B", ("r",)), ("A2", ("r", "n")), ("B2", ("r",)),
+    ("u_box", ("n",)), ("u_bk", ("n",)), ("u_c", ("n",)), ("u_stop", ("n",)), ("lo", ("n",)), ("hi", ("n",)),
+    ("rot", (3, 3)), ("rot1", (3, 3)), ("s1", (3, 3)), ("s2", (3, 3)), ("pos1", (3,)), ("vel1", (3,)), ("w1", (3,)),
+    ("still", (3,)), ("wobj", (3,)), ("v_ref", (3,)), ("when", ("k",)),
     ("block", (4, 4, 4)), ("w", (3, 3, 4)), ("r1", (4, 4, 3)), ("r2", (4, 3, 3)), ("r3", (3, 3, 3)),
     ("rc", ("rows", "n")), ("rd", ("rows",)), ("norms", ("rows",)), ("gram", (8, 8)), ("aug", (8, 9)),
     ("z", ("n",)), ("rhs", (8,)), ("rr", (8,)), ("step", ("n",)), ("lam", (8,)), ("marks", ("n2",)), ("sw", ("n",)),
 ])
 #: The integer workspace: the description's integers, the filter's switches, the object count, the
-#: outputs [code, risk group, rows, intervening] and scratch.
+#: outputs [code, risk group, rows, intervening, yielding, object rows] and scratch (per row: its
+#: sample, whether it yields).
 INTS = Layout("Ints", [
     ("desc", (len(DescInts),)), ("predictive", (1,)), ("margins", (1,)), ("slack", (1,)), ("first_order", (1,)),
-    ("nobj", (1,)), ("out", (4,)),
-    ("rgq", ("q",)), ("inside", ("q",)), ("active", (8,)), ("rsrc", ("q",)), ("rsrc2", ("q",)), ("seen", ("q",)),
+    ("nobj", (1,)), ("max_rows", (1,)), ("out", (6,)),
+    ("rgq", ("q",)), ("inside", ("q",)), ("active", (8,)), ("rsrc", ("r",)), ("rsrc2", ("r",)), ("seen", ("r",)),
+    ("ryield", ("r",)), ("ryield2", ("r",)),
 ])
 F, I, D = FLOATS.slot, INTS.slot, mdl.DESC.slot
 
 
-def workspace(m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(float table, int table) of :data:`FLOATS` and :data:`INTS` for m points and n inputs."""
+def workspace(m: int, n: int, k_rows: int = MAX_OBJECTS) -> tuple[np.ndarray, np.ndarray]:
+    """(float table, int table) of :data:`FLOATS` and :data:`INTS` for m points, n inputs and at
+    most ``k_rows`` object rows."""
     d = Layout.size(mdl.DESC.table(n=n, m=m))
     q = 2 * m
-    return (FLOATS.table(d=d, n=n, m=m, q=q, rows=q + 2 * n, k=MAX_OBJECTS, n2=2 * n),
-            INTS.table(q=q))
+    r = q + k_rows
+    return (FLOATS.table(d=d, n=n, m=m, q=q, s=r, r=r, rows=r + 2 * n, k=MAX_OBJECTS, n2=2 * n),
+            INTS.table(q=q, r=r))
 
 
 # --------------------------------------------------------------------------- the QP (qp.ActiveSetSolver)
@@ -358,7 +365,17 @@ def _begin(wf, lf, dl, n):
     lo, hi, u_box = view1(df, dl, D.lo), view1(df, dl, D.hi), view1(wf, lf, F.u_box)
     for j in range(n):
         u_box[j] = min(max(u_ref[j], lo[j]), hi[j])
+    _full_box(wf, lf, dl, n)
     return -1
+
+
+@jit
+def _full_box(wf, lf, dl, n):
+    """The QP's box (FLOATS lo, hi): the model's."""
+    df = view1(wf, lf, F.desc)
+    lo0, hi0, lo, hi = view1(df, dl, D.lo), view1(df, dl, D.hi), view1(wf, lf, F.lo), view1(wf, lf, F.hi)
+    for j in range(n):
+        lo[j], hi[j] = lo0[j], hi0[j]
 
 
 @jit
@@ -379,8 +396,8 @@ def _points(wf, wi, lf, li, dl, predictive):
 
 @jit
 def _sample(wf, wi, lf, li, flat, rgs, fmi, fmf, table, npts, order):
-    """Field query at every sample, the gains of their groups (capped for first-order models) and
-    the closing speeds of moving objects. False when a point is not finite (the numpy path decides)."""
+    """Field query at every sample and the gains of their groups (capped for first-order models).
+    False when a point is not finite (the numpy path decides)."""
     pts, dist, grad, hess = view2(wf, lf, F.pts), view1(wf, lf, F.dist), view2(wf, lf, F.grad), view3(wf, lf, F.hess)
     rgq, inside, gains = view1(wi, li, I.rgq), view1(wi, li, I.inside), view2(wf, lf, F.gains)
     block, w, r1 = view3(wf, lf, F.block), view3(wf, lf, F.w), view3(wf, lf, F.r1)
@@ -396,34 +413,28 @@ def _sample(wf, wi, lf, li, flat, rgs, fmi, fmf, table, npts, order):
     first_order = view1(wi, li, I.first_order)[0]
     for i in range(npts):
         g = min(rgq[i], nt - 1)
-        for c in range(4):
+        for c in range(GAIN_COLUMNS):
             gains[i, c] = table[g, c]
         if first_order:
             gains[i, 0] = min(gains[i, 0], cap)
-    closing = view1(wf, lf, F.closing)
-    nobj = view1(wi, li, I.nobj)[0]
-    if nobj > 0:
-        mdl.closing_speeds(pts, dist, grad, rgq, gains, npts, view2(wf, lf, F.objects), nobj,
-                           _scalar(wf, lf, F.match), closing)
-    else:
-        for i in range(npts):
-            closing[i] = 0.0
     return True
 
 
 @jit
 def _rows(wf, wi, lf, li, dl, m, n, predictive):
     """The CBF rows (``model.point_row``) of the points now and, where the gradient or group one
-    period ahead differs, of the points ahead (filter's predictive rows). Returns the row count,
-    or -1 when a row is not finite."""
+    period ahead differs, of the points ahead (filter's predictive rows), each marked yielding by
+    its group. Returns the row count."""
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     rot, ang, vel = view2(wf, lf, F.rot), view1(wf, lf, F.ang), view1(wf, lf, F.velocity)
     grad, hess, gains = view2(wf, lf, F.grad), view3(wf, lf, F.hess), view2(wf, lf, F.gains)
-    hb, closing, A, B = view1(wf, lf, F.hb), view1(wf, lf, F.closing), view2(wf, lf, F.A), view1(wf, lf, F.B)
+    hb, still, A, B = view1(wf, lf, F.hb), view1(wf, lf, F.still), view2(wf, lf, F.A), view1(wf, lf, F.B)
     rgq, inside, rsrc = view1(wi, li, I.rgq), view1(wi, li, I.inside), view1(wi, li, I.rsrc)
+    ryield = view1(wi, li, I.ryield)
     for i in range(m):
-        B[i] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[i], hess[i], hb[i], gains[i], closing[i], A[i])
+        B[i] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[i], hess[i], hb[i], gains[i], still, A[i])
         rsrc[i] = i
+        ryield[i] = gains[i, YIELD] > 0.0
     nrows = m
     if predictive:
         for i in range(m):
@@ -433,27 +444,95 @@ def _rows(wf, wi, lf, li, dl, m, n, predictive):
                 diff = max(diff, abs(grad[j, a] - grad[i, a]))
             same = diff < 0.05 and rgq[j] == rgq[i]
             if inside[j] and not same:
-                B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[j], hess[j], hb[i], gains[j], closing[j],
+                B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[j], hess[j], hb[i], gains[j], still,
                                          A[nrows])
                 rsrc[nrows] = j
+                ryield[nrows] = gains[j, YIELD] > 0.0
                 nrows += 1
+    return nrows
+
+
+@jit
+def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
+    """The rows of the moving objects on a collision course (``model.object_course``), the
+    ``max_rows`` soonest first, each its own analytic row (``model.object_sample``) as sample
+    2m + r; all yield. Returns (the row count, the object rows)."""
+    di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
+    rot, ang, vel = view2(wf, lf, F.rot), view1(wf, lf, F.ang), view1(wf, lf, F.velocity)
+    pts, grad, hess, gains = view2(wf, lf, F.pts), view2(wf, lf, F.grad), view3(wf, lf, F.hess), view2(wf, lf, F.gains)
+    objects, when, v_ref, wobj = view2(wf, lf, F.objects), view1(wf, lf, F.when), view1(wf, lf, F.v_ref), \
+        view1(wf, lf, F.wobj)
+    A, B, rsrc, ryield = view2(wf, lf, F.A), view1(wf, lf, F.B), view1(wi, li, I.rsrc), view1(wi, li, I.ryield)
+    nobj, kmax = view1(wi, li, I.nobj)[0], view1(wi, li, I.max_rows)[0]
+    delta, horizon, a_stop = _scalar(wf, lf, F.delta), _scalar(wf, lf, F.horizon), _scalar(wf, lf, F.a_stop)
+    nt = table.shape[0]
+    mdl.reference_velocity(di, df, dl, rot, vel, view1(wf, lf, F.u_box), v_ref)
+    for k in range(nobj):
+        g = min(int(objects[k, mdl.OBJ_GROUP]), nt - 1)
+        when[k] = mdl.object_course(df, dl, pts, v_ref, vel, objects[k], table[g, mdl.MARGIN], delta, horizon, a_stop)
+    cap = _scalar(wf, lf, F.alpha_cap)
+    first_order = view1(wi, li, I.first_order)[0]
+    made = 0
+    while made < kmax:
+        best, kb = math.inf, -1
+        for k in range(nobj):  # the soonest left (the first on ties, as a stable sort)
+            if when[k] < best:
+                best, kb = when[k], k
+        if kb < 0:
+            break
+        when[kb] = math.inf
+        j = 2 * m + made
+        g = min(int(objects[kb, mdl.OBJ_GROUP]), nt - 1)
+        for c in range(GAIN_COLUMNS):
+            gains[j, c] = table[g, c]
+        if first_order:
+            gains[j, 0] = min(gains[j, 0], cap)
+        i, hbo = mdl.object_sample(df, dl, pts, objects[kb], gains[j], delta, grad[j], hess[j], wobj)
+        B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[j], hess[j], hbo, gains[j], wobj, A[nrows])
+        rsrc[nrows] = j
+        ryield[nrows] = 1
+        nrows += 1
+        made += 1
+    return nrows, made
+
+
+@jit
+def _finite_rows(wf, lf, nrows, n):
+    A, B = view2(wf, lf, F.A), view1(wf, lf, F.B)
     for i in range(nrows):
         ok = math.isfinite(B[i])
         for j in range(n):
             ok = ok and math.isfinite(A[i, j])
         if not ok:
-            return -1
-    return nrows
+            return False
+    return True
+
+
+@jit
+def _clip_yielding(wf, wi, lf, li, dl, nrows, n):
+    """Yielding rows clipped to what stopping achieves (``model.yield_clip``); True when one asked more."""
+    di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
+    A, B, ryield, u_stop = view2(wf, lf, F.A), view1(wf, lf, F.B), view1(wi, li, I.ryield), view1(wf, lf, F.u_stop)
+    mdl.brake_input(di, df, dl, view1(wf, lf, F.velocity), _scalar(wf, lf, F.dt), u_stop)
+    yielding = False
+    for i in range(nrows):
+        if ryield[i]:
+            B[i], clipped = mdl.yield_clip(di, A[i], B[i], u_stop)
+            yielding = yielding or clipped
+    return yielding
 
 
 @jit
 def _drop_inactive(wf, wi, lf, li, dl, nrows, n):
-    """Rows that hold for every u in the box cannot be active: the others into A2, B2 (rsrc2)."""
+    """Rows that hold for every u in the box cannot be active: the others into A2, B2 (rsrc2,
+    ryield2). Returns (their count, whether one of them yields)."""
     df = view1(wf, lf, F.desc)
     lo, hi = view1(df, dl, D.lo), view1(df, dl, D.hi)
     A, B, A2, B2 = view2(wf, lf, F.A), view1(wf, lf, F.B), view2(wf, lf, F.A2), view1(wf, lf, F.B2)
     rsrc, rsrc2 = view1(wi, li, I.rsrc), view1(wi, li, I.rsrc2)
+    ryield, ryield2 = view1(wi, li, I.ryield), view1(wi, li, I.ryield2)
     nlive = 0
+    any_yield = False
     for i in range(nrows):
         s = 0.0
         for j in range(n):
@@ -463,16 +542,19 @@ def _drop_inactive(wf, wi, lf, li, dl, nrows, n):
                 A2[nlive, j] = A[i, j]
             B2[nlive] = B[i]
             rsrc2[nlive] = rsrc[i]
+            ryield2[nlive] = ryield[i]
+            any_yield = any_yield or ryield[i] != 0
             nlive += 1
-    return nlive
+    return nlive, any_yield
 
 
 @jit
 def _qp(wf, wi, lf, li, dl, n, nlive):
-    """The exact QP on the live rows (A2, B2) into u: status 0 solved, 1 infeasible, 2 failed."""
+    """The exact QP on the live rows (A2, B2) in the box (FLOATS lo, hi) into u: status 0 solved,
+    1 infeasible, 2 failed."""
     df = view1(wf, lf, F.desc)
     return _active_set(view1(df, dl, D.weights), view1(wf, lf, F.u_ref), view2(wf, lf, F.A2),
-                       view1(wf, lf, F.B2), nlive, view1(df, dl, D.lo), view1(df, dl, D.hi),
+                       view1(wf, lf, F.B2), nlive, view1(wf, lf, F.lo), view1(wf, lf, F.hi),
                        n, view1(wf, lf, F.u), view2(wf, lf, F.rc), view1(wf, lf, F.rd), view1(wf, lf, F.norms),
                        view2(wf, lf, F.gram), view2(wf, lf, F.aug), view1(wf, lf, F.z), view1(wf, lf, F.rhs),
                        view1(wf, lf, F.rr), view1(wf, lf, F.step), view1(wf, lf, F.lam), view1(wf, lf, F.marks),
@@ -488,7 +570,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     vel, dt = view1(wf, lf, F.velocity), _scalar(wf, lf, F.dt)
     grad, A2, B2, B = view2(wf, lf, F.grad), view2(wf, lf, F.A2), view1(wf, lf, F.B2), view1(wf, lf, F.B)
-    u_bk, u_c, closing = view1(wf, lf, F.u_bk), view1(wf, lf, F.u_c), view1(wf, lf, F.closing)
+    u_bk, u_c = view1(wf, lf, F.u_bk), view1(wf, lf, F.u_c)
     rsrc2, seen = view1(wi, li, I.rsrc2), view1(wi, li, I.seen)
     mdl.brake_input(di, df, dl, vel, dt, u_bk)
     best_score = _worst_row(A2, B2, nlive, n, u_bk)
@@ -508,19 +590,19 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
             continue
         seen[nseen] = src
         nseen += 1
-        mdl.backup_input(di, df, dl, grad[src], vel, dt, A2[i], closing[src], u_c)
+        mdl.backup_input(di, df, dl, grad[src], vel, dt, u_c)
         score = _worst_row(A2, B2, nlive, n, u_c)
         if score > best_score:
             best_score = score
             for j in range(n):
                 u_bk[j] = u_c[j]
-    # Soft predictive rows: first relax only the rows ahead (rsrc2 ≥ m) that the backup violates,
-    # keeping the current rows hard; B keeps the live rows' b meanwhile.
+    # Soft predictive rows: first relax only the rows ahead (m ≤ rsrc2 < 2m) that the backup
+    # violates, keeping the current rows hard; B keeps the live rows' b meanwhile.
     soft = False
     status = 1
     for i in range(nlive):
         B[i] = B2[i]
-        if rsrc2[i] >= m:
+        if m <= rsrc2[i] < 2 * m:
             ab = 0.0
             for j in range(n):
                 ab += A2[i, j] * u_bk[j]
@@ -561,10 +643,11 @@ def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
     """One filter step (SafetyFilter.filter) over the workspaces ``wf``, ``wi`` (laid out by the
     tables ``lf``, ``li`` of :data:`FLOATS`, :data:`INTS`; ``dl`` the description's
     ``model.DESC`` table), the field as ``fields.compiled.kernel_view`` gives it and the gains per
-    risk group (``table``). Outcome in INTS "out" = [code, risk group, rows, intervening], FLOATS
-    "out" = [h at the critical point, the barrier there] and "u"."""
+    risk group (``table``). Outcome in INTS "out" = [code, risk group, rows, intervening,
+    yielding, object rows], FLOATS "out" = [h at the critical point, the barrier there] and "u"."""
     out_i, out_f = view1(wi, li, I.out), view1(wf, lf, F.out)
-    out_i[0], out_i[1], out_i[2], out_i[3] = OK, 0, 0, 0
+    for c in range(6):
+        out_i[c] = 0
     out_f[0], out_f[1] = 0.0, 0.0
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     n, m, order = di[DescInts.N], di[DescInts.M], di[DescInts.ORDER]
@@ -580,8 +663,7 @@ def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
     dist, grad, hb = view1(wf, lf, F.dist), view2(wf, lf, F.grad), view1(wf, lf, F.hb)
     rgq, inside = view1(wi, li, I.rgq), view1(wi, li, I.inside)
     kc = mdl.barriers(di, df, dl, dist, grad, view1(wf, lf, F.velocity), view2(wf, lf, F.gains),
-                      view1(wf, lf, F.closing), _scalar(wf, lf, F.delta), view1(wi, li, I.margins)[0] != 0,
-                      _scalar(wf, lf, F.age), hb)
+                      _scalar(wf, lf, F.delta), view1(wi, li, I.margins)[0] != 0, hb, view1(wf, lf, F.still))
     h_crit = dist[kc] - view1(df, dl, D.radii)[kc]
     out_f[0], out_i[1] = h_crit, rgq[kc]
     for i in range(m):
@@ -590,13 +672,22 @@ def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
             out_i[0] = OUTSIDE_MAP
             return
     nrows = _rows(wf, wi, lf, li, dl, m, n, predictive)
-    if nrows < 0 or not math.isfinite(h_crit):
+    nrows, n_obj = _object_rows(wf, wi, lf, li, dl, m, n, nrows, table)
+    if not _finite_rows(wf, lf, nrows, n) or not math.isfinite(h_crit):
         out_f[0] = 0.0
         out_i[0] = NON_FINITE
         return
-    out_i[2] = nrows
-    nlive = _drop_inactive(wf, wi, lf, li, dl, nrows, n)
+    out_i[2], out_i[5] = nrows, n_obj
+    out_i[4] = _clip_yielding(wf, wi, lf, li, dl, nrows, n)
+    nlive, yielding_live = _drop_inactive(wf, wi, lf, li, dl, nrows, n)
+    boxed = yielding_live and mdl.yield_box(di, df, dl, view1(wf, lf, F.u_ref), view1(wf, lf, F.lo),
+                                            view1(wf, lf, F.hi))
     status = _qp(wf, wi, lf, li, dl, n, nlive)
+    if status == 1 and boxed:
+        # The static rows ask more than slowing (recovery from inside a static margin): the full
+        # box, the yielding rows still clipped (filter's numpy path).
+        _full_box(wf, lf, dl, n)
+        status = _qp(wf, wi, lf, li, dl, n, nlive)
     code = OK
     if status == 2:
         out_i[0] = HANDBACK  # the numpy path takes it to OSQP
@@ -634,12 +725,13 @@ class CompiledStep:
     """
 
     def __init__(self, model, delta: float, alpha_cap: float, dt: float, predictive: bool,
-                 margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0, match: float = 0.3):
+                 margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0, max_object_rows: int = 8,
+                 horizon: float = 1.5, a_stop: float = 1.5):
         if not HAVE_NUMBA:
             raise RuntimeError("the compiled filter step needs numba (pip install '.[robot]')")
         m, n = model.m, model.n
         self.m, self.n = m, n
-        self.lf, self.li = workspace(m, n)
+        self.lf, self.li = workspace(m, n, max_object_rows)
         self.dl = model.dl
         self.wf, self.wi = np.zeros(Layout.size(self.lf)), np.zeros(Layout.size(self.li), np.int64)
         di, df = model.spec.packed
@@ -650,11 +742,12 @@ class CompiledStep:
         self.delta, self.map_margin_voxels = delta, map_margin_voxels
         fv("delta")[0] = delta
         fv("alpha_cap")[0] = alpha_cap if math.isfinite(alpha_cap) else 1e300
-        fv("dt")[0], fv("match")[0] = dt, match
+        fv("dt")[0], fv("horizon")[0], fv("a_stop")[0] = dt, horizon, a_stop
+        iv("max_rows")[0] = max_object_rows
         iv("predictive")[0], iv("margins")[0], iv("slack")[0] = predictive, margins_in_filter, slack
         iv("first_order")[0] = model.spec.order == 1
         self.position, self.rotation, self.velocity = fv("position"), fv("rotation"), fv("velocity")
-        self.u_ref, self.ang, self.objects, self.age = fv("u_ref"), fv("ang"), fv("objects"), fv("age")
+        self.u_ref, self.ang, self.objects = fv("u_ref"), fv("ang"), fv("objects")
         self.nobj = iv("nobj")
         # Views of the outputs (step_kernel's docstring).
         self.out_f, self.u, self.out_i = fv("out"), fv("u"), iv("out")
@@ -676,10 +769,9 @@ class CompiledStep:
         return view
 
     def run(self, position: np.ndarray, rotation: np.ndarray, velocity: np.ndarray, u_ref: np.ndarray,
-            ang: np.ndarray, field: EsdfField, table: np.ndarray, objects: np.ndarray | None = None,
-            age: float = 0.0) -> None:
+            ang: np.ndarray, field: EsdfField, table: np.ndarray, objects: np.ndarray | None = None) -> None:
         """One step; ``objects`` (k × ``model.OBJECT_COLUMNS``, at most :data:`MAX_OBJECTS`) are the
-        moving objects at the map's stamp, ``age`` (s) the map's content age."""
+        moving objects predicted to the instant the command takes effect (``motion.object_table``)."""
         self.position[:] = position
         self.rotation[:] = rotation
         self.velocity[:] = velocity
@@ -689,7 +781,6 @@ class CompiledStep:
         if k:
             self.objects[:k] = objects[:k]
         self.nobj[0] = k
-        self.age[0] = age
         flat, rgs, fmi, fmf = self.prepare(field)
         step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, flat, rgs, fmi, fmf, table)
 

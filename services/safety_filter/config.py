@@ -17,6 +17,7 @@ from typing import Annotated, Literal, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from riskfield.protocol import ade20k
 from riskfield.protocol.platforms import LIMO
 
 from ..fields.grid import Interpolation
@@ -50,7 +51,7 @@ class Footprint(BaseModel):
     unicycle): the paper's filter, unprotected sides and rear.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     shape: Literal["rectangle", "capsule", "sphere", "none"]
     length: Pos = LIMO_LENGTH
@@ -86,20 +87,36 @@ class BarrierParams(BaseModel):
     the distance field's ridges, a faster approach); ``inf`` (default): linear.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     model: ModelName = "unicycle"
+    """unicycle: the look-ahead point (the LIMO); single2d / single3d: body-frame velocity control; double3d:
+    acceleration control with the HOCBF."""
     lookahead_m: Pos = 0.25
+    """unicycle: distance (m) of the controlled point ahead of the axle."""
     extra_points: list[Point] = Field(default_factory=list, max_length=16)
+    """Further body-frame points (x forward, y left, z up; world-frame offsets for double3d), one CBF row each."""
     robot_radius: NonNeg = 0.15
+    """Radius (m) of each control point's ball: the barrier is h = d - robot_radius."""
     lambda_v: Pos = 1.0
+    """unicycle: QP weight of a change of the forward speed."""
     lambda_w: Pos = 0.5
+    """unicycle: QP weight of a change of the yaw rate."""
     k_v: Pos = 2.0
+    """double3d: gain of the velocity tracking that turns a velocity reference into an acceleration."""
     footprint: Footprint | None = None
+    """The body's disc cover added to the control points; None: the LIMO rectangle for the unicycle, a sphere of
+    robot_radius otherwise."""
     barrier: Literal["braking", "hocbf"] = "braking"
+    """double3d: braking keeps the braking distance within the bounds (feasible); hocbf is the paper's eq. 14 as
+    written."""
     brake_fraction: Annotated[float, Field(gt=0, le=1)] = 0.7
+    """braking barrier: the deceleration it plans with, as a fraction of a_max (a_b = brake_fraction a_max)."""
     brake_rate_length: Annotated[float, Field(gt=0)] = math.inf
+    """braking barrier: length (m) of the class-K function k h (1 + h / length); inf: linear."""
     brake_speed_floor: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    """braking barrier: speed (m/s) where the braking distance turns from linear to a parabola; None: a_b / k2 of
+    each row's risk group."""
 
 
 class BoundsParams(BaseModel):
@@ -112,12 +129,17 @@ class BoundsParams(BaseModel):
     limits instead where none is set (``MODEL_BOUNDS``: the ``unicycle`` is the LIMO, so 1 m/s,
     2 rad/s and 1.5 m/s² from ``protocol.platforms.LIMO``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     v_max: Pos = 1.0
+    """|speed| bound (m/s), per axis for the single integrators; the unicycle's default is the LIMO's."""
     w_max: Pos = 2.0
+    """|yaw rate| bound (rad/s); the unicycle's default is the LIMO's."""
     vz_max: Pos = 0.5
+    """|vertical speed| bound (m/s), single3d and double3d."""
     a_max: Pos = 3.0
+    """|acceleration| bound (m/s^2); for velocity-controlled models the platform's deceleration, which caps the
+    gains at 2 a_max / v_max."""
 
 
 class QpParams(BaseModel):
@@ -152,16 +174,30 @@ class QpParams(BaseModel):
     (``REFERENCE_IMPLEMENTATIONS``): the node always runs ``auto``.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     sampled_data_margin: NonNeg | None = None
+    """Margin delta (m) that keeps h >= 0 between control instants; None: the largest point speed within the bounds
+    times the control period."""
     map_margin_voxels: NonNeg = 0.5
+    """Voxels of a gridded field added to delta: the ESDF places a surface no ray hit face-on only to within a
+    voxel."""
     rate_hz: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 50.0
+    """Control rate: a step (and cmd/safe) at least this often."""
     margins_in_filter: bool = False
+    """Subtract each risk group's margin in the filter, for a field whose distances do not include it already (the
+    mapping's ESDF does)."""
     predictive_rows: bool = True
+    """Add per point the CBF row with the gradient one period ahead under the reference (no sliding across the
+    field's kinks)."""
     solver: Literal["auto", "active_set", "osqp"] = "auto"
+    """auto: the active-set QP when the rows fit it, else OSQP; active_set or osqp force one."""
     interpolation: Interpolation = "bspline_smooth"
+    """How the ESDF grid is read: bspline_smooth (C2, exact derivatives), bspline, catmull_rom, or the paper's
+    trilinear with finite differences."""
     slack: bool = True
+    """An infeasible QP is solved with every row relaxed to what maximal braking along the gradient achieves,
+    instead of braking blindly."""
     backend: Literal["auto", "numba", "numpy"] = "auto"
 
 
@@ -169,6 +205,8 @@ class QpParams(BaseModel):
 #: can compare against it: core parameters (``FilterConfig(backend="numpy")``), not node settings
 #: (``FilterSettings.REFERENCE_ONLY``: setting one is an error saying this), as the mapping's are.
 REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
+    "object_match_m": "removed: a moving object is no longer matched to the field's distance; each one on a "
+                      "collision course is its own row (collision_horizon_s, object_speed_sigma, max_object_rows)",
     "backend": "the numpy step is the compiled step's test reference and the bench's comparison "
                "(FilterConfig(backend='numpy')); the node runs the compiled step whenever numba is installed "
                "and the active-set QP is in use (solver), the numpy one otherwise",
@@ -176,16 +214,26 @@ REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
 
 
 class MotionParams(BaseModel):
-    """Moving obstacles (``map/objects``): the barrier's ∂h/∂t from the tracked objects' velocities
-    (``model``: ḣ = ∇h·ẋ + ∂h/∂t ≥ -α(h), ∂h/∂t = -max(∇d·v_obj, 0) at a body point whose nearest
-    obstacle is the object). A track's velocity counts only once it is fast, old and fresh enough
-    (``motion``), so a noisy estimate of a standing person adds nothing."""
+    """Moving obstacles (``map/objects``) and yielding (``model``'s module docstring): every tracked
+    object on a collision course is its own barrier row, with its own velocity, predicted from its
+    observation to the instant the command takes effect; the rows of moving objects and of the
+    groups that yield may slow and stop the robot, never push it. A track's velocity counts only
+    once it is fast, old and fresh enough (``motion``), so a noisy estimate of a standing person
+    adds nothing.
 
-    model_config = ConfigDict(extra="forbid")
+    The collision course (``model.object_course``): within ``collision_horizon_s`` the object,
+    moving on with its velocity and uncertain by ``object_speed_sigma`` · t, comes inside its
+    group's margin of the robot's body, with the body moving on as the reference asks or braking
+    to rest. 1.5 s at σ = 0.15 m/s (the tracker's accuracy, ``mapping.objects``) grows a walker's
+    reach by 0.23 m: a person walking past at a body gap of 0.5 m stays out (0.5 - 0.15 - 0.23 -
+    δ > 0), one walking at 1.2 m/s is seen 1.8 m ahead of the contact, more than the LIMO needs to
+    stop from 1 m/s (0.33 m at 1.5 m/s²) with the pipeline's latency."""
+
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     object_motion: bool = Field(default=True, description=(
-        "add the motion of the tracked objects on map/objects to the barrier (∂h/∂t); false: the static "
-        "barrier, as before map/objects existed (the crowd benchmark's baseline)"))
+        "each tracked object on map/objects on a collision course adds its own barrier row, with its "
+        "own velocity; false: the static barrier, the field alone (the crowd benchmark's baseline)"))
     object_speed_deadband: NonNeg = Field(default=0.2, description=(
         "m/s: a tracked speed below this counts as standing; the velocity ramps in fully at twice it "
         "(continuous, so a speed near the threshold cannot switch the barrier on and off)"))
@@ -196,17 +244,35 @@ class MotionParams(BaseModel):
         "ms: a track younger than this counts with the fraction tracked_ms / object_young_ms of its velocity"))
     object_stale_ms: Pos = Field(default=500.0, description=(
         "ms: an object not observed for longer than this (its age_ms) adds no motion"))
-    object_match_m: Pos = Field(default=0.3, description=(
-        "m: a body point's nearest obstacle is a tracked object when the object's risk group is the "
-        "field's there and the field's distance agrees with the object's geometry (horizontal distance "
-        "to its centre - radius - the group's margin) to within this"))
+    object_speed_sigma: NonNeg = Field(default=0.15, description=(
+        "m/s: the tracked velocity's uncertainty; a row takes the worst velocity within it (towards the "
+        "robot) and the collision course grows the object's reach by sigma · t"))
+    collision_horizon_s: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = Field(default=1.5, description=(
+        "s: how far ahead a moving object's course is followed: only an object that comes inside its "
+        "margin of the robot's body within this adds a row"))
+    command_delay_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = Field(default=0.06, description=(
+        "s: from the filter's step to the command taking effect (a control period, the bridge and the "
+        "chassis): tracks are predicted from their observation to then"))
+    max_object_rows: Annotated[int, Field(ge=1, le=16)] = Field(default=8, description=(
+        "moving objects on a collision course that get a row, the soonest first"))
+    yield_labels: list[str] = Field(default_factory=lambda: ["person", "animal"], description=(
+        "ADE20K labels whose risk groups yield: the ESDF's rows there may slow and stop the robot but "
+        "never push it (no recovery drive away from a person); empty: every group keeps the static "
+        "barrier's recovery"))
+
+    @model_validator(mode="after")
+    def _known_labels(self) -> MotionParams:
+        unknown = [n for n in self.yield_labels if n not in ade20k.CLASSES]
+        if unknown:
+            raise ValueError(f"yield_labels: {unknown} are not ADE20K labels")
+        return self
 
 
 class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
     """Barrier model and QP of the safety filter: ``BarrierParams``, ``BoundsParams``, ``QpParams``
     and ``MotionParams`` composed; it builds the barrier model and knows the sampled-data margin."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     @classmethod
     def compose(cls, barrier: BarrierParams | None = None, bounds: BoundsParams | None = None,

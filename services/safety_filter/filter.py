@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from riskfield.protocol import RiskConfig
+from riskfield.protocol import RiskConfig, ade20k
 
 from ..fields import DistanceField, EsdfField, FieldSample
 from . import compiled
@@ -52,7 +52,7 @@ from . import model as mdl
 from .barriers import BarrierModel
 from .compiled import CompiledStep
 from .config import FilterConfig
-from .model import ALPHA1, ALPHA2, OBJECT_COLUMNS
+from .model import ALPHA1, ALPHA2, OBJECT_COLUMNS, YIELD
 from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 
@@ -80,22 +80,26 @@ def _rows_of(s: FieldSample, rows: slice) -> FieldSample:
 
 
 class GainTable:
-    """Per risk group id of a field: [α, α₁, α₂, margin] from the risk configuration.
+    """Per risk group id of a field: [α, α₁, α₂, margin, yield] from the risk configuration.
 
     Field groups are matched to configured groups by name (``EsdfGrid.groups[id - 1]``). Id 0
     (no obstacle recorded) and names the configuration does not know get the most
-    conservative values: the smallest gains and the largest margin.
+    conservative values: the smallest gains and the largest margin, and no yielding (an unknown
+    obstacle keeps the static barrier's recovery). A group yields (``model.YIELD``) when it holds
+    one of ``yield_labels`` (ADE20K names): its obstacles may slow and stop the robot, never push it.
     """
 
-    def __init__(self, risk: RiskConfig):
+    def __init__(self, risk: RiskConfig, yield_labels: Sequence[str] = ()):
         self.risk = risk
+        self.yield_labels = tuple(yield_labels)
+        yielding = {ade20k.index(n) for n in self.yield_labels}
         rows = {}
         for g in risk.groups:
             a1, a2 = hocbf_gains(g.alpha1, g.alpha2)
-            rows[g.name] = (g.alpha, a1, a2, g.margin)
+            rows[g.name] = (g.alpha, a1, a2, g.margin, 1.0 if yielding & set(g.labels) else 0.0)
         self._rows = rows
         vals = np.array(list(rows.values()))
-        self.conservative = np.array([vals[:, 0].min(), vals[:, 1].min(), 0.0, vals[:, 3].max()])
+        self.conservative = np.array([vals[:, 0].min(), vals[:, 1].min(), 0.0, vals[:, 3].max(), 0.0])
         self.conservative[ALPHA2] = hocbf_gains(self.conservative[ALPHA1], vals[:, 2].min())[1]
         self._cache: dict[tuple[str, ...], np.ndarray] = {}
 
@@ -124,6 +128,9 @@ class FilterResult:
     margin: float = 0.0  # the barrier h - δ (- margin) at the critical point
     qp_us: float = 0.0  # of solve_us (field query + rows + QP), the QP alone
     rows: int = 0  # CBF rows in the QP
+    yielding: bool = False  # a yielding row asked more than stopping: the robot stops and waits
+    object_rows: int = 0  # moving objects on a collision course, each its own row
+    backend: str = "numpy"  # which step computed it: "numba" (compiled) or "numpy"
 
 
 class SafetyFilter:
@@ -136,10 +143,11 @@ class SafetyFilter:
         self.config = config or FilterConfig()
         self.model: BarrierModel = model if model is not None else self.config.build_model()
         self.delta = self.config.margin(self.model)
-        self.gains = GainTable(risk or RiskConfig())
+        self.gains = GainTable(risk or RiskConfig(), self.config.yield_labels)
         self._active_set = ActiveSetSolver()
         self._osqp: OsqpSolver | None = None
-        self.rows_max = self.model.m * (2 if self.config.predictive_rows else 1)
+        self.max_object_rows = self.config.max_object_rows if self.config.object_motion else 0
+        self.rows_max = self.model.m * (2 if self.config.predictive_rows else 1) + self.max_object_rows
         self._use_active_set = self.config.solver != "osqp" and self.rows_max <= ACTIVE_SET_MAX_ROWS
         if self.config.solver == "active_set" and not self._use_active_set:
             raise ValueError(f"the active-set solver handles at most {ACTIVE_SET_MAX_ROWS} rows")
@@ -162,8 +170,11 @@ class SafetyFilter:
         field = EsdfField(np.ones(shape, np.float32), (0.0, 0.0, 0.0), 0.1, interpolation=self.config.interpolation)
         s = FilterState(np.array([0.15, 0.15, 0.0 if planar else 0.15]))
         self._filter_numpy(s, np.zeros(self.model.n), field, None, time.perf_counter(), np.zeros((1, OBJECT_COLUMNS)))
+        self.object_rows(s, np.zeros(self.model.n), self.model.points(s), np.zeros((1, OBJECT_COLUMNS)),
+                         self.gains.for_groups(()), self.delta, _ZERO3)
         self.model.integrate(s, np.zeros(self.model.n), self.config.dt)
         self.model.backup(s, np.array([1.0, 0.0, 0.0]))
+        self.model.brake(s)
 
     def _build_compiled(self) -> CompiledStep | None:
         """The compiled step (``compiled``) when the backend allows it and numba is installed."""
@@ -175,9 +186,10 @@ class SafetyFilter:
                 raise ValueError("backend 'numba' needs numba installed and the active-set QP "
                                  f"(solver 'auto' or 'active_set', at most {ACTIVE_SET_MAX_ROWS} rows)")
             return None
-        return CompiledStep(self.model, self.delta, self._alpha_cap, self.config.dt, self.config.predictive_rows,
-                            self.config.margins_in_filter, self.config.slack, self.config.map_margin_voxels,
-                            self.config.object_match_m)
+        cfg = self.config
+        return CompiledStep(self.model, self.delta, self._alpha_cap, cfg.dt, cfg.predictive_rows,
+                            cfg.margins_in_filter, cfg.slack, cfg.map_margin_voxels, max(self.max_object_rows, 1),
+                            cfg.collision_horizon_s, cfg.a_max)
 
     @property
     def backend(self) -> str:
@@ -197,7 +209,7 @@ class SafetyFilter:
         return self.gains.risk
 
     def set_risk(self, risk: RiskConfig) -> None:
-        self.gains = GainTable(risk)
+        self.gains = GainTable(risk, self.config.yield_labels)
 
     def osqp(self) -> OsqpSolver:
         if self._osqp is None:
@@ -217,14 +229,13 @@ class SafetyFilter:
         return float(h[k]), int(sample.risk_group[k]), bool(sample.inside.all())
 
     def filter(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
-               angular: np.ndarray | None = None, objects: np.ndarray | None = None,
-               age_s: float = 0.0) -> FilterResult:
+               angular: np.ndarray | None = None, objects: np.ndarray | None = None) -> FilterResult:
         """The safe input closest to ``u_ref`` (model input space; see the barrier models).
 
         ``angular`` is the body-frame angular velocity passed through by single integrators.
-        ``objects`` are the moving objects at the field's stamp (``motion.object_table``; ignored
-        with ``object_motion`` off) and ``age_s`` the field's content age: the barrier adds their
-        motion (``model``). None or no rows: the static barrier.
+        ``objects`` are the moving objects predicted to the instant the command takes effect
+        (``motion.object_table``; ignored with ``object_motion`` off): each one on a collision
+        course adds its own row (``model``). None or no rows: the static barrier.
         On an ``EsdfField`` with the numba backend the step runs compiled (:mod:`.compiled`, the same
         semantics; ``qp_us`` is then not measured apart and reads 0); otherwise with numpy.
         """
@@ -233,18 +244,17 @@ class SafetyFilter:
             objects = None
         if objects is not None:
             objects = np.ascontiguousarray(objects[:compiled.MAX_OBJECTS], np.float64)
-            age_s = max(float(age_s), 0.0) if math.isfinite(age_s) else 0.0
         if self._compiled is not None:
             grid = self.field_for(field)
             if isinstance(grid, EsdfField):
-                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0, objects, age_s)
+                res = self._filter_compiled(self._compiled, state, u_ref, grid, angular, t0, objects)
                 if res is not None:
                     return res
-        return self._filter_numpy(state, u_ref, field, angular, t0, objects, age_s)
+        return self._filter_numpy(state, u_ref, field, angular, t0, objects)
 
     def _filter_compiled(self, step: CompiledStep, state: FilterState, u_ref: np.ndarray, field: EsdfField,
-                         angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None,
-                         age_s: float = 0.0) -> FilterResult | None:
+                         angular: np.ndarray | None, t0: float,
+                         objects: np.ndarray | None = None) -> FilterResult | None:
         """One compiled call; None hands the step to the numpy path (``compiled.HANDBACK``)."""
         u_ref = np.asarray(u_ref, np.float64)
         if u_ref.shape != (self.model.n,):
@@ -253,8 +263,8 @@ class SafetyFilter:
         if ang.shape != (3,):
             return None
         step.run(state.position, state.rotation, state.velocity, u_ref, ang, field,
-                 self.gains.for_groups(field.groups), objects, age_s)
-        code, rg, n_rows, intervening = step.out_i.tolist()
+                 self.gains.for_groups(field.groups), objects)
+        code, rg, n_rows, intervening, yielding, n_obj = step.out_i.tolist()
         if code == compiled.HANDBACK:
             return None
         h, margin = step.out_f.tolist()
@@ -263,11 +273,39 @@ class SafetyFilter:
             # n_rows is set once the rows are built: from then on the QP had its say.
             return self._brake(state, u_ref, fallback, t0, h, rg, ActiveSetSolver.name if n_rows else "")
         return FilterResult(step.u.copy(), u_ref, h, rg, bool(intervening), fallback,
-                            (time.perf_counter() - t0) * 1e6, ActiveSetSolver.name, margin, 0.0, n_rows)
+                            (time.perf_counter() - t0) * 1e6, ActiveSetSolver.name, margin, 0.0, n_rows,
+                            bool(yielding), n_obj, "numba")
+
+    def object_rows(self, state: FilterState, u_box: np.ndarray, pts: np.ndarray, objects: np.ndarray,
+                    table: np.ndarray, delta: float, ang: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(A, b, gradients) of the moving objects on a collision course (``model.object_course``),
+        the ``max_object_rows`` soonest first, each its own row (``model.object_row``)."""
+        model, cfg = self.model, self.config
+        rot = model.rotation(state)
+        v_ref = np.empty(3)
+        mdl.reference_velocity(model.di, model.df, model.dl, rot, _f64(state.velocity), _f64(u_box), v_ref)
+        when = []
+        for k, obj in enumerate(objects):
+            g = table[min(int(obj[mdl.OBJ_GROUP]), table.shape[0] - 1)]
+            t = mdl.object_course(model.df, model.dl, pts, v_ref, _f64(state.velocity), obj, float(g[mdl.MARGIN]),
+                                  delta, cfg.collision_horizon_s, cfg.a_max)
+            if math.isfinite(t):
+                when.append((t, k))
+        when = sorted(when)[:self.max_object_rows]
+        a, b, grads = np.empty((len(when), model.n)), np.empty(len(when)), np.empty((len(when), 3))
+        hess, wobj = np.empty((3, 3)), np.empty(3)
+        for r, (_, k) in enumerate(when):
+            obj = objects[k]
+            g = table[min(int(obj[mdl.OBJ_GROUP]), table.shape[0] - 1)].copy()
+            if self._first_order:
+                g[0] = min(g[0], self._alpha_cap)
+            i, hb = mdl.object_sample(model.df, model.dl, pts, obj, g, delta, grads[r], hess, wobj)
+            b[r] = mdl.point_row(model.di, model.df, model.dl, rot, ang, _f64(state.velocity), i, grads[r], hess, hb,
+                                 g, wobj, a[r])
+        return a, b, grads
 
     def _filter_numpy(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
-                      angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None,
-                      age_s: float = 0.0) -> FilterResult:
+                      angular: np.ndarray | None, t0: float, objects: np.ndarray | None = None) -> FilterResult:
         model = self.model
         ang = _ZERO3 if angular is None else np.asarray(angular, np.float64)
         u_ref = np.asarray(u_ref, np.float64)
@@ -287,22 +325,17 @@ class SafetyFilter:
         if self._first_order:
             gains = gains.copy()
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
-        closing = np.zeros(len(pts))
-        if objects is not None:
-            mdl.closing_speeds(_f64(pts), _f64(both.distance), _f64(both.gradient),
-                               np.ascontiguousarray(both.risk_group, np.int64), _f64(gains), len(pts), objects,
-                               len(objects), self.config.object_match_m, closing)
         hb = np.empty(m)
         delta = self.delta + self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
         k = mdl.barriers(model.di, model.df, model.dl, _f64(sample.distance), _f64(sample.gradient),
-                         _f64(state.velocity), _f64(gains[:m]), closing, delta, self.config.margins_in_filter,
-                         age_s, hb)
+                         _f64(state.velocity), _f64(gains[:m]), delta, self.config.margins_in_filter, hb, _ZERO3)
         h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
         if not sample.inside.all():
             return self._brake(state, u_ref, "outside_map", t0, 0.0, rg)
-        a, b = model.rows(state, sample, hb, gains[:m], ang, closing[:m])
+        a, b = model.rows(state, sample, hb, gains[:m], ang)
         gradients = sample.gradient  # one per row: the candidate backup directions
-        row_closing = closing[:m]
+        yields = gains[:m, YIELD] > 0
+        ahead = np.zeros(m, bool)  # the predictive rows
         if self.config.predictive_rows:
             # The same CBF row with the gradient (and group) found at the predicted point: where the
             # nearest obstacle changes within one period (the ridge between two obstacles, where the
@@ -316,24 +349,44 @@ class SafetyFilter:
             keep = ahead_s.inside & ~same
             if keep.any():
                 gradients = np.concatenate([gradients, ahead_s.gradient[keep]])
-                row_closing = np.concatenate([row_closing, closing[m:][keep]])
-                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang, closing[m:])
+                a2, b2 = model.rows(state, ahead_s, hb, gains[m:], ang)
                 a, b = np.concatenate([a, a2[keep]]), np.concatenate([b, b2[keep]])
+                yields = np.concatenate([yields, gains[m:][keep, YIELD] > 0])
+                ahead = np.concatenate([ahead, np.ones(int(keep.sum()), bool)])
+        n_obj = 0
+        if objects is not None:
+            ao, bo, go = self.object_rows(state, u_box, _f64(pts[:m]), objects,
+                                          self.gains.for_groups(field.groups), delta, ang)
+            n_obj = len(bo)
+            a, b, gradients = np.concatenate([a, ao]), np.concatenate([b, bo]), np.concatenate([gradients, go])
+            yields = np.concatenate([yields, np.ones(n_obj, bool)])
+            ahead = np.concatenate([ahead, np.zeros(n_obj, bool)])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
             return self._brake(state, u_ref, "non_finite", t0, 0.0, rg)
+        yielding = False
+        if yields.any():
+            u_stop = model.brake(state)
+            for r in np.flatnonzero(yields):
+                b[r], clipped = mdl.yield_clip(model.di, a[r], float(b[r]), u_stop)
+                yielding = yielding or clipped
         n_rows = a.shape[0]
         # Rows that hold for every u in the box cannot be active: drop them.
         live = b > np.minimum(a * model.lo, a * model.hi).sum(axis=1) + 1e-12
         if not live.all():
             a, b = a[live], b[live]
+        lo, hi = np.empty(model.n), np.empty(model.n)
+        boxed = bool(yields[live].any()) and mdl.yield_box(model.di, model.df, model.dl, u_ref, lo, hi)
         tq = time.perf_counter()
-        res = self._solve(a, b, u_ref)
+        res = self._solve(a, b, u_ref, lo, hi) if boxed else self._solve(a, b, u_ref)
+        if res.status == "infeasible" and boxed:
+            # The static rows ask more than slowing (recovery from inside a static margin): the
+            # full box, the yielding rows still clipped.
+            res = self._solve(a, b, u_ref)
         fallback = None
         if res.status == "infeasible" and self.config.slack:
-            u_bk = self._backup(state, a, b, gradients[live], row_closing[live])
+            u_bk = self._backup(state, a, b, gradients[live])
             ab = a @ u_bk
-            ahead = np.arange(n_rows)[live] >= m  # the predictive rows among the live ones
-            soft = ahead & (b > ab)
+            soft = ahead[live] & (b > ab)
             if soft.any():
                 # Soft predictive rows (module docstring): the current rows alone certify the barrier.
                 res = self._solve(a, np.where(soft, ab, b), u_ref)
@@ -353,10 +406,9 @@ class SafetyFilter:
             return self._brake(state, u_ref, "non_finite", t0, h_crit, rg, res.solver)
         intervening = fallback is not None or bool(np.abs(res.u - u_box).max() > 1e-6)
         return FilterResult(res.u, u_ref, h_crit, rg, intervening, fallback, (time.perf_counter() - t0) * 1e6,
-                            res.solver, float(hb[k]), qp_us, n_rows)
+                            res.solver, float(hb[k]), qp_us, n_rows, yielding, n_obj)
 
-    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray,
-                closing: np.ndarray | None = None) -> np.ndarray:
+    def _backup(self, state: FilterState, a: np.ndarray, b: np.ndarray, gradients: np.ndarray) -> np.ndarray:
         """The backup input of the slack-relaxed QP (module docstring): of the maximal-braking
         inputs along each row's gradient and the model's braking input, the one whose worst row
         does best, min_i (a_iᵀu - b_i)/|a_i|. With a single gradient this is the maximal braking
@@ -366,19 +418,21 @@ class SafetyFilter:
         model = self.model
         cands = [model.brake(state)]
         seen: list[np.ndarray] = []
-        closing = np.zeros(len(gradients)) if closing is None else closing
-        for g, row, c in zip(gradients, a, closing, strict=True):
+        for g in gradients:
             if all(np.abs(g - o).max() > 1e-6 for o in seen):
                 seen.append(g)
-                cands.append(model.backup(state, g, row, c))
+                cands.append(model.backup(state, g))
         norm = np.maximum(np.linalg.norm(a, axis=1), 1e-9)
         scores = [float(((a @ u - b) / norm).min()) for u in cands]
         return cands[int(np.argmax(scores))]
 
-    def _solve(self, a: np.ndarray, b: np.ndarray, u_ref: np.ndarray) -> QPResult:
+    def _solve(self, a: np.ndarray, b: np.ndarray, u_ref: np.ndarray, lo: np.ndarray | None = None,
+               hi: np.ndarray | None = None) -> QPResult:
         m = self.model
+        lo = m.lo if lo is None else lo
+        hi = m.hi if hi is None else hi
         if self._use_active_set:
-            res = self._active_set.solve(m.weights, u_ref, a, b, m.lo, m.hi)
+            res = self._active_set.solve(m.weights, u_ref, a, b, lo, hi)
             if res.status != "failed":
                 return res
         # OSQP keeps one sparsity pattern: pad to the largest row count with rows that always hold.
@@ -387,7 +441,7 @@ class SafetyFilter:
         if pad > 0:
             a = np.concatenate([a, np.zeros((pad, m.n))])
             b = np.concatenate([b, np.full(pad, -np.inf)])
-        return solver.solve(m.weights, u_ref, a, b, m.lo, m.hi)
+        return solver.solve(m.weights, u_ref, a, b, lo, hi)
 
     def _brake(self, state: FilterState, u_ref: np.ndarray, reason: str, t0: float, h: float = 0.0,
                rg: int = 0, solver: str = "") -> FilterResult:

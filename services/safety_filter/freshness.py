@@ -26,6 +26,10 @@ On arrival a map is refused (the map in force is kept) when
 
 Every publisher seen within ``window_s`` is counted: two at once on ``map/esdf`` is a fault the
 status reports (``SafetyStatus.esdf_publishers``).
+
+Only an admitted map records its publisher's ``seq``: a refused one (stale, from the future,
+older) never moves it, or a forged map carrying a live publisher's source id and a huge ``seq``
+would lock that publisher out for good while being refused itself.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ MAX_PUBLISHERS = 64  # bounded memory whatever a flood of forged publishers does
 
 @dataclass
 class _Publisher:
-    seq: int
+    seq: int | None  # the seq of its last admitted map (None: none admitted yet)
     seen: float  # local monotonic time of its last sample
 
 
@@ -53,21 +57,31 @@ class MapFreshness:
     refused: dict[str, int] = field(default_factory=dict)
     _publishers: dict[str, _Publisher] = field(default_factory=dict)
 
-    def admit(self, stamp_ns: int, seq: int, publisher: str | None, now: float, wall_ns: int) -> str | None:
-        """Whether a map may replace the one in force: None, or why it is refused (counted)."""
+    def admit(self, stamp_ns: int, seq: int, publisher: str | None, now: float, wall_ns: int,
+              commit: bool = True) -> str | None:
+        """Whether a map may replace the one in force: None, or why it is refused (counted).
+        With ``commit=False`` an admitted map is not yet the one in force: the caller calls
+        ``commit`` once it proved usable, so an unusable map moves no seq or stamp either."""
         pid = publisher or ANONYMOUS
         reason = self._check(stamp_ns, seq, pid, wall_ns)
         prev = self._publishers.get(pid)
-        if reason != "seq_backwards" or prev is None:
-            self._publishers[pid] = _Publisher(seq, now)
-        else:
-            prev.seen = now
+        if prev is None:
+            prev = self._publishers[pid] = _Publisher(None, now)
+        prev.seen = now
         self._prune(now)
         if reason is not None:
             self.refused[reason] = self.refused.get(reason, 0) + 1
             return reason
-        self.stamp_ns = stamp_ns
+        if commit:
+            self.commit(stamp_ns, seq, publisher)
         return None
+
+    def commit(self, stamp_ns: int, seq: int, publisher: str | None) -> None:
+        """The admitted map is the one in force: its stamp and its publisher's seq are recorded."""
+        prev = self._publishers.get(publisher or ANONYMOUS)
+        if prev is not None:
+            prev.seq = seq
+        self.stamp_ns = stamp_ns
 
     def _check(self, stamp_ns: int, seq: int, pid: str, wall_ns: int) -> str | None:
         age_s = (wall_ns - stamp_ns) * 1e-9
@@ -77,7 +91,7 @@ class MapFreshness:
             return "future_map"
         prev = self._publishers.get(pid)
         newer = self.stamp_ns is None or stamp_ns > self.stamp_ns
-        if prev is not None and seq <= prev.seq and not (pid == ANONYMOUS and newer):
+        if prev is not None and prev.seq is not None and seq <= prev.seq and not (pid == ANONYMOUS and newer):
             return "seq_backwards"
         if self.stamp_ns is not None and stamp_ns < self.stamp_ns:
             return "older_map"

@@ -23,14 +23,23 @@ columns). Here the state is the body pose and the input enters through the body 
 * order 2 (acceleration control: double integrator): p̈ = R G_lin u with no attitude (R = I),
   ṗ = v, so L_f h = ∇dᵀ v, L_f² h = vᵀ∇²d v, L_g L_f h = gᵀ G_lin.
 
-Moving obstacles. When the obstacle nearest a barrier point moves, the field moves with it:
-h(p, t) = d(p - w t) - r, so ∂h/∂t = -∇d·w. Only the component towards the point counts (an
-obstacle moving away must not loosen the barrier below the static one), the *closing speed*
-σ = max(∇d·w, 0) ≥ 0 (:func:`closing_speeds`), and ∂h/∂t = -σ enters every row:
-order 1: ḣ = L_f h + L_g h u - σ ≥ -α h; order 2: ḣ = ∇dᵀv - σ, and ḧ keeps vᵀ∇²d v (with
-w = σ ∇d the cross terms vanish: ∇²d ∇d = 0 for a distance field). The map shows the obstacle
-where it was at the map's stamp; by now it has come σ·age closer, so the barrier is lowered by
-that much (:func:`barriers`). σ = 0 everywhere gives the static rows bit for bit.
+Moving obstacles: each tracked object is its own barrier. The ESDF shows a moving object where
+it was, and its nearest-obstacle distance hides an object behind a nearer wall, so the field's
+rows stay static (the object's voxels are geometry like any other) and every tracked object on a
+collision course (:func:`object_course`) adds one analytic row (:func:`object_row`): a vertical
+cylinder of its radius at its centre predicted to the instant the command takes effect,
+h(p, t) = |p - c - w t|_xy - R - r - δ - margin, so ∂h/∂t = -∇h·w exactly, with w raised by
+the track's speed uncertainty σ towards the robot (the worst velocity within σ). Order 1:
+ḣ = L_f h + L_g h u - ∇d·w ≥ -α h; order 2: ḣ = ∇dᵀ(v - w) and ḧ keeps (v - w)ᵀ∇²d (v - w),
+the relative velocity (:func:`point_row` takes the obstacle's velocity; 0 for the field).
+
+Yielding. A row of a moving object, or of the field where its nearest obstacle is of a group that
+yields (``YIELD``: people and animals by default), may slow and stop the robot but never push it:
+its b is clipped to what the stopping input achieves (:func:`yield_clip`), and while such a row is
+live the box is :func:`yield_box`, every input between zero and the reference's (the robot can
+slow, stop and turn less, never reverse, speed up or steer on its own). Someone who walks into a
+stopped robot leaves it stopped (the clip says so: ``yielding``). Static obstacles keep their
+rows unclipped and the full box, recovery from inside a margin included.
 """
 
 from __future__ import annotations
@@ -49,8 +58,10 @@ NO_ATTITUDE, YAW, FULL = 0, 1, 2
 FIRST_ORDER, BRAKING, HOCBF = 0, 1, 2
 BARRIERS = {"cbf": FIRST_ORDER, "braking": BRAKING, "hocbf": HOCBF}
 ATTITUDES = {"none": NO_ATTITUDE, "yaw": YAW, "full": FULL}
-# Columns of a gain table row (filter.GainTable).
-ALPHA, ALPHA1, ALPHA2, MARGIN = 0, 1, 2, 3
+# Columns of a gain table row (filter.GainTable): the gains, the group's inflation margin, and 1.0
+# where the group yields (module docstring).
+ALPHA, ALPHA1, ALPHA2, MARGIN, YIELD = 0, 1, 2, 3, 4
+GAIN_COLUMNS = 5
 
 
 class DescInts(IntEnum):
@@ -67,15 +78,21 @@ class DescInts(IntEnum):
 #: body points, the QP's weights and box, and the braking barrier's constants.
 DESC = Layout("Desc", [("lin", (3, "n")), ("ang", (3, "n")), ("passthrough", (3,)), ("offsets", ("m", 3)),
                        ("radii", ("m",)), ("weights", ("n",)), ("lo", ("n",)), ("hi", ("n",)),
-                       ("brake", (4,))])
+                       ("brake", (4,)), ("track", (1,))])
 _D = DESC.slot
 # The braking constants (DESC "brake"): a_b, the speed floor s₀ (0: a_b / k₂ of each row's gains,
 # ``speed_floor``), the rate length ℓ, a_max.
 A_BRAKE, SPEED_FLOOR, RATE_LENGTH, A_MAX = 0, 1, 2, 3
-# Columns of a moving-object row (closing_speeds): centre at the map's stamp, velocity, radius,
-# the field's risk group id.
-OBJ_X, OBJ_Y, OBJ_Z, OBJ_VX, OBJ_VY, OBJ_VZ, OBJ_RADIUS, OBJ_GROUP = range(8)
-OBJECT_COLUMNS = 8
+# The velocity tracking of order 2 (DESC "track"): k_v.
+K_V = 0
+# Columns of a moving-object row (``motion.object_table``): centre predicted to the instant the
+# command takes effect, velocity, radius, the field's risk group id, speed uncertainty σ (m/s).
+OBJ_X, OBJ_Y, OBJ_Z, OBJ_VX, OBJ_VY, OBJ_VZ, OBJ_RADIUS, OBJ_GROUP, OBJ_SIGMA = range(9)
+OBJECT_COLUMNS = 9
+# Times at which object_course samples the horizon (0, T/N, ..., T).
+COURSE_SAMPLES = 12
+# How far below what stopping achieves a yielding row's b is clipped (yield_clip).
+YIELD_TOL = 1e-8
 
 
 def _matrix(rows: object, n: int) -> np.ndarray:
@@ -168,7 +185,7 @@ class ModelSpec:
         brake = np.array([self.a_brake, self.speed_floor, self.rate_length, self.a_max], np.float64)
         for name, value in (("lin", self.lin), ("ang", self.ang), ("passthrough", self.passthrough),
                             ("offsets", self.offsets), ("radii", self.radii), ("weights", self.weights),
-                            ("lo", self.lo), ("hi", self.hi), ("brake", brake)):
+                            ("lo", self.lo), ("hi", self.hi), ("brake", brake), ("track", (self.k_v,))):
             DESC.view(floats, table, name)[...] = value
         return ints, floats
 
@@ -320,44 +337,43 @@ def speed_floor(brake, gain):
 
 
 @jit
-def barrier_value(di, df, dl, hb, grad, vel, closing, gain):
+def barrier_value(di, df, dl, hb, grad, vel, wobj, gain):
     """The barrier whose non-negativity is the safe set at one point, from hb = d - r - δ: hb itself,
     or for the braking barrier min(hb, h_b), h_b = hb - φ(s) with s the approach speed relative to
-    the obstacle (``gain``: the row's gains, which set the speed floor). The rows keep h_b ≥ 0; a
-    receding robot (s < 0) is credited φ(s) < 0, so h_b ≥ 0 alone would call a robot inside an
-    obstacle that backs out safe. With hb ≥ 0 as well it is: h falls only while s > 0, and then
-    hb ≥ φ(s) > 0 (``barriers.DoubleIntegrator``)."""
+    the obstacle (velocity ``wobj``; 0 for the field) and ``gain`` the row's gains, which set the
+    speed floor. The rows keep h_b ≥ 0; a receding robot (s < 0) is credited φ(s) < 0, so h_b ≥ 0
+    alone would call a robot inside an obstacle that backs out safe. With hb ≥ 0 as well it is: h
+    falls only while s > 0, and then hb ≥ φ(s) > 0 (``barriers.DoubleIntegrator``)."""
     if di[DescInts.BARRIER] != BRAKING:
         return hb
     brake = view1(df, dl, _D.brake)
-    hdot = grad[0] * vel[0] + grad[1] * vel[1] + grad[2] * vel[2] - closing
+    hdot = grad[0] * (vel[0] - wobj[0]) + grad[1] * (vel[1] - wobj[1]) + grad[2] * (vel[2] - wobj[2])
     return min(hb, hb - braking(-hdot, speed_floor(brake, gain), brake[A_BRAKE])[0])
 
 
 @jit
-def barriers(di, df, dl, dist, grad, vel, gains, closing, delta, margins, age, hb):
-    """hb_i = d_i - r_i - δ (- the group's margin) (- σ_i · age: the obstacle's motion since the
-    map) at the body points, into hb; returns the critical point (smallest barrier value)."""
+def barriers(di, df, dl, dist, grad, vel, gains, delta, margins, hb, wobj):
+    """hb_i = d_i - r_i - δ (- the group's margin) at the body points, into hb; returns the
+    critical point (smallest barrier value). ``wobj`` is a zero vector: the field does not move."""
     radii = view1(df, dl, _D.radii)
     kbest, best = 0, math.inf
     for i in range(radii.shape[0]):
         hb[i] = dist[i] - radii[i] - delta
         if margins:
             hb[i] = hb[i] - gains[i, MARGIN]
-        if closing[i] > 0.0:
-            hb[i] = hb[i] - closing[i] * age
-        val = barrier_value(di, df, dl, hb[i], grad[i], vel, closing[i], gains[i])
+        val = barrier_value(di, df, dl, hb[i], grad[i], vel, wobj, gains[i])
         if val < best or i == 0:
             kbest, best = i, val
     return kbest
 
 
 @jit
-def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, closing, a_row):
+def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, wobj, a_row):
     """The CBF row a·u ≥ b of body point i (module docstring) with the field sample (grad, hess)
-    and gains [α, α₁, α₂, margin] of its row, the barrier hb = d - r - δ of point i and the
-    obstacle's closing speed σ there: writes a into a_row, returns b. ``rot`` is the attitude
-    rotation, ``ang`` the reference's body rates. The only place the rows are written down."""
+    and gains [α, α₁, α₂, margin, yield] of its row, the barrier hb = d - r - δ of point i and the
+    velocity ``wobj`` of the obstacle (0 for the field; an object's for :func:`object_row`):
+    writes a into a_row, returns b. ``rot`` is the attitude rotation, ``ang`` the reference's
+    body rates. The only place the rows are written down."""
     lin, ang_g = view2(df, dl, _D.lin), view2(df, dl, _D.ang)
     o, pas = view2(df, dl, _D.offsets)[i], view1(df, dl, _D.passthrough)
     gx = rot[0, 0] * grad[0] + rot[1, 0] * grad[1] + rot[2, 0] * grad[2]  # g = Rᵀ∇d
@@ -369,12 +385,15 @@ def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, closing, a_row
             + cz * ang_g[2, j]
     if di[DescInts.ORDER] == 1:
         lfh = cx * pas[0] * ang[0] + cy * pas[1] * ang[1] + cz * pas[2] * ang[2]
-        return -gain[ALPHA] * hb - (lfh - closing)  # ḣ = L_f h + L_g h u + ∂h/∂t ≥ -α h
+        dhdt = -(grad[0] * wobj[0] + grad[1] * wobj[1] + grad[2] * wobj[2])
+        return -gain[ALPHA] * hb - (lfh + dhdt)  # ḣ = L_f h + L_g h u + ∂h/∂t ≥ -α h
+    # Order 2 in the obstacle's frame: h(p - w t) has ḣ = ∇dᵀ(v - w), ḧ = ∇dᵀu + (v - w)ᵀ∇²d (v - w).
+    r0, r1, r2 = vel[0] - wobj[0], vel[1] - wobj[1], vel[2] - wobj[2]
     curv = 0.0
     for a in range(3):
-        for b in range(3):
-            curv += vel[a] * hess[a, b] * vel[b]
-    hdot = grad[0] * vel[0] + grad[1] * vel[1] + grad[2] * vel[2] - closing
+        ra = r0 if a == 0 else (r1 if a == 1 else r2)
+        curv += ra * (hess[a, 0] * r0 + hess[a, 1] * r1 + hess[a, 2] * r2)
+    hdot = grad[0] * r0 + grad[1] * r1 + grad[2] * r2
     a1, a2 = gain[ALPHA1], gain[ALPHA2]
     disc = math.sqrt(max(a1 * a1 - 4 * a2, 0.0))
     if di[DescInts.BARRIER] == BRAKING:
@@ -406,32 +425,132 @@ def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, closing, a_row
 
 
 @jit
-def point_rows(di, df, dl, rot, ang, vel, grad, hess, hb, gains, closing, a, b):
-    """Rows of every body point i with the field sample i (grad, hess, gains, closing row i)."""
+def point_rows(di, df, dl, rot, ang, vel, grad, hess, hb, gains, wobj, a, b):
+    """Rows of every body point i with the field sample i (grad, hess, gains row i); the field
+    does not move (``wobj`` a zero vector)."""
     for i in range(hb.shape[0]):
         b[i] = point_row(di, df, dl, rot, ang, vel, i, grad[i], hess[min(i, hess.shape[0] - 1)], hb[i], gains[i],
-                         closing[i], a[i])
+                         wobj, a[i])
+
+
+# --------------------------------------------------------------------------- moving objects
 
 
 @jit
-def closing_speeds(pts, dist, grad, rgq, gains, npts, objects, nobj, match, closing):
-    """σ_j ≥ 0 at each field sample j: the largest speed at which a moving object that is the
-    nearest obstacle there comes closer along ∇d. An object is the nearest obstacle of sample j
-    when it is of the risk group the field records there and the field's distance agrees with
-    the object's geometry: |horizontal distance to its centre - radius - the group's inflation
-    margin - d_j| ≤ ``match`` (m)."""
-    for j in range(npts):
-        c = 0.0
-        for k in range(nobj):
-            if int(objects[k, OBJ_GROUP]) != rgq[j]:
-                continue
-            dx, dy = pts[j, 0] - objects[k, OBJ_X], pts[j, 1] - objects[k, OBJ_Y]
-            gap = math.sqrt(dx * dx + dy * dy) - objects[k, OBJ_RADIUS] - gains[j, MARGIN]
-            if abs(gap - dist[j]) > match:
-                continue
-            s = grad[j, 0] * objects[k, OBJ_VX] + grad[j, 1] * objects[k, OBJ_VY] + grad[j, 2] * objects[k, OBJ_VZ]
-            c = max(c, s)
-        closing[j] = c
+def _stopping(speed, a_stop, t):
+    """Distance travelled in t by a body braking from ``speed`` at ``a_stop`` to rest."""
+    if a_stop <= 0.0:
+        return 0.0
+    t_stop = speed / a_stop
+    if t >= t_stop:
+        return 0.5 * speed * t_stop
+    return speed * t - 0.5 * a_stop * t * t
+
+
+@jit
+def reference_velocity(di, df, dl, rot_att, vel, u, out):
+    """The world velocity the reference asks of the body origin: R G_lin u (order 1), or the
+    velocity order 2's input u = k_v (v_des - v) tracks, v_des = v + u / k_v."""
+    if di[DescInts.ORDER] == 2:
+        kv = view1(df, dl, _D.track)[K_V]
+        for a in range(3):
+            out[a] = vel[a] + u[a] / kv
+        return
+    lin = view2(df, dl, _D.lin)
+    for a in range(3):
+        vb = 0.0
+        for j in range(di[DescInts.N]):
+            vb += lin[a, j] * u[j]
+        out[a] = vb
+    x, y, z = out[0], out[1], out[2]
+    for a in range(3):
+        out[a] = rot_att[a, 0] * x + rot_att[a, 1] * y + rot_att[a, 2] * z
+
+
+@jit
+def object_course(df, dl, pts, v_ref, vel, obj, margin, delta, horizon, a_stop):
+    """When (s) a moving object first comes inside the margin of the robot's body within the
+    horizon, or inf: whether it is on a collision course. Two futures of the body count: moving
+    on at the reference's velocity ``v_ref`` (world), and braking at ``a_stop`` from its
+    velocity ``vel`` to rest (the stopping footprint). The object moves on at its velocity, its
+    position uncertain by σ t (σ: OBJ_SIGMA); the margin is the group's inflation plus δ. Someone
+    walking past beside the robot or crossing behind it never comes inside: no row, no slowing."""
+    radii = view1(df, dl, _D.radii)
+    cx, cy, wx, wy = obj[OBJ_X], obj[OBJ_Y], obj[OBJ_VX], obj[OBJ_VY]
+    reach = obj[OBJ_RADIUS] + margin + delta
+    speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1])
+    ux, uy = (vel[0] / speed, vel[1] / speed) if speed > 1e-9 else (0.0, 0.0)
+    for k in range(COURSE_SAMPLES + 1):
+        t = horizon * k / COURSE_SAMPLES
+        ox, oy = cx + wx * t, cy + wy * t
+        grow = reach + obj[OBJ_SIGMA] * t
+        s = _stopping(speed, a_stop, t)
+        for f in range(2):
+            dx, dy = (v_ref[0] * t, v_ref[1] * t) if f == 0 else (ux * s, uy * s)
+            for i in range(radii.shape[0]):
+                ex, ey = pts[i, 0] + dx - ox, pts[i, 1] + dy - oy
+                if math.sqrt(ex * ex + ey * ey) - radii[i] <= grow:
+                    return t
+    return math.inf
+
+
+@jit
+def object_sample(df, dl, pts, obj, gain, delta, grad, hess, wobj):
+    """The analytic field of one moving object at the body point nearest it: a vertical cylinder
+    of the object's radius about its predicted centre, inflated by its group's margin. Writes the
+    horizontal gradient n, the Hessian (I - n nᵀ)/ρ of the horizontal distance and the velocity
+    the row uses, w + σ n (the worst velocity within the track's uncertainty: towards the
+    point); returns (the body point, hb = ρ - R - r - δ - margin)."""
+    radii = view1(df, dl, _D.radii)
+    kbest, best, nx, ny, rho_b = 0, math.inf, 1.0, 0.0, 1.0
+    for i in range(radii.shape[0]):
+        dx, dy = pts[i, 0] - obj[OBJ_X], pts[i, 1] - obj[OBJ_Y]
+        rho = math.sqrt(dx * dx + dy * dy)
+        hb = rho - obj[OBJ_RADIUS] - radii[i] - delta - gain[MARGIN]
+        if hb < best:
+            kbest, best, rho_b = i, hb, rho
+            nx, ny = (dx / rho, dy / rho) if rho > 1e-9 else (1.0, 0.0)
+    grad[0], grad[1], grad[2] = nx, ny, 0.0
+    inv = 1.0 / max(rho_b, 1e-3)
+    hess[:, :] = 0.0
+    hess[0, 0], hess[0, 1], hess[1, 0], hess[1, 1] = (1 - nx * nx) * inv, -nx * ny * inv, -nx * ny * inv, \
+        (1 - ny * ny) * inv
+    sig = obj[OBJ_SIGMA]
+    wobj[0], wobj[1], wobj[2] = obj[OBJ_VX] + sig * nx, obj[OBJ_VY] + sig * ny, obj[OBJ_VZ]
+    return kbest, best
+
+
+@jit
+def yield_clip(di, a_row, b, u_stop):
+    """A yielding row's b, clipped to what the stopping input achieves (module docstring), less
+    ``YIELD_TOL``: the yield box has the stopping input at a corner, where an exact b would leave
+    the QP feasible at that one point, infeasible by rounding. Returns (b', whether stopping alone
+    does not keep this barrier). Velocity-controlled models only (order 1, where stopping is the
+    zero input inside every box): an order-2 robot keeps its rows, braking and backing off along
+    the gradient when a row asks for it (a drone evades)."""
+    if di[DescInts.ORDER] != 1:
+        return b, False
+    au = 0.0
+    for j in range(di[DescInts.N]):
+        au += a_row[j] * u_stop[j]
+    cap = au - YIELD_TOL * (1.0 + abs(au))
+    if b > cap:
+        return cap, b > au + YIELD_TOL * (1.0 + abs(au))
+    return b, False
+
+
+@jit
+def yield_box(di, df, dl, u_ref, lo, hi):
+    """The box while a yielding row is live: each input between zero and the reference's, so the
+    robot can slow, stop and turn less, never reverse, speed up or steer on its own. Returns
+    whether it applies: order 2 keeps its own box (:func:`yield_clip`)."""
+    if di[DescInts.ORDER] != 1:
+        return False
+    lo0, hi0 = view1(df, dl, _D.lo), view1(df, dl, _D.hi)
+    for j in range(di[DescInts.N]):
+        r = min(max(u_ref[j], lo0[j]), hi0[j])
+        lo[j], hi[j] = min(r, 0.0), max(r, 0.0)
+    return True
 
 
 @jit
@@ -452,21 +571,13 @@ def brake_input(di, df, dl, vel, dt, out):
 
 
 @jit
-def backup_input(di, df, dl, grad, vel, dt, a_row, closing, out):
+def backup_input(di, df, dl, grad, vel, dt, out):
     """The maximal braking along the gradient of one row: order 2 accelerates at a_max along ∇d
-    (norm a_max: inside the per-axis box); order 1 stops at once (u = 0: no point moves deeper) —
-    unless the obstacle itself comes closer (closing speed > 0), where stopping is not the safest:
-    then backing away as fast as the box allows, by the inputs that translate the body (the bound
-    that raises that row's a·u; turning inputs stay 0: a swing that helps the row's linearisation
-    can carry the body towards the object)."""
+    (norm a_max: inside the per-axis box); order 1 stops at once (u = 0: no point moves deeper)."""
     n = di[DescInts.N]
     if di[DescInts.ORDER] == 1:
-        lo, hi, lin = view1(df, dl, _D.lo), view1(df, dl, _D.hi), view2(df, dl, _D.lin)
         for j in range(n):
             out[j] = 0.0
-            moves = lin[0, j] != 0.0 or lin[1, j] != 0.0 or lin[2, j] != 0.0
-            if closing > 0.0 and moves:
-                out[j] = hi[j] if a_row[j] > 0.0 else (lo[j] if a_row[j] < 0.0 else 0.0)
         return
     gn = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
     if gn > 1e-9:

@@ -1,9 +1,9 @@
 """Tracked objects (``map/objects``) → the moving-object table the barrier reads (``model``).
 
 Pure: every time is an argument. :func:`object_table` turns the mapper's ``TrackedObjects`` into
-rows [centre at the map's stamp, velocity, radius, risk group id] (``model.OBJECT_COLUMNS``),
-keeping only what may move the barrier, bounded so that a noisy estimate cannot brake for
-nothing:
+rows [centre predicted to the instant the command takes effect, velocity, radius, risk group id,
+speed uncertainty] (``model.OBJECT_COLUMNS``), keeping only what may move the barrier, bounded so
+that a noisy estimate cannot brake for nothing:
 
 * the speed passes a continuous deadband: 0 below ``object_speed_deadband``, ramping linearly
   to the full velocity at twice it (a standing person's estimate jitters around zero; a hard
@@ -11,8 +11,8 @@ nothing:
 * it is capped at ``object_speed_cap``;
 * a young track counts with the fraction ``tracked_ms / object_young_ms`` of its velocity, and
   an object not observed for ``object_stale_ms`` counts not at all;
-* the centre is moved to the ESDF's stamp (``v · (t_esdf - t_objects)``) so that it matches the
-  geometry the field shows (the barrier then adds the motion since that stamp itself).
+* the centre is predicted from the object's own observation (the message's stamp less its
+  ``age_ms``) to the instant the command takes effect (now + ``command_delay_s``).
 
 Objects that end up with zero velocity are left out: a static object is in the ESDF already.
 """
@@ -27,7 +27,7 @@ import numpy as np
 from riskfield.protocol import TrackedObject
 
 from .config import MotionParams
-from .model import OBJ_GROUP, OBJ_RADIUS, OBJ_VX, OBJ_X, OBJECT_COLUMNS
+from .model import OBJ_GROUP, OBJ_RADIUS, OBJ_SIGMA, OBJ_VX, OBJ_X, OBJECT_COLUMNS
 
 
 def effective_velocity(obj: TrackedObject, p: MotionParams) -> np.ndarray:
@@ -44,25 +44,26 @@ def effective_velocity(obj: TrackedObject, p: MotionParams) -> np.ndarray:
     return v * scale
 
 
-def object_table(objects: Sequence[TrackedObject], p: MotionParams, esdf_stamp_ns: int, objects_stamp_ns: int,
+def object_table(objects: Sequence[TrackedObject], p: MotionParams, now_ns: int, objects_stamp_ns: int,
                  near: np.ndarray | None = None, max_objects: int = 16) -> np.ndarray:
-    """(k, ``OBJECT_COLUMNS``) rows of the objects that move, the ``max_objects`` nearest ``near``
-    (the robot's position) first."""
-    shift = (esdf_stamp_ns - objects_stamp_ns) * 1e-9
+    """(k, ``OBJECT_COLUMNS``) rows of the objects that move, predicted to ``now_ns`` (the step's
+    wall clock) + ``command_delay_s``, the ``max_objects`` nearest ``near`` (the robot's position) first."""
+    since = (now_ns - objects_stamp_ns) * 1e-9 + p.command_delay_s
     rows = []
     for obj in objects:
         v = effective_velocity(obj, p)
         if not v.any() or obj.risk_group == 0:
             continue
         row = np.zeros(OBJECT_COLUMNS)
-        row[OBJ_X:OBJ_X + 3] = np.asarray(obj.position, np.float64) + np.asarray(obj.velocity, np.float64) * shift
+        ahead = max(since + obj.age_ms * 1e-3, 0.0)
+        row[OBJ_X:OBJ_X + 3] = np.asarray(obj.position, np.float64) + v * ahead
         row[OBJ_VX:OBJ_VX + 3] = v
-        row[OBJ_RADIUS], row[OBJ_GROUP] = obj.radius, obj.risk_group
+        row[OBJ_RADIUS], row[OBJ_GROUP], row[OBJ_SIGMA] = obj.radius, obj.risk_group, p.object_speed_sigma
         rows.append(row)
     if not rows:
         return np.zeros((0, OBJECT_COLUMNS))
     table = np.array(rows)
     if near is not None and len(table) > max_objects:
         d = np.linalg.norm(table[:, OBJ_X:OBJ_X + 2] - np.asarray(near, np.float64)[:2], axis=1)
-        table = table[np.argsort(d)]
+        table = table[np.argsort(d, kind="stable")]
     return np.ascontiguousarray(table[:max_objects])

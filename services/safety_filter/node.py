@@ -18,6 +18,11 @@ refused, counted (``map_refused``, ``map_refused_<reason>``) and logged, and the
 kept; ``SafetyStatus.esdf_age_ms`` is the content age, ``esdf_publishers`` the number of
 publishers on ``map/esdf`` lately (2 or more is a fault: a stuck or rogue mapper).
 
+A state that jumps farther than the robot can move since the last one taken, or is stamped ahead
+of this clock, is refused (``runtime.continuity``; ``state_refused``, ``state_refused_<reason>``):
+the state in force is kept and times out into ``stale_state`` if no consistent one follows. An
+announced jump on ``{robot}/state/relocalise`` (additive key) is taken as the new state.
+
 The last word is a brake: on every shutdown the process can act on (SIGINT, SIGTERM, an exception
 that ends the loop) a close hook publishes a zero ``cmd/safe`` with ``fallback="shutdown"`` while
 the session is still open, and a step that raises publishes a zero command with
@@ -42,6 +47,7 @@ from riskfield.protocol import (
     decode,
 )
 
+from ..runtime.continuity import StateGate
 from ..runtime.node import Node
 from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
@@ -70,11 +76,13 @@ class FilterNode:
         self._last_motion = self.supervisor.motion
         for name in ("steps", "brakes", "slack", "intervening", "invalid_map", "invalid_state", "invalid_ref",
                      "risk_reloads", "risk_errors", "map_refused", "esdf_publishers", "invalid_objects",
-                     "objects_missing", "objects_stale", "objects_moving"):
+                     "objects_missing", "objects_stale", "objects_moving", "state_refused", "yielding", "object_rows"):
             node.stats[name] = 0.0
+        self.state_gate = StateGate.of(s, s.clock_tolerance_s)  # continuity of the state (module doc)
         k = node.keys
         node.subscribe(k.esdf, None, self._on_map, queue="latest")
         node.subscribe(k.state, None, self._on_state, queue="latest")
+        node.subscribe(k.state_relocalise, None, self._on_relocalise, queue="fifo", maxlen=4)
         node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
         node.subscribe(k.objects, None, self._on_objects, queue="latest")
@@ -105,7 +113,7 @@ class FilterNode:
         if grid is None:
             return
         now = time.monotonic()
-        refused = self.supervisor.admit_map(grid, now, time.time_ns(), self.node.source_id)
+        refused = self.supervisor.admit_map(grid, now, time.time_ns(), self.node.source_id, commit=False)
         if refused is not None:
             st = self.node.stats
             st["map_refused"] += 1
@@ -118,15 +126,32 @@ class FilterNode:
         if reason is not None:
             self.node.stats["invalid_map"] += 1
             self.node.ratelog(logging.WARNING, "invalid_map", f"unusable ESDF ({reason}): braking")
+        else:  # only a map taken moves its publisher's seq and the content stamp (freshness)
+            self.supervisor.freshness.commit(grid.header.stamp_ns, grid.header.seq, self.node.source_id)
         # A new map acts at once, not at the next tick (up to a period later): an obstacle just
         # seen bounds the command now, and camera → cmd/safe loses the filter's sampling delay.
         if self.settings.step_on_map:
             self._step()
 
-    def _on_state(self, key: str, payload: bytes) -> None:
+    def _on_state(self, key: str, payload: bytes, relocalise: bool = False) -> None:
         msg = self._decode("state", payload, RobotState, self._small_limits)
-        if msg is not None:
-            self.supervisor.on_state(msg, time.monotonic())
+        if msg is None:
+            return
+        now = time.monotonic()
+        gate = self.state_gate.relocalise if relocalise else self.state_gate.admit
+        refused = gate(msg.position, msg.header.stamp_ns, now, time.time_ns())
+        if refused is not None:
+            st = self.node.stats
+            st["state_refused"] = self.state_gate.refused_total
+            st[f"state_refused_{refused}"] = self.state_gate.refused[refused]
+            self.node.ratelog(logging.WARNING, f"state_refused:{refused}",
+                              f"refused a state at {[round(v, 3) for v in msg.position]} ({refused}, stamp "
+                              f"{msg.header.stamp_ns}); keeping the state in force")
+            return
+        self.supervisor.on_state(msg, now)
+
+    def _on_relocalise(self, key: str, payload: bytes) -> None:
+        self._on_state(key, payload, relocalise=True)
 
     def _on_ref(self, key: str, payload: bytes) -> None:
         msg = self._decode("ref", payload, VelocityCommand, self._small_limits)
@@ -194,6 +219,11 @@ class FilterNode:
         self._last_pub = now
         st = self.node.stats
         st["steps"] += 1
+        last = self.supervisor.last
+        if last is not None and status.fallback in (None, "slack"):  # which step computed it: compiled or numpy
+            st["steps_" + last.backend] = st.get("steps_" + last.backend, 0) + 1
+        st["object_rows"] = status.object_rows
+        st["yielding"] += status.yielding
         st["brakes"] += status.fallback is not None and status.fallback != "slack"
         st["slack"] += status.fallback == "slack"
         st["intervening"] += status.intervening and status.fallback is None

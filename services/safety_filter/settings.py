@@ -9,6 +9,7 @@ from typing import Annotated, Any, ClassVar
 
 from pydantic import Field, model_validator
 
+from ..runtime.continuity import StateGateSettings
 from ..runtime.settings import NodeSettings, read_config_file
 from .config import REFERENCE_IMPLEMENTATIONS, FilterConfig
 
@@ -19,13 +20,16 @@ PRESETS = Path(__file__).parent / "presets"
 Seconds = Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)]
 
 
-class FilterSettings(NodeSettings, FilterConfig):
+class FilterSettings(NodeSettings, FilterConfig, StateGateSettings):
     SERVICE: ClassVar[str] = "safety-filter"
     REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
 
     map_timeout_s: Seconds = 0.3
+    """A map whose content is older than this (plus clock_tolerance_s) makes the filter brake (stale_map)."""
     state_timeout_s: Seconds = 0.3
+    """No state newer than this: the filter brakes (stale_state)."""
     ref_timeout_s: Seconds = 0.2
+    """No reference command newer than this: the filter brakes (stale_ref)."""
     clock_tolerance_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False, description=(
         "how far the clock that stamped the map may be from this one: the map's content age "
         "(now - header stamp) may reach map_timeout_s + clock_tolerance_s"))] = 0.1
@@ -34,7 +38,9 @@ class FilterSettings(NodeSettings, FilterConfig):
     # perception latency included (tests/deploy/test_soak.py: a brake within 0.5 s of the kill).
     risk_file: Path | None = Field(default=None, description="YAML/TOML/JSON RiskConfig, watched for changes")
     risk_poll_s: Seconds = 1.0
+    """How often risk_file is checked for changes."""
     max_map_bytes: Annotated[int, Field(gt=0)] = 64 * 1024 * 1024
+    """Largest ESDF array accepted (bytes); a larger map is refused and counted."""
     step_on_map: bool = Field(default=True, description=(
         "step (and publish cmd/safe) as soon as a map is taken, not only on a reference or a tick; "
         "false: the previous scheduling, kept for `riskfield bench latency --previous`"))

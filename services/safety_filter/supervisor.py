@@ -90,10 +90,12 @@ class FilterSupervisor:
         self._set("map", field, now)
         return None
 
-    def admit_map(self, grid: EsdfGrid, now: float, wall_ns: int, publisher: str | None) -> str | None:
+    def admit_map(self, grid: EsdfGrid, now: float, wall_ns: int, publisher: str | None,
+                  commit: bool = True) -> str | None:
         """Content and sequence checks before ``on_map``: None, or why the map is refused (the
-        map in force is kept; a refused map never replaces a fresher one)."""
-        return self.freshness.admit(grid.header.stamp_ns, grid.header.seq, publisher, now, wall_ns)
+        map in force is kept; a refused map never replaces a fresher one). ``commit=False``: the
+        caller commits (``freshness.commit``) once ``on_map`` took the map."""
+        return self.freshness.admit(grid.header.stamp_ns, grid.header.seq, publisher, now, wall_ns, commit)
 
     def on_state(self, msg: RobotState | FilterState, now: float) -> None:
         state = FilterState.from_message(msg) if isinstance(msg, RobotState) else msg
@@ -106,16 +108,17 @@ class FilterSupervisor:
         """The newest tracked objects (None: the last message was unusable; the static barrier)."""
         self._objects = None if msg is None else (msg, now)
 
-    def objects(self, state: FilterState, now: float) -> tuple[np.ndarray | None, float]:
-        """(moving-object table at the ESDF's stamp, the ESDF's content age (s)) for this step, or
-        (None, 0) for the static barrier; sets ``motion`` and counts a missing or stale input."""
+    def objects(self, state: FilterState, now: float) -> np.ndarray | None:
+        """The moving-object table for this step (predicted to the step's wall clock, or without one
+        to the ESDF's stamp), or None for the static barrier; sets ``motion`` and counts a missing
+        or stale input."""
         if not self.filter.config.object_motion:
             self.motion = "off"
-            return None, 0.0
+            return None
         if self._objects is None:
             self.motion = "missing"
             self._count("objects_missing")
-            return None, 0.0
+            return None
         msg, at = self._objects
         stamp = msg.header.stamp_ns
         esdf = self.freshness.stamp_ns if self.freshness.stamp_ns is not None else stamp
@@ -123,11 +126,10 @@ class FilterSupervisor:
         if now - at > limit or (esdf - stamp) * 1e-9 > limit:
             self.motion = "stale"
             self._count("objects_stale")
-            return None, 0.0
+            return None
         self.motion = "ok"
-        age = None if self._wall_ns is None else self.freshness.age_s(self._wall_ns)
-        table = object_table(msg.objects, self.filter.config, esdf, stamp, state.position)
-        return table, 0.0 if age is None else max(age, 0.0)
+        wall = self._wall_ns if self._wall_ns is not None else esdf
+        return object_table(msg.objects, self.filter.config, wall, stamp, state.position)
 
     def on_ref(self, msg: VelocityCommand, now: float) -> None:
         self._set("ref", msg, now)
@@ -183,19 +185,25 @@ class FilterSupervisor:
         model = self.filter.model
         lin, ang = np.asarray(ref.linear, np.float64), np.asarray(ref.angular, np.float64)
         u_ref = model.reference(lin, ang, state)
-        objects, age = self.objects(state, now)
-        res = self.filter.filter(state, u_ref, field, ang, objects, age)  # type: ignore[arg-type]
+        res = self.filter.filter(state, u_ref, field, ang, self.objects(state, now))  # type: ignore[arg-type]
         self.last = res
         if res.fallback is not None and res.fallback != "slack":
             return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)
         out_lin, out_ang = model.command(res.u, ang, state)
+        if not (lin.any() or ang.any()):
+            # A zero reference (the stick centred, the dead-man released) is a zero command: the
+            # filter never moves the robot on its own, whatever comes at it.
+            out_lin, out_ang = np.zeros(3), np.zeros(3)
         if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
             return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
         self._count(res.fallback)
         cmd = VelocityCommand(header=Header(frame_id="base_link"), linear=tuple(out_lin.tolist()),
                               angular=tuple(out_ang.tolist()), source=f"{SOURCE}/{ref.source}")
         status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=res.fallback,
-                              solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now))
+                              solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now), yielding=res.yielding,
+                              object_rows=res.object_rows)
+        if res.yielding:
+            self._count("yielding")
         return cmd, status
 
     def brake(self, reason: str, now: float) -> tuple[VelocityCommand, SafetyStatus]:

@@ -1,8 +1,9 @@
 """Labelled triangle meshes from PLY files (ascii, binary little- or big-endian).
 
-open3d's reader drops custom properties, so this module reads PLY itself: vertex ``x, y, z``,
-faces from a ``vertex_indices``/``vertex_index`` list (polygons fan-triangulated), and a
-semantic label per vertex or per face from the first property named one of ``LABEL_PROPERTIES``
+open3d's reader drops custom properties, so the file is read with ``plyfile``, which keeps every
+element and property: vertex ``x, y, z``, faces from a ``vertex_indices``/``vertex_index`` list
+(polygons fan-triangulated), and a semantic label per vertex or per face from the first scalar
+property named one of ``LABEL_PROPERTIES``
 (``label`` as in ScanNet/ScanNet++ semantic meshes, ``class``, ``category_id``, …). Per-vertex
 labels become per-face labels by majority of the face's vertices.
 
@@ -22,18 +23,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import plyfile
 
 from riskfield.protocol import ade20k
 
 from .scene import SceneObject
 
 LABEL_PROPERTIES = ("label", "class", "category_id", "category", "semantic", "semantic_label", "class_id", "nyu40")
-
-_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
 
 #: Dataset class names (lower case) that are not ADE20K names → the ADE20K name they mean.
 SYNONYMS: dict[str, str] = {
@@ -67,166 +63,53 @@ def ade20k_index_of(name: str, unknown: str | None = "box") -> int:
     return ade20k.index(unknown)
 
 
-@dataclass
-class PlyElement:
-    name: str
-    count: int
-    properties: list[tuple[str, str, str | None]]  # (name, value dtype, list-count dtype or None)
-
-
-@dataclass
-class PlyData:
-    elements: dict[str, dict[str, np.ndarray | list[np.ndarray]]]
-
-
 class PlyError(ValueError):
     pass
 
 
-def _header(raw: bytes) -> tuple[str, list[PlyElement], int]:
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise PlyError("not a PLY file (no 'ply' magic or no end_header)")
-    nl = raw.find(b"\n", end)
-    body_start = len(raw) if nl < 0 else nl + 1
-    fmt = ""
-    elements: list[PlyElement] = []
-    for line in raw[:end].decode("ascii", "replace").splitlines()[1:]:
-        parts = line.split()
-        if not parts or parts[0] in ("comment", "obj_info"):
-            continue
-        if parts[0] == "format":
-            fmt = parts[1]
-        elif parts[0] == "element":
-            elements.append(PlyElement(parts[1], int(parts[2]), []))
-        elif parts[0] == "property":
-            if not elements:
-                raise PlyError("property before any element")
-            if parts[1] == "list":
-                elements[-1].properties.append((parts[4], _dtype(parts[3]), _dtype(parts[2])))
-            else:
-                elements[-1].properties.append((parts[2], _dtype(parts[1]), None))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise PlyError(f"unsupported PLY format {fmt!r}")
-    return fmt, elements, body_start
+@dataclass
+class PlyData:
+    """Every element of a PLY file: its scalar properties as arrays, its list properties as one
+    2-D array when every list has the same length, else as a list of arrays (``lists`` names them)."""
+
+    elements: dict[str, dict[str, np.ndarray | list[np.ndarray]]]
+    lists: dict[str, frozenset[str]]
 
 
-def _dtype(name: str) -> str:
+def _ply_read(path: Path, known_list_len: dict[str, dict[str, int]]) -> plyfile.PlyData:
     try:
-        return _TYPES[name]
-    except KeyError:
-        raise PlyError(f"unknown PLY type {name!r}") from None
+        return plyfile.PlyData.read(str(path), known_list_len=known_list_len)
+    except (plyfile.PlyParseError, ValueError, TypeError, KeyError, EOFError) as exc:
+        raise PlyError(f"{path}: {exc}") from None
 
 
 def read_ply(path: str | Path) -> PlyData:
-    """Every element and property of a PLY file: scalar properties as arrays, list properties
-    as a list of arrays (or one 2-D array when every list has the same length)."""
-    raw = Path(path).read_bytes()
-    fmt, elements, pos = _header(raw)
-    if fmt == "ascii":
-        try:
-            return _read_ascii(raw[pos:], elements)
-        except (IndexError, ValueError) as exc:
-            raise PlyError(f"{path}: malformed ascii body ({exc})") from None
-    out: dict[str, dict[str, np.ndarray | list[np.ndarray]]] = {}
-    order = "<" if fmt == "binary_little_endian" else ">"
-    for el in elements:
-        out[el.name], pos = _read_binary(raw, pos, el, order)
-    return PlyData(out)
-
-
-def _read_ascii(body: bytes, elements: list[PlyElement]) -> PlyData:
-    out: dict[str, dict[str, np.ndarray | list[np.ndarray]]] = {}
-    tokens = body.split()
-    i = 0
-    for el in elements:
-        cols: dict[str, list] = {p[0]: [] for p in el.properties}
-        for _ in range(el.count):
-            for name, dt, count_dt in el.properties:
-                if count_dt is None:
-                    cols[name].append(tokens[i])
-                    i += 1
-                else:
-                    n = int(tokens[i])
-                    cols[name].append(np.array(tokens[i + 1:i + 1 + n]).astype(np.float64).astype(dt))
-                    i += 1 + n
-        if i > len(tokens):
-            raise PlyError(f"element {el.name}: the file ends early")
-        out[el.name] = {name: (np.array(cols[name]).astype(np.float64).astype(dt) if count_dt is None
-                               else _stack(cols[name]))
-                        for name, dt, count_dt in el.properties}
-    return PlyData(out)
+    """Every element and property of a PLY file (ascii, binary little- or big-endian), read by
+    ``plyfile``. Binary faces are first read as triangles, memory-mapped in one pass
+    (``PlyData.read``'s ``known_list_len``, which checks every list's length); a file with other
+    polygons is then read list by list."""
+    path = Path(path)
+    triangles = {"face": {"vertex_indices": 3, "vertex_index": 3}}
+    try:
+        ply = _ply_read(path, triangles)
+    except PlyError:
+        ply = _ply_read(path, {})
+    elements: dict[str, dict[str, np.ndarray | list[np.ndarray]]] = {}
+    lists: dict[str, frozenset[str]] = {}
+    for el in ply.elements:
+        listed = frozenset(p.name for p in el.properties if isinstance(p, plyfile.PlyListProperty))
+        data = el.data
+        elements[el.name] = {p.name: (_stack(list(data[p.name])) if p.name in listed and data[p.name].ndim == 1
+                                      else np.array(data[p.name]))
+                             for p in el.properties}
+        lists[el.name] = listed
+    return PlyData(elements, lists)
 
 
 def _stack(rows: list[np.ndarray]) -> np.ndarray | list[np.ndarray]:
     if rows and all(len(r) == len(rows[0]) for r in rows):
         return np.stack(rows)
-    return rows
-
-
-def _read_binary(raw: bytes, pos: int, el: PlyElement, order: str) -> tuple[dict, int]:
-    lists = [p for p in el.properties if p[2] is not None]
-    if not lists:
-        dt = np.dtype([(n, order + t) for n, t, _ in el.properties])
-        need = dt.itemsize * el.count
-        if pos + need > len(raw):
-            raise PlyError(f"element {el.name}: the file ends early")
-        arr = np.frombuffer(raw, dt, el.count, pos)
-        return {n: arr[n].astype(arr[n].dtype.newbyteorder("=")) for n, _, _ in el.properties}, pos + need
-    # Fast path: guess that every list has the length of the first row's list (triangles).
-    first = _first_list_lengths(raw, pos, el, order)
-    if first is not None:
-        fields = []
-        for n, t, ct in el.properties:
-            if ct is None:
-                fields.append((n, order + t))
-            else:
-                fields += [(n + "#n", order + ct), (n, order + t, (first[n],))]
-        dt = np.dtype(fields)
-        if pos + dt.itemsize * el.count <= len(raw):
-            arr = np.frombuffer(raw, dt, el.count, pos)
-            if all(np.all(arr[n + "#n"] == first[n]) for n, _, ct in el.properties if ct is not None):
-                return ({n: arr[n].astype(arr[n].dtype.newbyteorder("=")) for n, _, _ in el.properties},
-                        pos + dt.itemsize * el.count)
-    # General path: row by row (mixed polygon sizes).
-    cols: dict[str, list] = {p[0]: [] for p in el.properties}
-    for _ in range(el.count):
-        for n, t, ct in el.properties:
-            if ct is None:
-                d = np.dtype(order + t)
-                _need(raw, pos, d.itemsize, el.name)
-                cols[n].append(np.frombuffer(raw, d, 1, pos)[0])
-                pos += d.itemsize
-            else:
-                cd, d = np.dtype(order + ct), np.dtype(order + t)
-                _need(raw, pos, cd.itemsize, el.name)
-                k = int(np.frombuffer(raw, cd, 1, pos)[0])
-                pos += cd.itemsize
-                _need(raw, pos, k * d.itemsize, el.name)
-                cols[n].append(np.frombuffer(raw, d, k, pos).astype(d.newbyteorder("=")))
-                pos += k * d.itemsize
-    return {n: (np.array(cols[n]) if ct is None else _stack(cols[n])) for n, _, ct in el.properties}, pos
-
-
-def _need(raw: bytes, pos: int, n: int, name: str) -> None:
-    if pos + n > len(raw):
-        raise PlyError(f"element {name}: the file ends early")
-
-
-def _first_list_lengths(raw: bytes, pos: int, el: PlyElement, order: str) -> dict[str, int] | None:
-    if el.count == 0:
-        return None
-    out = {}
-    for n, t, ct in el.properties:
-        if ct is None:
-            pos += np.dtype(t).itemsize
-        else:
-            if pos + np.dtype(ct).itemsize > len(raw):
-                return None
-            k = int(np.frombuffer(raw, np.dtype(order + ct), 1, pos)[0])
-            out[n] = k
-            pos += np.dtype(ct).itemsize + k * np.dtype(t).itemsize
-    return out
+    return [np.asarray(r) for r in rows]
 
 
 def _triangulate(faces: np.ndarray | list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -305,8 +188,8 @@ def load_labelled_ply(path: str | Path, label_map: LabelMap | None = None, names
     if not np.isfinite(xyz).all():
         raise PlyError(f"{path}: non-finite vertex coordinates")
     wanted = (label_property,) if label_property else LABEL_PROPERTIES
-    face_prop = next((k for k in wanted if k in face and isinstance(face[k], np.ndarray) and face[k].ndim == 1), None)
-    vert_prop = next((k for k in wanted if k in vert), None)
+    face_prop = next((k for k in wanted if k in face and k not in ply.lists['face']), None)
+    vert_prop = next((k for k in wanted if k in vert and k not in ply.lists['vertex']), None)
     if face_prop is not None:
         raw = np.asarray(face[face_prop])[src]
     elif vert_prop is not None:
@@ -340,38 +223,21 @@ def _map_labels(raw: np.ndarray, label_map: LabelMap | None, names: Sequence[str
 
 def write_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, *, vertex_labels: np.ndarray | None = None,
               face_labels: np.ndarray | None = None, binary: bool = True, label_name: str = "label") -> None:
-    """Write a triangle mesh with optional per-vertex and per-face int32 labels."""
-    v = np.asarray(vertices, np.float32)
-    t = np.asarray(triangles, np.int32)
+    """Write a triangle mesh with optional per-vertex and per-face int32 labels (``plyfile``; the
+    faces as a ``uchar``-counted ``vertex_indices`` list, as ScanNet's meshes have them)."""
+    v = np.asarray(vertices, np.float32).reshape(-1, 3)
+    t = np.asarray(triangles, np.int32).reshape(-1, 3)
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", label_name):
         raise ValueError("label_name must be an identifier")
-    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", f"element vertex {len(v)}",
-            "property float x", "property float y", "property float z"]
+    va = np.zeros(len(v), [("x", "f4"), ("y", "f4"), ("z", "f4")]
+                  + ([(label_name, "i4")] if vertex_labels is not None else []))
+    va["x"], va["y"], va["z"] = v.T
     if vertex_labels is not None:
-        head.append(f"property int {label_name}")
-    head += [f"element face {len(t)}", "property list uchar int vertex_indices"]
+        va[label_name] = vertex_labels
+    fa = np.zeros(len(t), [("vertex_indices", "i4", (3,))] + ([(label_name, "i4")] if face_labels is not None else []))
+    fa["vertex_indices"] = t
     if face_labels is not None:
-        head.append(f"property int {label_name}")
-    head.append("end_header")
-    text = ("\n".join(head) + "\n").encode("ascii")
-    if binary:
-        vf = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")] + ([(label_name, "<i4")] if vertex_labels is not None else [])
-        va = np.zeros(len(v), vf)
-        va["x"], va["y"], va["z"] = v.T
-        if vertex_labels is not None:
-            va[label_name] = vertex_labels
-        ff = [("n", "u1"), ("i", "<i4", (3,))] + ([(label_name, "<i4")] if face_labels is not None else [])
-        fa = np.zeros(len(t), ff)
-        fa["n"], fa["i"] = 3, t
-        if face_labels is not None:
-            fa[label_name] = face_labels
-        Path(path).write_bytes(text + va.tobytes() + fa.tobytes())
-        return
-    lines = []
-    for i, p in enumerate(v):
-        extra = f" {int(vertex_labels[i])}" if vertex_labels is not None else ""
-        lines.append(f"{p[0]:.7g} {p[1]:.7g} {p[2]:.7g}{extra}")
-    for i, f in enumerate(t):
-        extra = f" {int(face_labels[i])}" if face_labels is not None else ""
-        lines.append(f"3 {f[0]} {f[1]} {f[2]}{extra}")
-    Path(path).write_bytes(text + ("\n".join(lines) + "\n").encode("ascii"))
+        fa[label_name] = face_labels
+    elements = [plyfile.PlyElement.describe(va, "vertex"),
+                plyfile.PlyElement.describe(fa, "face", len_types={"vertex_indices": "u1"})]
+    plyfile.PlyData(elements, text=not binary, byte_order="<").write(str(path))

@@ -17,7 +17,8 @@ Simulation-only keys (additive; nothing outside simulation depends on them):
 * ``{prefix}/{robot}/sim/reset`` — start over: a new ``World`` (time 0, the robot at its start, the
   objects as the scenario lists them) from an empty payload (the same scenario), a scenario name or
   path (UTF-8), or a scenario map (msgpack or JSON). Benchmarks run many scenarios on one simulator
-  process this way instead of paying its start-up each time.
+  process this way instead of paying its start-up each time. The robot's jump back to its start
+  is announced on ``{prefix}/{robot}/state/relocalise`` (the new state) before the next ``state``.
 * ``{prefix}/{robot}/sim/spawn`` — add an object while running (the unseen obstacle): a msgpack
   or JSON map in the scenario file's object format, e.g. ``{"class": "box", "position": [1, 0]}``.
 
@@ -28,10 +29,11 @@ than ``max_step_s`` is not caught up (simulated time then lags wall time, report
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import time
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import msgpack
 import numpy as np
@@ -54,15 +56,37 @@ class SimulatorSettings(NodeSettings):
     scenario: str = Field("navigation", description="built-in name, random:SEED, or a scenario YAML path")
     robot_type: str | None = Field(None, description=f"override the scenario's robot: {', '.join(ROBOT_TYPES)}")
     physics_hz: float = Field(200.0, gt=0, le=5000)
+    """Physics sub-step rate of the simulated world."""
     state_hz: float = Field(50.0, gt=0, le=1000)
+    """Rate of the robot's state."""
     camera_hz: float = Field(10.0, ge=0, le=120, description="0 disables the camera")
     watchdog_s: float = Field(0.2, gt=0)
+    """A command older than this is replaced by zero (the robot brakes), like the LIMO bridge's watchdog."""
     publish_truth: bool = True
+    """Publish the camera's ground-truth frame on sim/truth (what perception's sim geometry needs)."""
+    image_encoding: Literal["rgb8", "jpeg"] = Field(
+        "jpeg", description="camera/image as JPEG (what crosses a robot's Wi-Fi: ~13 KB a frame here against "
+        "590 KB of rgb8) or raw rgb8")
+    jpeg_quality: int = Field(90, ge=1, le=100, description="JPEG quality of camera/image (Pillow's scale)")
     publish_depth: bool = Field(False, description="also publish camera/depth (RGB-D robots, perception rgbd)")
     publish_actors: bool = Field(True, description="publish sim/actors: ground truth of the moving objects")
     max_step_s: float = Field(0.25, gt=0)
+    """A stall longer than this is not caught up: simulated time then lags wall time (reported in status)."""
     map_frame: str = "map"
+    """frame_id of the state, the ground truth and the actors."""
     camera_frame: str = "camera"
+    """frame_id of the camera images and depth."""
+
+
+def jpeg_bytes(rgb: np.ndarray, quality: int) -> bytes:
+    """The JPEG file of an HxWx3 uint8 image. Compressed here, at the source, like a camera node
+    does: the image then crosses every hop (the router, a robot's Wi-Fi) at its compressed size,
+    and perception decodes it once (``perception.node.decode_image``)."""
+    from PIL import Image as PILImage  # the `sim` extra
+
+    out = io.BytesIO()
+    PILImage.fromarray(rgb).save(out, format="JPEG", quality=quality)
+    return out.getvalue()
 
 
 class Simulator:
@@ -115,6 +139,9 @@ class Simulator:
         self.resets += 1
         self.node.stats["resets"] = self.resets
         self.node.log.info("reset to scenario %s", world.scenario.name)
+        # The robot is back at its start: an announced jump, or the filter and the mapping refuse
+        # the states that follow as moving faster than the robot can (runtime.continuity).
+        self.publish_state(self.node.keys.state_relocalise)
 
     def tick(self) -> None:
         now = time.monotonic()
@@ -144,12 +171,12 @@ class Simulator:
             return
         self.node.log.info("spawned %s at t = %.2f s", name, self.world.t)
 
-    def publish_state(self) -> None:
+    def publish_state(self, key: str | None = None) -> None:
         self.tick()
         st = self.world.state()
-        if self.s.publish_actors and self.s.camera_hz == 0:
+        if self.s.publish_actors and self.s.camera_hz == 0 and key is None:
             self.publish_actors(time.time_ns())
-        self.node.publish(self.node.keys.state, RobotState(
+        self.node.publish(key or self.node.keys.state, RobotState(
             header=Header(frame_id=self.s.map_frame), position=tuple(st.position), orientation=tuple(st.orientation),
             linear_velocity=tuple(st.linear_velocity), angular_velocity=tuple(st.angular_velocity)))
 
@@ -163,9 +190,10 @@ class Simulator:
         frame = self.world.render()
         self.node.stats["render_ms"] = (time.perf_counter() - t0) * 1e3
         cam = self.world.camera
+        data = frame.rgb if self.s.image_encoding == "rgb8" else jpeg_bytes(frame.rgb, self.s.jpeg_quality)
         self.node.publish(self.node.keys.camera_image, Image(
-            header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), encoding="rgb8",
-            width=cam.width, height=cam.height, data=frame.rgb))
+            header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), encoding=self.s.image_encoding,
+            width=cam.width, height=cam.height, data=data))
         if self.s.publish_depth:
             self.node.publish(self.node.keys.camera_depth, DepthImage(
                 header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), depth=frame.depth, fx=cam.fx, fy=cam.fy,

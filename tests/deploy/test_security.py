@@ -498,7 +498,7 @@ PUTS = {
     "safety-filter": ["cmd/safe", "safety/status"],
     "mapping": ["map/esdf", "map/esdf3d", "map/objects"],
     "perception": ["perception/frame"],
-    "simulator": ["camera/image", "camera/depth", "state", "sim/truth", "sim/actors"],
+    "simulator": ["camera/image", "camera/depth", "state", "state/relocalise", "sim/truth", "sim/actors"],
     "limo": ["state", "limo/diagnostics"],
     "mavlink": ["state"],
     "joystick": ["cmd/ref"],

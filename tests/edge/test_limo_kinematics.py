@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from riskfield.edge.limo import ackermann
 from riskfield.edge.limo.kinematics import (
     LimoLimits,
     MotionMode,
@@ -31,7 +32,7 @@ def test_limits_hold_and_direction_is_kept(vx: float, vy: float, wz: float, mode
     assert abs(m.linear) <= L.max_linear + 1e-12
     assert abs(m.lateral) <= L.max_lateral + 1e-12
     assert abs(m.angular) <= L.max_angular + 1e-12
-    assert abs(m.steering) <= L.max_steering + 1e-12
+    assert abs(ackermann.inner_from_command_field(m.steering)) <= L.max_steering + 1e-12
     if mode == MotionMode.DIFFERENTIAL:
         assert abs(m.linear) + abs(m.angular) * L.track / 2 <= L.max_wheel_speed + 1e-9
         # Uniform scaling: (linear, angular) is λ·(vx, wz) with one λ in [0, 1].
@@ -52,19 +53,26 @@ def test_scaling_is_uniform_not_per_axis() -> None:
 
 
 def test_ackermann_steering_from_the_bicycle_model() -> None:
+    """The central angle follows the bicycle model; the frame carries the inner wheel's angle / 1.64
+    (the vendor's values are checked in test_limo_conformance.py)."""
     v, w = 0.5, 0.5
+    assert steering_angle(v, w, L) == pytest.approx(math.atan(w * L.wheelbase / v))
     m = command_to_motion(v, 0.0, w, MotionMode.ACKERMANN, L)
-    assert m.steering == pytest.approx(math.atan(w * L.wheelbase / v))
     assert m.linear == v and m.angular == 0.0
+    assert 0 < m.steering < steering_angle(v, w, L)  # the field is not the central angle
     # Reversing while turning left: the wheels point right.
     assert steering_angle(-0.5, 0.5, L) < 0
+    assert command_to_motion(-0.5, 0.0, 0.5, MotionMode.ACKERMANN, L).steering < 0
 
 
 def test_ackermann_clamps_steering_and_cannot_turn_in_place() -> None:
     m = command_to_motion(0.2, 0.0, 3.0, MotionMode.ACKERMANN, L)
-    assert m.steering == pytest.approx(L.max_steering)
-    # Minimum turning radius of the clamped angle is about the LIMO's 0.4 m.
-    assert L.wheelbase / math.tan(L.max_steering) == pytest.approx(0.378, abs=0.01)
+    assert ackermann.inner_from_command_field(m.steering) == pytest.approx(L.max_steering, abs=2e-3)
+    assert ackermann.inner_from_command_field(m.steering) <= L.max_steering
+    assert steering_angle(0.2, 3.0, L) == pytest.approx(L.max_central_steering)
+    # The minimum turning radius at the inner wheel's limit is about the LIMO's 0.46 m.
+    assert 1 / L.max_curvature == pytest.approx(0.46, abs=0.01)
+    assert L.max_central_steering == pytest.approx(0.408, abs=1e-3)
     m0 = command_to_motion(0.0, 0.0, 1.0, MotionMode.ACKERMANN, L)
     assert m0.linear == 0 and m0.steering == 0
 

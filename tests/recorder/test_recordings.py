@@ -37,7 +37,7 @@ from riskfield.protocol import (
     encode,
 )
 from riskfield.services.recorder.mcap_io import McapRecorder, RecordingError, read_records, scan
-from riskfield.services.recorder.replay import COMMAND_KEYS, Remap, plan
+from riskfield.services.recorder.replay import COMMAND_KEYS, STATE_KEYS, Remap, plan
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
 
 PY = sys.executable
@@ -226,22 +226,25 @@ def raw_recording(router_endpoint, tmp_path):
 
 @pytest.mark.parametrize("include_commands", [True, False])
 def test_replay_of_raw_recording_reproduces_contract_keys(router_endpoint, raw_recording, include_commands):
+    """Command keys and the robot's state are withheld unless asked for (both flags here at once)."""
     path, robot, payloads = raw_recording
     new = f"t_rp{int(include_commands)}"
+    held = (*COMMAND_KEYS, *STATE_KEYS)
     expected = {k.replace(f"rf/{robot}/", f"rf/{new}/"): v for k, v in payloads.items()
-                if include_commands or not any(k.endswith("/" + c) for c in COMMAND_KEYS)}
+                if include_commands or not any(k == f"rf/{robot}/{c}" for c in held)}
+    assert include_commands or f"rf/{robot}/state" in payloads
     with client_session(router_endpoint) as session:
         got = Collector(session, f"rf/{new}/**")
         args = [str(path), "-e", router_endpoint, "--remap-from", f"rf/{robot}/", "--remap-to", f"rf/{new}"]
-        r = _replay(args + (["--include-commands"] if include_commands else []))
+        r = _replay(args + (["--include-commands", "--include-state"] if include_commands else []))
         assert r.returncode == 0, r.stderr
         # the replay has ended: everything it published was put before it exited
         assert wait_until(lambda: set(expected) <= set(got.keys), 10), (set(expected) - set(got.keys), r.stderr)
         received = {k: got.items[i] for i, k in enumerate(got.keys) if "/status/" not in k}
         got.close()
-    assert received == expected  # byte-identical, and nothing else (no command key without the flag)
+    assert received == expected  # byte-identical, and nothing else (no command or state key without the flags)
     if not include_commands:
-        assert "withheld" in r.stderr and "cmd/safe" in r.stderr
+        assert "withheld" in r.stderr and "cmd/safe" in r.stderr and f"rf/{robot}/state" in r.stderr
 
 
 def test_default_recording_replay_says_what_it_cannot_reproduce(router_endpoint, tmp_path):
@@ -250,7 +253,7 @@ def test_default_recording_replay_says_what_it_cannot_reproduce(router_endpoint,
     r = _replay([str(tmp_path / "recording.mcap"), "--dry-run"])
     assert r.returncode == 0, r.stderr
     out = r.stderr
-    assert f"publish   rf/{robot}/map/esdf" in out and f"publish   rf/{robot}/state" in out
+    assert f"publish   rf/{robot}/map/esdf" in out and f"withheld  rf/{robot}/state  (the robot's state" in out
     for rel in ("camera/image", "perception/frame", "cmd/safe", "safety/status"):
         assert f"cannot    rf/{robot}/{rel}" in out, rel
     assert f"withheld  rf/{robot}/cmd/ref" in out and f"withheld  rf/{robot}/nav/goal" in out
@@ -275,6 +278,8 @@ def test_remap_validation():
     with pytest.raises(ValueError, match="matches no recorded key"):
         plan(keys, Remap("rf/limo2", "rf/x"))
     p = plan(keys, Remap("rf/limo1", "rf/x"))
+    assert p.publish == {} and p.withheld == ["rf/limo1/cmd/safe"] and p.withheld_state == ["rf/limo1/state"]
+    p = plan(keys, Remap("rf/limo1", "rf/x"), include_state=True)
     assert p.publish == {"rf/limo1/state": ("rf/x/state", 3)} and p.withheld == ["rf/limo1/cmd/safe"]
 
 
@@ -288,7 +293,8 @@ def test_replay_cli_refuses_bad_remaps(tmp_path):
                           ("rf/**", "rf/x", "wildcard")):
         r = _replay([str(path), "--remap-from", frm, "--remap-to", to, "--dry-run"], timeout=30)
         assert r.returncode == 2 and what in r.stderr and "Traceback" not in r.stderr, r.stderr
-    r = _replay([str(path), "--remap-from", "rf/limo1/", "--remap-to", "rf/copy", "--dry-run"], timeout=30)
+    r = _replay([str(path), "--remap-from", "rf/limo1/", "--remap-to", "rf/copy", "--include-state", "--dry-run"],
+                timeout=30)
     assert r.returncode == 0 and "rf/limo1/state → rf/copy/state" in r.stderr, r.stderr
 
 
@@ -374,7 +380,7 @@ def test_replay_of_truncated_file_plays_what_is_readable(router_endpoint, tmp_pa
     with client_session(router_endpoint) as session:
         got = Collector(session, "rf/t_cut/state")
         r = subprocess.run(["timeout", "60", PY, "-m", "riskfield", "replay", str(cut), "-e", router_endpoint,
-                            "--remap-from", "rf/limo1", "--remap-to", "rf/t_cut", "--speed", "100"],
+                            "--remap-from", "rf/limo1", "--remap-to", "rf/t_cut", "--speed", "100", "--include-state"],
                            capture_output=True, text=True, stdin=subprocess.DEVNULL)
         assert r.returncode == 1, r.stderr
         assert wait_until(lambda: len(got.items) == len(readable), 10), (len(got.items), r.stderr)

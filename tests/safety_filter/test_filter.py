@@ -12,6 +12,7 @@ from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.config import FilterConfig, Footprint
 from riskfield.services.safety_filter.filter import GainTable, SafetyFilter, hocbf_gains
+from riskfield.services.safety_filter.model import YIELD
 from riskfield.services.safety_filter.qp import OsqpSolver
 from riskfield.services.safety_filter.state import FilterState
 
@@ -77,10 +78,17 @@ def test_gain_table_maps_groups_by_name_and_is_conservative_for_unknowns():
     risk = RiskConfig(groups=[RiskGroup(name="pet", alpha=0.5, alpha1=1.0, alpha2=0.2, margin=0.2),
                               RiskGroup(name="box", alpha=2.0, alpha1=3.0, alpha2=2.0)], default_group="box")
     table = GainTable(risk).for_groups(["box", "alien", "pet"])
-    np.testing.assert_allclose(table[1], [2.0, 3.0, 2.0, 0.0])
-    np.testing.assert_allclose(table[3], [0.5, 1.0, 0.2, 0.2])
+    np.testing.assert_allclose(table[1], [2.0, 3.0, 2.0, 0.0, 0.0])
+    np.testing.assert_allclose(table[3], [0.5, 1.0, 0.2, 0.2, 0.0])
     np.testing.assert_allclose(table[2], table[0])  # unknown name = id 0 = most conservative
-    np.testing.assert_allclose(table[0], [0.5, 1.0, 0.2, 0.2])
+    np.testing.assert_allclose(table[0], [0.5, 1.0, 0.2, 0.2, 0.0])
+
+
+def test_groups_holding_a_yield_label_yield_and_unknown_obstacles_do_not():
+    risk = RiskConfig()  # high = person, animal
+    table = GainTable(risk, ["person"]).for_groups(["high", "mid", "low", "alien"])
+    assert table[:, YIELD].tolist() == [0.0, 1.0, 0.0, 0.0, 0.0]
+    assert not GainTable(risk).for_groups(["high"])[:, YIELD].any()  # no yield labels: the static barrier
 
 
 def test_hocbf_gains_with_complex_roots_are_critically_damped():

@@ -139,9 +139,12 @@ def test_every_fail_safe_path_in_its_own_process(router_endpoint):
                 assert all(c.linear == (0, 0, 0) and c.angular == (0, 0, 0) for c in cmds.items[1:])
                 feed.on[stream] = True
                 wait_fallback(status, None)
-            feed.msgs["state"] = state(x=1.9)  # the look-ahead point leaves the map
+            # The look-ahead point leaves the map: a jump, announced (an unannounced one is refused).
+            feed.msgs["state"] = state(x=1.9)
+            put(session, f"rf/{robot}/state/relocalise", state(x=1.9))
             wait_fallback(status, "outside_map")
             feed.msgs["state"] = state(x=0.1)
+            put(session, f"rf/{robot}/state/relocalise", state(x=0.1))
             wait_fallback(status, None)
             feed.msgs["map/esdf"] = solid_grid()
             st = wait_fallback(status, "infeasible")

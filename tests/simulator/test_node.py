@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from riskfield.protocol import Image, NodeStatus, PerceptionFrame, RobotState, VelocityCommand, ade20k
+from riskfield.services.perception.node import decode_image
 from riskfield.testing import (
     Collector,
     ServiceProcess,
@@ -39,7 +40,9 @@ def test_simulator_publishes_state_image_truth_and_obeys_commands(router_endpoin
         truths.wait(3, 20)
         img = images.items[-2]
         truth = next(t for t in truths.items if t.header.stamp_ns == img.header.stamp_ns)
-        assert img.width == 128 and img.height == 96 and img.data.shape == (96, 128, 3)
+        # JPEG by default: what crosses the link; perception decodes it to the same size.
+        assert img.width == 128 and img.height == 96 and img.encoding == "jpeg"
+        assert decode_image(img).data.shape == (96, 128, 3)
         assert truth.points.shape == (96, 128, 3) and np.all(truth.confidence == 1.0)
         assert np.all(truth.points[..., 2] > 0) and set(np.unique(truth.labels)) <= set(range(ade20k.NUM_CLASSES))
         start = states.wait(1, 10)[-1].position
@@ -135,6 +138,7 @@ def test_simulator_publishes_actors_stamped_like_the_image_and_starts_over_on_re
         images = Collector(s, f"rf/{robot}/camera/image", Image)
         actors = Collector(s, f"rf/{robot}/sim/actors", SimActors)
         states = Collector(s, f"rf/{robot}/state", RobotState)
+        relocalised = Collector(s, f"rf/{robot}/state/relocalise", RobotState)
         put(s, f"rf/{robot}/sim/spawn", msgpack.packb({"class": "person", "name": "walker", "position": [-0.5, -1.5],
                                                        "waypoints": [[-0.5, -1.5], [-0.5, 1.5]], "speed": 1.2}))
         assert wait_until(lambda: any("walker" in [a.name for a in m.actors] for m in list(actors.items)), 20)
@@ -161,11 +165,13 @@ def test_simulator_publishes_actors_stamped_like_the_image_and_starts_over_on_re
         put(s, f"rf/{robot}/sim/reset", b"")
         put(s, f"rf/{robot}/sim/reset", b"\xff\xfe not a scenario")
         assert wait_until(lambda: abs(states.items[-1].position[0] + 1.5) < 1e-9, 10)
+        # the jump back was announced (the filter and the mapping refuse an unannounced one)
+        assert len(relocalised.items) == 1 and abs(relocalised.items[0].position[0] + 1.5) < 1e-9
         n = len(actors.items)
         assert wait_until(lambda: len(actors.items) > n + 1, 10)
         assert [a.name for a in actors.items[-1].actors] == ["dog"]
         assert sim.alive()
         assert sim.stop() == 0
         assert "rejected a reset request" in sim.output
-        for c in (images, actors, states):
+        for c in (images, actors, states, relocalised):
             c.close()

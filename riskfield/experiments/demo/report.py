@@ -42,7 +42,7 @@ from riskfield.protocol import (
     VelocityCommand,
     decode,
 )
-from riskfield.services.recorder.mcap_io import iter_mcap, raw_key, read_records
+from riskfield.services.recorder.mcap_io import iter_mcap, latest_recording, raw_key, read_records
 from riskfield.services.simulator.scene import Scene
 
 from .. import people as P
@@ -177,7 +177,7 @@ def _clearances(cfg: DemoConfig, t: np.ndarray, xy: np.ndarray, placed_at: float
 
 def make_report(cfg: DemoConfig, console: Console) -> dict:
     root = f"rf/{cfg.robot}"
-    st = load_streams(cfg.out / "recording.mcap", root)
+    st = load_streams(latest_recording(cfg.out), root)  # a re-run in the same folder records beside the last
     t0 = st.t0_ns / 1e9
     ph = {k: v - t0 for k, v in cfg.phases.items()}
     t = np.asarray(st.state_t)
