@@ -12,8 +12,9 @@ Sources, and which value won where the copies disagreed:
 * body 0.322 × 0.220 m: the safety filter's footprint so far. Trossen's copy of the LIMO
   documentation (``TrossenRobotics/agilex_limo_docs``, ``specifications/limo.rst``) lists
   322 × 215 × 247 mm; the wider figure stays, the conservative one for a barrier.
-* wheelbase 0.2 m, track 0.172 m, steering ±0.488 rad (minimum turning radius 0.4 m), about 1 m/s
-  no-load: ``shared/reference/hardware_and_zenoh.md``. (AgileX's ROS driver, ``agilexrobotics/
+* wheelbase 0.2 m, track 0.172 m, inner-wheel steering ±0.488 rad (central ~0.408 rad, minimum
+  turning radius ~0.46 m; AgileX's pylimo has 0.48869), about 1 m/s no-load:
+  ``shared/reference/hardware_and_zenoh.md``. (AgileX's ROS driver, ``agilexrobotics/
   limo_ros`` ``limo_base/include/limo_base/limo_params.h``, has track 0.176 m and a 1.5 m/s
   ``max_linear_speed`` that its ``limo_driver.cpp`` never applies; the reference's figures stay.)
 * yaw rate 2.0 rad/s: no datasheet gives one (the chassis itself only bounds wheel speed, so
@@ -48,7 +49,9 @@ class PlanarPlatform(BaseModel):
     max_lateral: Pos = Field(description="|lateral speed| in mecanum mode (m/s)")
     max_angular: Pos = Field(description="|yaw rate| (rad/s)")
     max_wheel_speed: Pos = Field(description="|speed| of any wheel (m/s)")
-    max_steering: Pos = Field(description="|central steering angle| in Ackermann mode (rad)")
+    max_steering: Pos = Field(description=(
+        "|inner front wheel's steering angle| in Ackermann mode (rad); the central angle's limit follows from "
+        "it, the wheelbase and the track (edge/limo/ackermann.py: ~0.408 rad, radius ~0.46 m for the LIMO)"))
     max_accel: Pos = Field(description="|linear acceleration| (m/s²)")
     max_yaw_accel: Pos = Field(description="|yaw acceleration| (rad/s²)")
 

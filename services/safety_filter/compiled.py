@@ -46,9 +46,9 @@ MAX_OBJECTS = 16
 _MAX_ITER, _TOL = 50, 1e-12  # as qp.ActiveSetSolver's defaults
 
 #: The float workspace of one filter's step. Dimensions: n inputs, m body points, q = 2m field
-#: samples (the points now and one period ahead), K object rows, s = q + K samples (the objects'
-#: analytic ones after the field's), r = q + K CBF rows, rows = r + 2n QP rows with the box, k
-#: objects, d the packed description's length.
+#: samples (the points now and one period ahead), K objects with rows (two each), s = q + 2K
+#: samples (the objects' analytic ones after the field's), r = q + 2K CBF rows, rows = r + 2n QP
+#: rows with the box, k objects, d the packed description's length.
 FLOATS = Layout("Floats", [
     # the model's description (``model.DESC``), written once
     ("desc", ("d",)),
@@ -56,7 +56,7 @@ FLOATS = Layout("Floats", [
     ("position", (3,)), ("rotation", (3, 3)), ("velocity", (3,)), ("u_ref", ("n",)), ("ang", (3,)),
     ("objects", ("k", OBJECT_COLUMNS)),
     # constants of the filter (δ per map: CompiledStep.prepare)
-    ("delta", (1,)), ("alpha_cap", (1,)), ("dt", (1,)), ("horizon", (1,)), ("a_stop", (1,)),
+    ("delta", (1,)), ("alpha_cap", (1,)), ("dt", (1,)), ("horizon", (1,)), ("a_stop", (1,)), ("sweep", (1,)),
     # outputs: [h at the critical point, the barrier there], u
     ("out", (2,)), ("u", ("n",)),
     # scratch
@@ -86,7 +86,7 @@ def workspace(m: int, n: int, k_rows: int = MAX_OBJECTS) -> tuple[np.ndarray, np
     most ``k_rows`` object rows."""
     d = Layout.size(mdl.DESC.table(n=n, m=m))
     q = 2 * m
-    r = q + k_rows
+    r = q + 2 * k_rows
     return (FLOATS.table(d=d, n=n, m=m, q=q, s=r, r=r, rows=r + 2 * n, k=MAX_OBJECTS, n2=2 * n),
             INTS.table(q=q, r=r))
 
@@ -455,8 +455,9 @@ def _rows(wf, wi, lf, li, dl, m, n, predictive):
 @jit
 def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
     """The rows of the moving objects on a collision course (``model.object_course``), the
-    ``max_rows`` soonest first, each its own analytic row (``model.object_sample``) as sample
-    2m + r; all yield. Returns (the row count, the object rows)."""
+    ``max_rows`` soonest first, each with its own two analytic rows (``model.object_sample``: its
+    body, then the capsule it sweeps) as samples 2m + 2r, 2m + 2r + 1; all yield. Returns (the
+    row count, the objects with rows)."""
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     rot, ang, vel = view2(wf, lf, F.rot), view1(wf, lf, F.ang), view1(wf, lf, F.velocity)
     pts, grad, hess, gains = view2(wf, lf, F.pts), view2(wf, lf, F.grad), view3(wf, lf, F.hess), view2(wf, lf, F.gains)
@@ -465,6 +466,7 @@ def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
     A, B, rsrc, ryield = view2(wf, lf, F.A), view1(wf, lf, F.B), view1(wi, li, I.rsrc), view1(wi, li, I.ryield)
     nobj, kmax = view1(wi, li, I.nobj)[0], view1(wi, li, I.max_rows)[0]
     delta, horizon, a_stop = _scalar(wf, lf, F.delta), _scalar(wf, lf, F.horizon), _scalar(wf, lf, F.a_stop)
+    sweep = _scalar(wf, lf, F.sweep)
     nt = table.shape[0]
     mdl.reference_velocity(di, df, dl, rot, vel, view1(wf, lf, F.u_box), v_ref)
     for k in range(nobj):
@@ -481,17 +483,22 @@ def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
         if kb < 0:
             break
         when[kb] = math.inf
-        j = 2 * m + made
+        j = 2 * m + 2 * made
         g = min(int(objects[kb, mdl.OBJ_GROUP]), nt - 1)
         for c in range(GAIN_COLUMNS):
             gains[j, c] = table[g, c]
         if first_order:
             gains[j, 0] = min(gains[j, 0], cap)
-        i, hbo = mdl.object_sample(df, dl, pts, objects[kb], gains[j], delta, grad[j], hess[j], wobj)
-        B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[j], hess[j], hbo, gains[j], wobj, A[nrows])
-        rsrc[nrows] = j
-        ryield[nrows] = 1
-        nrows += 1
+        for c in range(GAIN_COLUMNS):
+            gains[j + 1, c] = gains[j, c]
+        for part in range(2):  # its body, then the capsule it sweeps (model.object_sample)
+            jj = j + part
+            i, hbo = mdl.object_sample(df, dl, pts, objects[kb], gains[jj], delta, sweep * part, grad[jj], hess[jj],
+                                       wobj)
+            B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[jj], hess[jj], hbo, gains[jj], wobj, A[nrows])
+            rsrc[nrows] = jj
+            ryield[nrows] = 1
+            nrows += 1
         made += 1
     return nrows, made
 
@@ -726,7 +733,7 @@ class CompiledStep:
 
     def __init__(self, model, delta: float, alpha_cap: float, dt: float, predictive: bool,
                  margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0, max_object_rows: int = 8,
-                 horizon: float = 1.5, a_stop: float = 1.5):
+                 horizon: float = 1.5, a_stop: float = 1.5, sweep: float = 1.0):
         if not HAVE_NUMBA:
             raise RuntimeError("the compiled filter step needs numba (pip install '.[robot]')")
         m, n = model.m, model.n
@@ -742,7 +749,7 @@ class CompiledStep:
         self.delta, self.map_margin_voxels = delta, map_margin_voxels
         fv("delta")[0] = delta
         fv("alpha_cap")[0] = alpha_cap if math.isfinite(alpha_cap) else 1e300
-        fv("dt")[0], fv("horizon")[0], fv("a_stop")[0] = dt, horizon, a_stop
+        fv("dt")[0], fv("horizon")[0], fv("a_stop")[0], fv("sweep")[0] = dt, horizon, a_stop, sweep
         iv("max_rows")[0] = max_object_rows
         iv("predictive")[0], iv("margins")[0], iv("slack")[0] = predictive, margins_in_filter, slack
         iv("first_order")[0] = model.spec.order == 1

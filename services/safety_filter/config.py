@@ -253,6 +253,9 @@ class MotionParams(BaseModel):
     command_delay_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = Field(default=0.06, description=(
         "s: from the filter's step to the command taking effect (a control period, the bridge and the "
         "chassis): tracks are predicted from their observation to then"))
+    object_sweep_s: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = Field(default=1.0, description=(
+        "s: an object's row keeps the robot out of the capsule its body sweeps along its velocity in this "
+        "time, not only out of where it is: the robot stops short of a crossing person's path (0: the body alone)"))
     max_object_rows: Annotated[int, Field(ge=1, le=16)] = Field(default=8, description=(
         "moving objects on a collision course that get a row, the soonest first"))
     yield_labels: list[str] = Field(default_factory=lambda: ["person", "animal"], description=(

@@ -57,8 +57,10 @@ from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 
 _ZERO3 = np.zeros(3)
-#: Above this many rows the exact active-set path hands over to OSQP.
-ACTIVE_SET_MAX_ROWS = 24
+#: Above this many rows the exact active-set path hands over to OSQP: the field's rows of a body of
+#: up to 8 points now and ahead, and the two rows of each of 8 moving objects (most of them hold on
+#: the whole box and are dropped before the QP).
+ACTIVE_SET_MAX_ROWS = 40
 
 
 def hocbf_gains(alpha1: float, alpha2: float) -> tuple[float, float]:
@@ -147,7 +149,7 @@ class SafetyFilter:
         self._active_set = ActiveSetSolver()
         self._osqp: OsqpSolver | None = None
         self.max_object_rows = self.config.max_object_rows if self.config.object_motion else 0
-        self.rows_max = self.model.m * (2 if self.config.predictive_rows else 1) + self.max_object_rows
+        self.rows_max = self.model.m * (2 if self.config.predictive_rows else 1) + 2 * self.max_object_rows
         self._use_active_set = self.config.solver != "osqp" and self.rows_max <= ACTIVE_SET_MAX_ROWS
         if self.config.solver == "active_set" and not self._use_active_set:
             raise ValueError(f"the active-set solver handles at most {ACTIVE_SET_MAX_ROWS} rows")
@@ -189,7 +191,7 @@ class SafetyFilter:
         cfg = self.config
         return CompiledStep(self.model, self.delta, self._alpha_cap, cfg.dt, cfg.predictive_rows,
                             cfg.margins_in_filter, cfg.slack, cfg.map_margin_voxels, max(self.max_object_rows, 1),
-                            cfg.collision_horizon_s, cfg.a_max)
+                            cfg.collision_horizon_s, cfg.a_max, cfg.object_sweep_s)
 
     @property
     def backend(self) -> str:
@@ -279,7 +281,8 @@ class SafetyFilter:
     def object_rows(self, state: FilterState, u_box: np.ndarray, pts: np.ndarray, objects: np.ndarray,
                     table: np.ndarray, delta: float, ang: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(A, b, gradients) of the moving objects on a collision course (``model.object_course``),
-        the ``max_object_rows`` soonest first, each its own row (``model.object_row``)."""
+        the ``max_object_rows`` soonest first, each with its own two rows (``model.object_sample``:
+        its body, then the capsule it sweeps in ``object_sweep_s``)."""
         model, cfg = self.model, self.config
         rot = model.rotation(state)
         v_ref = np.empty(3)
@@ -292,16 +295,20 @@ class SafetyFilter:
             if math.isfinite(t):
                 when.append((t, k))
         when = sorted(when)[:self.max_object_rows]
-        a, b, grads = np.empty((len(when), model.n)), np.empty(len(when)), np.empty((len(when), 3))
+        rows = 2 * len(when)  # per object: its body, then the capsule it sweeps (model.object_sample)
+        a, b, grads = np.empty((rows, model.n)), np.empty(rows), np.empty((rows, 3))
         hess, wobj = np.empty((3, 3)), np.empty(3)
         for r, (_, k) in enumerate(when):
             obj = objects[k]
             g = table[min(int(obj[mdl.OBJ_GROUP]), table.shape[0] - 1)].copy()
             if self._first_order:
                 g[0] = min(g[0], self._alpha_cap)
-            i, hb = mdl.object_sample(model.df, model.dl, pts, obj, g, delta, grads[r], hess, wobj)
-            b[r] = mdl.point_row(model.di, model.df, model.dl, rot, ang, _f64(state.velocity), i, grads[r], hess, hb,
-                                 g, wobj, a[r])
+            for part in range(2):
+                q = 2 * r + part
+                i, hb = mdl.object_sample(model.df, model.dl, pts, obj, g, delta, cfg.object_sweep_s * part, grads[q],
+                                          hess, wobj)
+                b[q] = mdl.point_row(model.di, model.df, model.dl, rot, ang, _f64(state.velocity), i, grads[q], hess,
+                                     hb, g, wobj, a[q])
         return a, b, grads
 
     def _filter_numpy(self, state: FilterState, u_ref: np.ndarray, field: DistanceField,
@@ -357,10 +364,10 @@ class SafetyFilter:
         if objects is not None:
             ao, bo, go = self.object_rows(state, u_box, _f64(pts[:m]), objects,
                                           self.gains.for_groups(field.groups), delta, ang)
-            n_obj = len(bo)
+            n_obj = len(bo) // 2
             a, b, gradients = np.concatenate([a, ao]), np.concatenate([b, bo]), np.concatenate([gradients, go])
-            yields = np.concatenate([yields, np.ones(n_obj, bool)])
-            ahead = np.concatenate([ahead, np.zeros(n_obj, bool)])
+            yields = np.concatenate([yields, np.ones(len(bo), bool)])
+            ahead = np.concatenate([ahead, np.zeros(len(bo), bool)])
         if not (np.isfinite(a).all() and np.isfinite(b).all() and math.isfinite(h_crit)):
             return self._brake(state, u_ref, "non_finite", t0, 0.0, rg)
         yielding = False

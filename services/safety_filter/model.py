@@ -26,9 +26,11 @@ columns). Here the state is the body pose and the input enters through the body 
 Moving obstacles: each tracked object is its own barrier. The ESDF shows a moving object where
 it was, and its nearest-obstacle distance hides an object behind a nearer wall, so the field's
 rows stay static (the object's voxels are geometry like any other) and every tracked object on a
-collision course (:func:`object_course`) adds one analytic row (:func:`object_row`): a vertical
-cylinder of its radius at its centre predicted to the instant the command takes effect,
-h(p, t) = |p - c - w t|_xy - R - r - δ - margin, so ∂h/∂t = -∇h·w exactly, with w raised by
+collision course (:func:`object_course`) adds two analytic rows (:func:`object_sample`): a
+vertical cylinder of its radius at its centre predicted to the instant the command takes effect,
+h(p, t) = |p - c - w t|_xy - R - r - δ - margin, and the capsule that cylinder sweeps along w in
+``object_sweep_s`` (the robot stops short of a crossing person's path, and inside that path may
+not go deeper); both move rigidly with the object, so ∂h/∂t = -∇h·w exactly, with w raised by
 the track's speed uncertainty σ towards the robot (the worst velocity within σ). Order 1:
 ḣ = L_f h + L_g h u - ∇d·w ≥ -α h; order 2: ḣ = ∇dᵀ(v - w) and ḧ keeps (v - w)ᵀ∇²d (v - w),
 the relative velocity (:func:`point_row` takes the obstacle's velocity; 0 for the field).
@@ -371,7 +373,7 @@ def barriers(di, df, dl, dist, grad, vel, gains, delta, margins, hb, wobj):
 def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, wobj, a_row):
     """The CBF row a·u ≥ b of body point i (module docstring) with the field sample (grad, hess)
     and gains [α, α₁, α₂, margin, yield] of its row, the barrier hb = d - r - δ of point i and the
-    velocity ``wobj`` of the obstacle (0 for the field; an object's for :func:`object_row`):
+    velocity ``wobj`` of the obstacle (0 for the field; an object's for :func:`object_sample`):
     writes a into a_row, returns b. ``rot`` is the attitude rotation, ``ang`` the reference's
     body rates. The only place the rows are written down."""
     lin, ang_g = view2(df, dl, _D.lin), view2(df, dl, _D.ang)
@@ -495,26 +497,35 @@ def object_course(df, dl, pts, v_ref, vel, obj, margin, delta, horizon, a_stop):
 
 
 @jit
-def object_sample(df, dl, pts, obj, gain, delta, grad, hess, wobj):
-    """The analytic field of one moving object at the body point nearest it: a vertical cylinder
-    of the object's radius about its predicted centre, inflated by its group's margin. Writes the
-    horizontal gradient n, the Hessian (I - n nᵀ)/ρ of the horizontal distance and the velocity
-    the row uses, w + σ n (the worst velocity within the track's uncertainty: towards the
-    point); returns (the body point, hb = ρ - R - r - δ - margin)."""
+def object_sample(df, dl, pts, obj, gain, delta, sweep, grad, hess, wobj):
+    """The analytic field of one moving object at the body point nearest it: the capsule its
+    cylinder sweeps from its predicted centre c along its velocity w for ``sweep`` seconds
+    (radius R, inflated by its group's margin), so the robot keeps out of where the object is
+    about to be, not only of where it is (someone crossing the lane diagonally is given the lane
+    ahead of them). The capsule moves rigidly with w. Writes the horizontal gradient n, the
+    Hessian of the horizontal distance ((I - n nᵀ)/ρ off the ends' caps, 0 along the side) and
+    the velocity the row uses, w + σ n (the worst velocity within the track's uncertainty:
+    towards the point); returns (the body point, hb = ρ - R - r - δ - margin)."""
     radii = view1(df, dl, _D.radii)
-    kbest, best, nx, ny, rho_b = 0, math.inf, 1.0, 0.0, 1.0
+    cx, cy, wx, wy = obj[OBJ_X], obj[OBJ_Y], obj[OBJ_VX] * sweep, obj[OBJ_VY] * sweep
+    ww = wx * wx + wy * wy
+    kbest, best, nx, ny, rho_b, side = 0, math.inf, 1.0, 0.0, 1.0, False
     for i in range(radii.shape[0]):
-        dx, dy = pts[i, 0] - obj[OBJ_X], pts[i, 1] - obj[OBJ_Y]
+        s = 0.0
+        if ww > 1e-12:
+            s = min(max(((pts[i, 0] - cx) * wx + (pts[i, 1] - cy) * wy) / ww, 0.0), 1.0)
+        dx, dy = pts[i, 0] - cx - s * wx, pts[i, 1] - cy - s * wy
         rho = math.sqrt(dx * dx + dy * dy)
         hb = rho - obj[OBJ_RADIUS] - radii[i] - delta - gain[MARGIN]
         if hb < best:
-            kbest, best, rho_b = i, hb, rho
+            kbest, best, rho_b, side = i, hb, rho, 0.0 < s < 1.0
             nx, ny = (dx / rho, dy / rho) if rho > 1e-9 else (1.0, 0.0)
     grad[0], grad[1], grad[2] = nx, ny, 0.0
-    inv = 1.0 / max(rho_b, 1e-3)
     hess[:, :] = 0.0
-    hess[0, 0], hess[0, 1], hess[1, 0], hess[1, 1] = (1 - nx * nx) * inv, -nx * ny * inv, -nx * ny * inv, \
-        (1 - ny * ny) * inv
+    if not side:
+        inv = 1.0 / max(rho_b, 1e-3)
+        hess[0, 0], hess[0, 1], hess[1, 0], hess[1, 1] = (1 - nx * nx) * inv, -nx * ny * inv, -nx * ny * inv, \
+            (1 - ny * ny) * inv
     sig = obj[OBJ_SIGMA]
     wobj[0], wobj[1], wobj[2] = obj[OBJ_VX] + sig * nx, obj[OBJ_VY] + sig * ny, obj[OBJ_VZ]
     return kbest, best

@@ -25,7 +25,7 @@ import pytest
 from riskfield.edge.limo import protocol as p
 from riskfield.edge.limo.bridge import BridgeConfig, LimoBridge
 from riskfield.edge.limo.emulator import ChassisEmulator, ChassisModel
-from riskfield.edge.limo.kinematics import LimoLimits, MotionMode, command_to_motion
+from riskfield.edge.limo.kinematics import LimoLimits, MotionMode
 from riskfield.edge.limo.serial_link import SerialLink
 from riskfield.testing import wait_until
 

@@ -184,14 +184,19 @@ def object_row(filt: SafetyFilter, s: FilterState, obj: np.ndarray, gains: np.nd
     g = gains[int(obj[OBJ_GROUP])].copy()
     g[0] = min(g[0], filt._alpha_cap)
     grad, hess, wobj, a = np.empty(3), np.empty((3, 3)), np.empty(3), np.empty((1, m.n))
-    i, hb = mdl.object_sample(m.df, m.dl, m.points(s), obj, g, filt.delta, grad, hess, wobj)
+    i, hb = mdl.object_sample(m.df, m.dl, m.points(s), obj, g, filt.delta, filt.config.object_sweep_s, grad, hess,
+                              wobj)
     b = mdl.point_row(m.di, m.df, m.dl, m.rotation(s), np.zeros(3), s.velocity, i, grad, hess, hb, g, wobj, a[0])
     return a, np.array([b])
 
 
-def object_h(m, s: FilterState, c: np.ndarray, delta: float) -> float:
-    pts = m.points(s)
-    return float((np.hypot(pts[:, 0] - c[0], pts[:, 1] - c[1]) - PERSON - m.radius - delta - MARGIN).min())
+def object_h(m, s: FilterState, c: np.ndarray, delta: float, sweep: np.ndarray) -> float:
+    """min over the body of the distance to the segment c → c + sweep (the object's swept capsule), less the radii."""
+    pts = m.points(s)[:, :2]
+    a, d = c[:2], sweep[:2]
+    t = np.clip(((pts - a) @ d) / max(float(d @ d), 1e-300), 0.0, 1.0) if d.any() else np.zeros(len(pts))
+    rho = np.linalg.norm(pts - a - t[:, None] * d, axis=1)
+    return float((rho - PERSON - m.radius - delta - MARGIN).min())
 
 
 @pytest.mark.parametrize("model", ["unicycle", "single2d"])
@@ -212,8 +217,10 @@ def test_an_object_row_is_its_barriers_rate_when_the_object_moves(model, seed):
     a, b = object_row(filt, s, obj[0], gains, u)
     eps = 1e-6
 
+    sweep = w * filt.config.object_sweep_s  # the capsule it sweeps, moving with it
+
     def h_at(t: float) -> float:
-        return object_h(m, m.integrate(s, u, t, np.zeros(3)), c + w * t, filt.delta)
+        return object_h(m, m.integrate(s, u, t, np.zeros(3)), c + w * t, filt.delta, sweep)
 
     rate = (h_at(eps) - h_at(-eps)) / (2 * eps)
     alpha = min(gains[1, 0], filt._alpha_cap)
@@ -238,9 +245,11 @@ def test_the_order_2_row_uses_the_relative_velocity(seed):
     gains = filt.gains.for_groups(GROUPS)
     a, b = object_row(filt, s, obj[0], gains, u)
 
+    sweep = w * filt.config.object_sweep_s
+
     def h_at(t: float) -> float:
         q = s.position + v * t + 0.5 * u * t * t
-        return object_h(m, FilterState(q, np.eye(3), v + u * t), c + w * t, filt.delta)
+        return object_h(m, FilterState(q, np.eye(3), v + u * t), c + w * t, filt.delta, sweep)
 
     eps = 1e-4
     h0, hp, hm = h_at(0.0), h_at(eps), h_at(-eps)
