@@ -45,7 +45,7 @@ from riskfield.protocol import (
     TrackedObjects,
 )
 
-from ..runtime.continuity import StateGate
+from ..runtime.continuity import StateGate, report_refused
 from ..runtime.memory import keep_freed_heap
 from ..runtime.node import Node
 from ..runtime.rate import TokenBucket
@@ -145,12 +145,8 @@ class MappingNode:
         self.mapper.set_robot_position(np.asarray(state.position))
 
     def _state_refused(self, state: RobotState, reason: str) -> None:
-        st = self.node.stats
-        st["state_refused"] = self.gate.refused_total
-        st[f"state_refused_{reason}"] = self.gate.refused[reason]
-        self.node.ratelog(logging.WARNING, f"state_refused:{reason}",
-                          f"refused a state at {np.round(state.position, 3).tolist()} ({reason}; stamp "
-                          f"{state.header.stamp_ns}): the volume stays where it is")
+        report_refused(self.node, self.gate, reason, state.position, state.header.stamp_ns,
+                       "the volume stays where it is")
 
     def on_risk_config(self, risk: RiskConfig) -> None:
         try:

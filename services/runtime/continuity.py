@@ -21,6 +21,7 @@ reference. Without an announcement the gate heals by itself once ``v_max · dt``
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from typing import Annotated
@@ -100,3 +101,13 @@ class StateGate:
     @property
     def refused_total(self) -> int:
         return sum(self.refused.values())
+
+
+def report_refused(node, gate: StateGate, reason: str, position, stamp_ns: int, kept: str) -> None:
+    """Count a refused state in the node's status and say so, rate-limited; ``kept`` says what
+    stays in force (the nodes' one wording of a refusal)."""
+    st = node.stats
+    st["state_refused"] = gate.refused_total
+    st[f"state_refused_{reason}"] = gate.refused[reason]
+    node.ratelog(logging.WARNING, f"state_refused:{reason}",
+                 f"refused a state at {[round(float(v), 3) for v in position]} ({reason}, stamp {stamp_ns}): {kept}")

@@ -47,7 +47,7 @@ from riskfield.protocol import (
     decode,
 )
 
-from ..runtime.continuity import StateGate
+from ..runtime.continuity import StateGate, report_refused
 from ..runtime.node import Node
 from ..runtime.risk_file import watch_risk_file
 from ..runtime.service import ServiceSpec
@@ -141,12 +141,8 @@ class FilterNode:
         gate = self.state_gate.relocalise if relocalise else self.state_gate.admit
         refused = gate(msg.position, msg.header.stamp_ns, now, time.time_ns())
         if refused is not None:
-            st = self.node.stats
-            st["state_refused"] = self.state_gate.refused_total
-            st[f"state_refused_{refused}"] = self.state_gate.refused[refused]
-            self.node.ratelog(logging.WARNING, f"state_refused:{refused}",
-                              f"refused a state at {[round(v, 3) for v in msg.position]} ({refused}, stamp "
-                              f"{msg.header.stamp_ns}); keeping the state in force")
+            report_refused(self.node, self.state_gate, refused, msg.position, msg.header.stamp_ns,
+                           "keeping the state in force")
             return
         self.supervisor.on_state(msg, now)
 
