@@ -8,11 +8,12 @@ tracks (:func:`episode_metrics`, which the unit tests call on hand-made tracks).
 a LIMO at ``START`` facing +x, static obstacles (walls and cabinets as axis-aligned boxes, tables
 as cylinders) and people (upright cylinders of radius ``PERSON``) who walk piecewise-linear plans
 with stops (the simulator's walker spec, ``motion: once``: :func:`plan_state` reads it the way
-``simulator.scene.Motion`` does, so the same specs go to ``sim/spawn`` in the stack mode). A
-person whose next step would touch the robot's body stands instead (people are not pushed, and
-they do not push); one blocked for ``PATIENCE_S`` steps round the robot on the side away from it
-and then walks on to the end of their plan (without that, a yielding robot and a person who
-waits for it would wait for each other forever).
+``simulator.scene.Motion`` does, so the same specs are valid ``sim/spawn`` requests:
+``Episode.stack_case``). A person whose next step would touch the robot's body stands instead
+(people are not pushed, and they do not push); one blocked for ``PATIENCE_S`` steps round the
+robot on the side away from it (up to ``MAX_DETOURS`` times) and then walks on to the end of
+their plan (without that, a yielding robot and a person who waits for it would wait for each
+other forever).
 
 **What the filter sees.** The ESDF it reads is rebuilt every ``MAP_PERIOD_S`` (10 Hz) from the
 world as it was ``LATENCY_S`` (0.1 s) before, on 5 cm voxels in a planar window around the robot:
@@ -81,6 +82,7 @@ CAMERA_X = 0.15
 COMMAND_DELAY_STEPS = 2
 TRACKER_SIGMA = 0.15
 PATIENCE_S = 1.0
+MAX_DETOURS = 3
 FREEZE_SPEED = 0.02
 #: targets of the issue (``summarise``: which episodes miss them)
 SUCCESS_TARGET = 0.95
@@ -134,7 +136,8 @@ def box(name: str, cls: str, x0: float, y0: float, x1: float, y1: float) -> Stat
 def room_walls() -> list[Static]:
     """The room's four walls, 0.2 m thick, outside the 12 × 6 m floor."""
     X, Y = ROOM_HALF
-    return [box("room_n", "wall", -X - 0.2, Y, X + 0.2, Y + 0.2), box("room_s", "wall", -X - 0.2, -Y - 0.2, X + 0.2, -Y),
+    return [box("room_n", "wall", -X - 0.2, Y, X + 0.2, Y + 0.2),
+            box("room_s", "wall", -X - 0.2, -Y - 0.2, X + 0.2, -Y),
             box("room_e", "wall", X, -Y, X + 0.2, Y), box("room_w", "wall", -X - 0.2, -Y, -X, Y)]
 
 
@@ -301,7 +304,6 @@ def episode(family: str, seed: int) -> Episode:
         gap = float(rng.uniform(-0.05, 0.5))
         wait0 = float(rng.uniform(0.0, 2.0))
         phi = math.radians(float(rng.uniform(-30.0, 30.0)))
-        far = np.array([x0 + 3.5, 0.0]) + 3.5 * _unit(phi) - np.array([3.5, 0.0])
         far = np.array([x0, 0.0]) + 3.5 * _unit(phi)
         t_a = wait0 + (3.5 - _extent(phi) - PERSON - gap) / speed
         stand = np.array([_x_robot(v_ref, t_a), 0.0]) + _unit(phi) * (_extent(phi) + PERSON + gap)
@@ -510,7 +512,7 @@ class _Person:
     def __init__(self, spec: dict[str, Any]):
         self.spec, self.clock, self.blocked = spec, 0.0, 0.0
         self.xy, self.v = plan_state(spec, 0.0)
-        self.detoured = False
+        self.detours = 0
 
     def step(self, dt: float, body_gap: Any, statics: Sequence[Static], robot_xy: np.ndarray) -> None:
         nxt, v = plan_state(self.spec, self.clock + dt)
@@ -518,7 +520,7 @@ class _Person:
         if g_next < 0.0 and g_next < g_now:
             self.v = np.zeros(2)
             self.blocked += dt
-            if self.blocked >= PATIENCE_S and not self.detoured:
+            if self.blocked >= PATIENCE_S and self.detours < MAX_DETOURS:
                 self._detour(v, statics, robot_xy)
             return
         self.blocked = 0.0
@@ -539,9 +541,10 @@ class _Person:
             if all(float(s.distance(np.array([a, b])).min()) > PERSON + 0.02 for s in statics):
                 end = np.asarray(self.spec["waypoints"][-1], float)
                 self.spec = walker(self.spec["name"], [self.xy, a, b, end], [0.0, 0.0, 0.0, 0.0], speed)
-                self.clock, self.blocked, self.detoured = 0.0, 0.0, True
+                self.clock, self.blocked = 0.0, 0.0
+                self.detours += 1
                 return
-        self.detoured = True  # boxed in: keeps waiting
+        self.detours = MAX_DETOURS  # boxed in: keeps waiting
 
 
 def _static_grid(statics: Sequence[Static], risk: RiskConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -568,7 +571,7 @@ def _window_field(grid: tuple[np.ndarray, np.ndarray, np.ndarray], centre: np.nd
     lo, dist, group = grid
     i0 = np.floor((centre - WINDOW - lo) / VOXEL).astype(int)
     i0 = np.clip(i0, 0, np.array(dist.shape) - 1)
-    k = int(round(2 * WINDOW / VOXEL)) + 1
+    k = round(2 * WINDOW / VOXEL) + 1
     i1 = np.minimum(i0 + k, np.array(dist.shape))
     d = dist[i0[0]:i1[0], i0[1]:i1[1]].copy()
     g = group[i0[0]:i1[0], i0[1]:i1[1]].copy()
@@ -608,7 +611,7 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
     history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (robot xy, yaw), people xy, v
     queue = [np.zeros(2)] * delay_steps
     v_act = w_act = 0.0
-    steps = int(round(min(ep.duration_s, max_s or math.inf) * RATE_HZ))
+    steps = round(min(ep.duration_s, max_s or math.inf) * RATE_HZ)
     rec: dict[str, list[Any]] = {k: [] for k in ("t", "xy", "yaw", "vel", "om", "vr", "wr", "u", "pp", "y", "o")}
     fallbacks: dict[str, int] = {}
     field_ = None
@@ -639,8 +642,8 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
                 msgs.append(TrackedObject(id=i, label=ade20k.index("person"), risk_group=HIGH,
                                           position=(*then_xy[i], 0.0), velocity=(*noisy, 0.0), radius=PERSON,
                                           age_ms=LATENCY_S * 1e3, tracked_ms=(t_obs - first_seen[i]) * 1e3))
-            stamp = int(round(t * 1e9))
-        table = object_table(msgs, cfg, int(round(t * 1e9)), stamp, near=s.position)
+            stamp = round(t * 1e9)
+        table = object_table(msgs, cfg, round(t * 1e9), stamp, near=s.position)
         res = filt.filter(s, u_ref, field_, None, table)
         if res.fallback is not None:
             fallbacks[res.fallback] = fallbacks.get(res.fallback, 0) + 1
@@ -802,7 +805,8 @@ def table(summary: dict[str, Any]) -> str:
              "Success (reachable) | Time to goal p50 / max (s) | Time stopped mean / max (s) | Wall (s) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for fam, s in summary["families"].items():
-        succ = "–" if s["success_rate"] is None else f"{100 * s['success_rate']:.0f} % ({s['successes']}/{s['reachable']})"
+        succ = ("–" if s["success_rate"] is None
+                else f"{100 * s['success_rate']:.0f} % ({s['successes']}/{s['reachable']})")
         lines.append(f"| {fam} | {s['episodes']} ({s['seeds'][0]}–{s['seeds'][1]}) | {s['at_fault_contacts']} / "
                      f"{s['at_fault_episodes']} | {s['person_episodes']} | {s['static_episodes']} | "
                      f"{_f(s['idle_displacement_max_m'])} | {_f(s['blind_reverse_max_m'])} | "

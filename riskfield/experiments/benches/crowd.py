@@ -440,9 +440,24 @@ def crowd(
     variants: Annotated[str, typer.Option(help="motion,static (static: the static-barrier baseline).")] =
     "motion,static",
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/crowd"),
+    mode: Annotated[str, typer.Option(help="stack: the full service stack (the cases above); core: the filter "
+                                      "core in closed loop over the CrowdNav-style families.")] = "stack",
+    families: Annotated[str, typer.Option(help="core: comma-separated families (default: all).")] = "",
+    episodes: Annotated[int, typer.Option(help="core: randomised episodes per family.", min=1)] = 100,
+    seed: Annotated[int, typer.Option(help="core: the first episode's seed (seeds seed … seed+episodes-1).")] = 0,
+    results: Annotated[Path | None, typer.Option(help="core: rewrite this RESULTS.md's 'Crowd families (core)' "
+                                                 "section with the run's table.")] = None,
 ) -> None:
     """People crossing, coming head-on, overtaking, stopping and turning in a robot's way."""
     console = Console()
+    if mode == "core":
+        core(families, episodes, seed, out if out != Path("bench_out/crowd") else Path("bench_out/crowd_core"),
+             results, console)
+        return
+    if mode != "stack":
+        raise typer.BadParameter("mode must be stack or core")
+    if families:
+        raise typer.BadParameter("--families runs in --mode core only (the stack mode runs the kinds)")
     if perception not in ("gt", "sim"):
         raise typer.BadParameter("perception must be gt or sim")
     try:
@@ -482,3 +497,38 @@ def crowd(
         console.print("the filter has no object_motion setting: only the static barrier ran")
     console.print(f"wrote {out / 'tables.md'}, {out / 'summary.json'} and the plots ({wall:.0f} s, "
                   f"{wall / max(1, len(cases) * len(chosen)):.1f} s per case)")
+
+
+def core(families: str, episodes: int, seed: int, out: Path, results: Path | None, console: Console) -> None:
+    """``--mode core``: every family's episodes through the filter core (``crowd_core``)."""
+    from riskfield.experiments import crowd_core as C
+    from riskfield.services.safety_filter.config import FilterConfig
+    from riskfield.services.safety_filter.filter import SafetyFilter
+
+    chosen = [f.strip() for f in families.split(",") if f.strip()] or list(C.FAMILIES)
+    unknown = [f for f in chosen if f not in C.FAMILIES]
+    if unknown:
+        raise typer.BadParameter(f"unknown families {unknown}: use {', '.join(C.FAMILIES)}")
+    out.mkdir(parents=True, exist_ok=True)
+    filt = SafetyFilter(FilterConfig())
+    t0 = time.perf_counter()
+    rows: dict[str, list[dict[str, Any]]] = {}
+    fams: dict[str, Any] = {}
+    for fam in chosen:
+        rows[fam], wall = C.run_family(fam, episodes, seed, filt)
+        fams[fam] = C.summarise(rows[fam], wall)
+        s = fams[fam]
+        console.print(f"{fam:13s} {episodes} episodes, {wall:.0f} s: at-fault {s['at_fault_contacts']}, static "
+                      f"{s['static_contacts']}, idle {s['idle_displacement_max_m']:.2f} m, reverse "
+                      f"{s['blind_reverse_max_m']:.2f} m, success {_f(s['success_rate'])}")
+    command = f"riskfield bench crowd --mode core --episodes {episodes}" + (
+        f" --families {','.join(chosen)}" if chosen != list(C.FAMILIES) else "") + (f" --seed {seed}" if seed else "")
+    summary = {"benchmark": "crowd", "mode": "core", "command": command, "episodes_per_family": episodes,
+               "first_seed": seed, "backend": filt.backend, "wall_time_s": time.perf_counter() - t0,
+               "sim_time_s": sum(s["sim_s"] for s in fams.values()), "families": fams, "episodes": rows}
+    (out / "tables.md").write_text(C.markdown(summary))
+    write_json(out / "summary.json", summary)
+    if results is not None:
+        C.update_results(results, summary)
+    console.print(C.table(summary))
+    console.print(f"wrote {out / 'tables.md'} and {out / 'summary.json'} ({summary['wall_time_s']:.0f} s)")
