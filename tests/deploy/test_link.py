@@ -16,9 +16,7 @@ read on the robot's router, downsampled to 10 Hz as the shipped config has it.
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import json
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -28,16 +26,10 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from deploy.shaped_link import Shape, ShapedLink
 
 from riskfield.protocol import ENCODING, Keys, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
 from riskfield.testing import Collector, ServiceProcess, client_session, free_port, wait_alive, wait_until
-
-_spec = importlib.util.spec_from_file_location("rf_shaped_link", Path(__file__).with_name("shaped_link.py"))
-assert _spec is not None and _spec.loader is not None
-_mod = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _mod
-_spec.loader.exec_module(_mod)
-Shape, ShapedLink = _mod.Shape, _mod.ShapedLink
 
 REPO = Path(__file__).resolve().parents[2]
 ROBOT = "t_link"

@@ -3,23 +3,13 @@ wall-clock) it keeps to its rate and delay."""
 
 from __future__ import annotations
 
-import importlib.util
 import socket
-import sys
 import threading
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
-
-# The relay is a sibling file, loaded by path (tests/ folders are not packages).
-_spec = importlib.util.spec_from_file_location("rf_shaped_link", Path(__file__).with_name("shaped_link.py"))
-assert _spec is not None and _spec.loader is not None
-_mod = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _mod
-_spec.loader.exec_module(_mod)
-Shape, ShapedLink = _mod.Shape, _mod.ShapedLink
+from deploy.shaped_link import Shape, ShapedLink
 
 
 @pytest.fixture
