@@ -1,7 +1,8 @@
 # syntax=docker/dockerfile:1.7
 # riskfield robot image: the safety filter and the hardware bridges (LIMO serial, joystick,
-# MAVLink) with the `robot` extra only — numpy, scipy, osqp, numba (the filter's compiled step;
-# aarch64 wheels exist), pyserial, pymavlink, evdev. No open3d, no torch: it fits a Jetson or a
+# MAVLink) and the camera node, with the robot site's extras only (deploy/requirements.py SITES):
+# `robot` — numpy, scipy, osqp, numba (the filter's compiled step; aarch64 wheels exist), pyserial,
+# pymavlink, evdev — and `camera` (PyAV). No open3d, no torch: it fits a Jetson or a
 # Raspberry Pi. Multi-arch with BuildKit, or with the classic builder on each architecture:
 #
 #   docker buildx build --platform linux/arm64,linux/amd64 -f deploy/Dockerfile.robot \
@@ -36,7 +37,7 @@ COPY pyproject.toml deploy/requirements.py ./
 # Then: no torch, no open3d; the test suites shipped inside numpy, scipy and numba trimmed.
 # hadolint ignore=DL3013
 RUN set --; if ls /wheels/*.whl >/dev/null 2>&1; then set -- --no-index --find-links /wheels; fi; \
-    python requirements.py robot > requirements.txt \
+    python requirements.py robot-site > requirements.txt \
  && pip install "$@" --upgrade setuptools wheel \
  && pip install "$@" -r requirements.txt \
  && ! pip show open3d torch 2>/dev/null | grep -q '^Name:' \

@@ -6,16 +6,16 @@
 # DIR (default deploy/secrets/certs) receives ca.pem + ca.key (kept if they already exist,
 # so re-running adds participants without invalidating the others) and NAME.pem + NAME.key
 # per participant. The certificate's common name is NAME, and NAME must be the participant's
-# user name (deploy/make-users.sh): the routers' access control grants a role only when the
-# session's user AND its certificate's common name are both the role's name
-# (deploy/zenoh/router-secure.json5, subjects), so one node's certificate with another node's
-# password gets no role. Routers are router-server and router-robot (user "router").
+# user name (deploy/make-users.sh): the routers' access control grants an identity only when the
+# session's user AND its certificate's common name are both that identity, ROBOT.ROLE
+# (services/runtime/acl.py, subjects), so one node's certificate with another node's password
+# gets no rights. The server's router is router-server; a robot's router is ROBOT.router.
+# `riskfield secrets --robot ID ...` calls this script with every identity of a deployment.
 # SANs are DNS:host or IP:addr; without any,
 # the certificate holds DNS:NAME, DNS:localhost and IP:127.0.0.1, which is what a container
 # or a loopback test dials. Every leaf certificate is usable both as a TLS server (a router
 # listening) and as a TLS client (a node or a router dialling, mutual TLS).
 #
-# Without NAMEs it makes the default set: the two site routers, every service and an operator.
 # Keys are ECDSA P-256 in PKCS#8 PEM (what rustls, inside Zenoh, reads). Needs openssl.
 set -euo pipefail
 
@@ -36,8 +36,8 @@ command -v openssl >/dev/null || { echo "make-certs: openssl is required" >&2; e
 
 NAMES=("$@")
 if [ ${#NAMES[@]} -eq 0 ]; then
-  NAMES=(router-server router-robot safety-filter mapping perception navigator simulator
-         limo joystick mavlink operator teleop ros2-bridge zenoh-bridge-ros2dds)
+  echo "make-certs: name the participants (router-server, ROBOT.ROLE), or run: riskfield secrets --robot ID ..." >&2
+  exit 2
 fi
 
 mkdir -p "$OUT"

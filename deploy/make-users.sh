@@ -6,12 +6,12 @@
 # DIR (default deploy/secrets) receives users.txt, the routers' dictionary (`user:password`
 # lines, transport/auth/usrpwd/dictionary_file), and USER.env per user with RISKFIELD_USER and
 # RISKFIELD_PASSWORD for that node's environment (compose env_file, systemd EnvironmentFile).
-# Existing users keep their password; new ones get 24 random URL-safe characters.
-# The user name is the role the routers' access control knows (deploy/zenoh/router-secure.json5),
-# and it must also be the common name of the node's certificate (deploy/make-certs.sh NAME):
-# a role needs both. Each role may put only its own exact keys (safety-filter: cmd/safe;
-# joystick, teleop, navigator, ros2-bridge: cmd/ref; operator: cmd/ref, nav/goal, the risk
-# config; the other services their data); any other user only subscribes and queries.
+# Existing users keep their password; new ones get 24 random URL-safe characters. Every file is
+# mode 0600: Zenoh's usrpwd needs the passwords themselves (it checks an HMAC of the stored one, so
+# it cannot take hashes), so only the user that runs the service may read them.
+# The user names are a deployment's identities, ROBOT.ROLE, which the routers' generated access
+# control knows (services/runtime/acl.py); `riskfield secrets --robot ID ...` calls this script
+# with all of them. Each name must also be its node certificate's common name (deploy/make-certs.sh).
 set -euo pipefail
 
 OUT=""
@@ -26,8 +26,8 @@ shift $((OPTIND - 1))
 [ -n "$OUT" ] || OUT="$(cd "$(dirname "$0")" && pwd)/secrets"
 USERS=("$@")
 if [ ${#USERS[@]} -eq 0 ]; then
-  USERS=(router safety-filter mapping perception navigator simulator limo joystick mavlink operator teleop
-         ros2-bridge zenoh-bridge-ros2dds)
+  echo "make-users: name the identities (ROBOT.ROLE), or run: riskfield secrets --robot ID ..." >&2
+  exit 2
 fi
 
 mkdir -p "$OUT"

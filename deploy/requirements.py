@@ -3,6 +3,8 @@
 so that an edit of the source rebuilds only the project's own install and the kernels' warm-up.
 
     python deploy/requirements.py robot,mapping,sim > requirements.txt
+    python deploy/requirements.py robot-site > requirements.txt     # a site's extras (SITES)
+    python deploy/requirements.py --extras robot-site               # robot,camera (for pip's [...])
 """
 
 from __future__ import annotations
@@ -10,6 +12,11 @@ from __future__ import annotations
 import re
 import sys
 import tomllib
+
+#: The extras of the nodes a site runs. The robot computer runs the filter, the hardware bridges and the
+#: camera (docker-compose.yml's robot profile, ``riskfield up --profile robot``, deploy/robot/install.sh):
+#: no torch, no open3d.
+SITES: dict[str, tuple[str, ...]] = {"robot-site": ("robot", "camera")}
 
 
 def requirements(extras: list[str], project: dict) -> list[str]:
@@ -36,7 +43,13 @@ def requirements(extras: list[str], project: dict) -> list[str]:
 
 
 if __name__ == "__main__":
+    args = sys.argv[1:]
+    if args[:1] == ["--extras"]:  # no pyproject needed: deploy/robot/install.sh runs it from anywhere
+        if len(args) < 2 or args[1] not in SITES:
+            sys.exit(f"requirements: --extras SITE, one of {', '.join(SITES)}")
+        print(",".join(SITES[args[1]]))
+        sys.exit(0)
     with open("pyproject.toml", "rb") as f:
         proj = tomllib.load(f)["project"]
-    wanted = [e for e in (sys.argv[1] if len(sys.argv) > 1 else "").split(",") if e]
+    wanted = [x for e in (args[0] if args else "").split(",") if e for x in SITES.get(e, (e,))]
     print("\n".join(requirements(wanted, proj)))

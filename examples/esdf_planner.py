@@ -1,19 +1,19 @@
-"""Plan a path on riskfield's semantic ESDF, depending on nothing of riskfield but its protocol.
+"""Plan a path on riskfield's semantic ESDF with the planner client (``riskfield.client``).
 
     python examples/esdf_planner.py --connect tcp/127.0.0.1:7447 --start 0 0 --goal 3 1 \\
         --clearance 0.2 [--send-goal]
 
-Subscribes to ``rf/{robot}/map/esdf``, takes the newest grid, and runs A* over the grid cells
-at the robot's height (a 2-D slice has nz = 1). A cell is traversable when its signed
+Subscribes to ``rf/{robot}/map/esdf`` (``EsdfClient``), takes the first grid, and runs A* over the
+grid cells at the robot's height (a 2-D slice has nz = 1). A cell is traversable when its signed
 distance is at least ``clearance`` — the ESDF already carries the class-dependent inflation,
 so the path keeps more room from people and pets than from walls. The step cost grows near
-obstacles so the path prefers open space. With ``--send-goal`` the path is sent to the
-navigator as a ``NavGoal``.
+obstacles so the path prefers open space. The cell path is then shortened to the waypoints whose
+straight segments the client calls clear with the clearance (``EsdfMap.segment_clear``, the
+filter's interpolation and in-map rule), so the planner refuses exactly the ends the filter
+would brake at. With ``--send-goal`` the waypoints go to the navigator as a ``NavGoal``.
 
-The start and the goal are checked with the field API (``riskfield.services.fields``: the
-interpolated distance and the in-map rule the safety filter uses), so the planner refuses exactly
-the ends the filter would brake at. Only ``riskfield.protocol`` and ``riskfield.services.fields``
-(numpy, pydantic, msgpack) and ``eclipse-zenoh`` are needed.
+Needs ``riskfield`` without extras (``riskfield.client`` and ``riskfield.protocol``: numpy,
+pydantic, msgpack and ``eclipse-zenoh``); nothing of the services.
 """
 
 from __future__ import annotations
@@ -22,12 +22,11 @@ import argparse
 import heapq
 import json
 import sys
-import threading
 
 import numpy as np
 
-from riskfield.protocol import ENCODING, EsdfGrid, Keys, NavGoal, decode, encode
-from riskfield.services.fields import EsdfField
+from riskfield.client import EsdfClient, EsdfMap
+from riskfield.protocol import ENCODING, EsdfGrid, Keys, NavGoal, encode
 
 
 def _slice(grid: EsdfGrid, z: float) -> np.ndarray:
@@ -38,26 +37,24 @@ def _slice(grid: EsdfGrid, z: float) -> np.ndarray:
 
 
 def bounds(grid: EsdfGrid) -> tuple[tuple[float, float], tuple[float, float]]:
-    """The (x, y) ranges the grid's cells cover, map frame: cell i spans o + (i ± ½)·s."""
-    nx, ny = grid.distance.shape[:2]
-    ox, oy, vs = grid.origin[0], grid.origin[1], grid.voxel_size
-    return (ox - vs / 2, ox + (nx - 0.5) * vs), (oy - vs / 2, oy + (ny - 0.5) * vs)
+    """The (x, y) ranges of the map, map frame: the outer voxel centres (the filter's in-map rule)."""
+    lo, hi = EsdfMap(grid).bounds()
+    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
 
 
 def unplannable(grid: EsdfGrid, start: tuple[float, float], goal: tuple[float, float], clearance: float,
                 z: float = 0.0) -> str | None:
     """Why no path can exist before searching: an end outside the map or too close to an
-    obstacle; ``None`` when both ends are usable."""
+    obstacle (the client's interpolated distance); ``None`` when both ends are usable."""
+    m = EsdfMap(grid)
     (x0, x1), (y0, y1) = bounds(grid)
-    d = _slice(grid, z)
-    for name, (x, y) in (("start", start), ("goal", goal)):
-        if not (x0 <= x < x1 and y0 <= y < y1):
+    ends = m.query([[*start, z], [*goal, z]])
+    for k, (name, (x, y)) in enumerate((("start", start), ("goal", goal))):
+        if not ends.inside[k]:
             return (f"the {name} ({x:g}, {y:g}) is outside the map, which covers x {x0:.2f}..{x1:.2f} m "
                     f"and y {y0:.2f}..{y1:.2f} m")
-        i = min(round((x - grid.origin[0]) / grid.voxel_size), d.shape[0] - 1)
-        j = min(round((y - grid.origin[1]) / grid.voxel_size), d.shape[1] - 1)
-        if d[i, j] < clearance:
-            return (f"the {name} ({x:g}, {y:g}) is {max(d[i, j], 0.0):.2f} m from an obstacle, "
+        if ends.distance[k] < clearance:
+            return (f"the {name} ({x:g}, {y:g}) is {max(ends.distance[k], 0.0):.2f} m from an obstacle, "
                     f"less than the clearance {clearance:g} m")
     return None
 
@@ -69,7 +66,7 @@ def plan(grid: EsdfGrid, start: tuple[float, float], goal: tuple[float, float], 
 
     Returns an (K, 2) array of cell centres from start to goal (map frame, metres).
     """
-    ends = EsdfField.from_grid(grid).query(np.array([[*start, z], [*goal, z]], dtype=float))
+    ends = EsdfMap(grid).query([[*start, z], [*goal, z]])
     if not ends.inside.all() or (ends.distance < clearance).any():
         return None
     d = _slice(grid, z)
@@ -115,6 +112,23 @@ def simplify(path: np.ndarray, every: int = 5) -> np.ndarray:
     return path[keep]
 
 
+def shortcut(m: EsdfMap, path: np.ndarray, clearance: float, z: float = 0.0) -> tuple[np.ndarray, float]:
+    """The fewest waypoints of ``path`` (greedily, from the start) whose straight segments the client
+    calls clear with ``clearance``; a cell step that is not clear itself (the interpolant between
+    two free cell centres can dip below them) is kept as it is. Returns the waypoints and the
+    smallest distance sampled along their segments."""
+    keep, lowest, i = [0], np.inf, 0
+    while i < len(path) - 1:
+        for j in range(len(path) - 1, i, -1):
+            check = m.segment_clear((*path[i], z), (*path[j], z), margin=clearance)
+            if check.clear or j == i + 1:
+                lowest = min(lowest, check.min_distance)
+                keep.append(j)
+                i = j
+                break
+    return path[keep], float(lowest)
+
+
 def main(argv: list[str] | None = None) -> int:
     import zenoh
 
@@ -131,27 +145,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     keys = Keys(robot=args.robot, prefix=args.prefix)
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"client"')
-    cfg.insert_json5("connect/endpoints", json.dumps([args.connect]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    got: list[EsdfGrid] = []
-    ready = threading.Event()
-
-    def on_grid(sample: zenoh.Sample) -> None:
-        try:
-            got.append(decode(sample.payload.to_bytes(), EsdfGrid))
-            ready.set()
-        except ValueError as exc:
-            print(f"ignored a bad ESDF message: {exc}", file=sys.stderr)
-
-    with zenoh.open(cfg) as session:
-        sub = session.declare_subscriber(keys.esdf, on_grid)
-        if not ready.wait(args.timeout):
-            print(f"no ESDF on {keys.esdf} within {args.timeout} s", file=sys.stderr)
+    with EsdfClient(args.connect, robot=args.robot, prefix=args.prefix) as esdf:
+        print(f"waiting for an ESDF on {esdf.key}", file=sys.stderr, flush=True)
+        m = esdf.wait(args.timeout)
+        if m is None:
+            print(f"no ESDF on {esdf.key} within {args.timeout} s", file=sys.stderr)
             return 2
-        sub.undeclare()
-        grid = got[-1]
+        grid = m.grid
         reason = unplannable(grid, tuple(args.start), tuple(args.goal), args.clearance, args.z)
         if reason is not None:
             print(f"no path: {reason}", file=sys.stderr)
@@ -160,12 +160,13 @@ def main(argv: list[str] | None = None) -> int:
         if path is None:
             print(f"no path keeps the clearance {args.clearance:g} m between start and goal", file=sys.stderr)
             return 1
-        waypoints = simplify(path)
-        print(json.dumps({"cells": len(path), "waypoints": waypoints.round(3).tolist()}))
+        waypoints, lowest = shortcut(m, path, args.clearance, args.z)
+        print(json.dumps({"cells": len(path), "waypoints": waypoints.round(3).tolist(),
+                          "min_distance": round(lowest, 4), "stamp_ns": m.stamp_ns}))
         if args.send_goal:
             goal = NavGoal(waypoints=np.column_stack([waypoints, np.zeros(len(waypoints))]), tolerance=0.1,
                            loop=False)
-            session.put(keys.nav_goal, encode(goal), encoding=zenoh.Encoding(ENCODING))
+            esdf.session.put(keys.nav_goal, encode(goal), encoding=zenoh.Encoding(ENCODING))
     return 0
 
 

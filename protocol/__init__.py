@@ -13,6 +13,8 @@ from .errors import DecodeError, EncodeError
 from .keys import TOPICS, Keys
 from .messages import (
     MESSAGE_TYPES,
+    Alignment,
+    CommandLock,
     DepthImage,
     DistanceQuery,
     DistanceReply,
@@ -35,7 +37,7 @@ from .messages import (
 from .risk import RiskConfig, RiskGroup
 
 __all__ = [
-    "DEFAULT_LIMITS", "ENCODING", "MESSAGE_TYPES", "REGISTRY", "TOPICS",
+    "DEFAULT_LIMITS", "ENCODING", "MESSAGE_TYPES", "REGISTRY", "TOPICS", "Alignment", "CommandLock",
     "DecodeError", "DepthImage", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
     "Keys", "Limits", "LimoDiagnostics", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig",
     "RiskGroup",

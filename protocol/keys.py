@@ -6,6 +6,8 @@ import re
 from dataclasses import dataclass
 
 from .messages import (
+    Alignment,
+    CommandLock,
     DepthImage,
     DistanceQuery,
     EsdfGrid,
@@ -36,6 +38,7 @@ TOPICS: dict[str, type[Message]] = {
     "state/relocalise": RobotState,  # additive: an announced jump of the state (relocalisation, reset)
     "cmd/ref": VelocityCommand,
     "cmd/safe": VelocityCommand,
+    "cmd/lock": CommandLock,  # additive: locks on the cmd/ref arbitration (twist_mux's lock topics)
     "safety/status": SafetyStatus,
     "nav/goal": NavGoal,
     "config/risk": RiskConfig,
@@ -43,6 +46,7 @@ TOPICS: dict[str, type[Message]] = {
     "limo/diagnostics": LimoDiagnostics,  # simulation only: perfect pointmap and labels, stamped like the image
     "map/objects": TrackedObjects,  # additive: tracked people/animals with velocities, stamped like map/esdf
     "sim/actors": SimActors,  # additive, simulation only: ground truth of the moving objects
+    "perception/alignment": Alignment,  # additive: SLAM world → odometry similarity, with its uncertainty
 }
 
 
@@ -75,6 +79,7 @@ PRIORITIES = ("real_time", "interactive_high", "interactive_low", "data_high", "
 QOS: dict[str, Qos] = {
     "cmd/safe": Qos("real_time", express=True),
     "cmd/ref": Qos("real_time", express=True),
+    "cmd/lock": Qos("real_time", drop=False, express=True),  # sent on a change: must arrive
     "state": Qos("interactive_high", express=True),
     "state/relocalise": Qos("interactive_high", drop=False, express=True),  # sent once per jump: must arrive
     "safety/status": Qos("interactive_low"),
@@ -88,6 +93,7 @@ QOS: dict[str, Qos] = {
     "perception/frame": Qos("data_low"),
     "sim/truth": Qos("data_low"),
     "limo/diagnostics": Qos("background"),
+    "perception/alignment": Qos("data_high"),  # small; bounds the filter's distances, with the map
 }
 STATUS_QOS = Qos("background")
 
@@ -99,6 +105,103 @@ def qos_of(relative: str | None) -> Qos:
     if relative.startswith("status/"):
         return STATUS_QOS
     return QOS.get(relative, Qos())
+
+
+#: Where a role runs: ``robot`` (the robot's computer and its own router) or ``server`` (the site
+#: its router dials). The routers forward only what one site produces and the other consumes.
+SITES = ("robot", "server")
+
+
+@dataclass(frozen=True)
+class Role:
+    """One identity of a deployment, per robot: a user name and a certificate common name that the
+    routers' access control knows (``{robot}.{role}``)."""
+
+    site: str
+    service: str | None = None  # the node whose status/alive keys it owns; None: not a riskfield node
+
+    def __post_init__(self) -> None:
+        if self.site not in SITES:
+            raise ValueError(f"site {self.site!r}: use one of {', '.join(SITES)}")
+
+
+#: Every role of a deployment. ``operator`` is a person's tools (dashboards, ``riskfield replay``,
+#: goals, risk configurations); ``planner`` an external client of the map; ``record`` and ``viewer``
+#: read everything of their robot.
+ROLES: dict[str, Role] = {
+    "safety-filter": Role("robot", "safety-filter"),
+    "limo": Role("robot", "limo"),
+    "mavlink": Role("robot", "mavlink"),
+    "joystick": Role("robot", "joystick"),
+    "teleop": Role("robot", "keyboard"),
+    "camera": Role("robot", "camera"),
+    "ros2-bridge": Role("robot", "ros2-bridge"),
+    "zenoh-bridge-ros2dds": Role("robot"),
+    "perception": Role("server", "perception"),
+    "mapping": Role("server", "mapping"),
+    "simulator": Role("server", "simulator"),
+    "navigator": Role("server", "navigator"),
+    "operator": Role("server", "operator"),
+    "relay": Role("server", "relay"),
+    "record": Role("server", "record"),
+    "viewer": Role("server", "viewer"),
+    "planner": Role("server"),
+}
+
+#: Roles that read every key of their robot (``{prefix}/{robot}/**``).
+READ_ALL = ("operator", "record", "viewer")
+
+
+@dataclass(frozen=True)
+class Route:
+    """Who puts a key and who takes it (subscribes, or queries when the key is a queryable)."""
+
+    producers: tuple[str, ...]
+    consumers: tuple[str, ...] = ()
+
+
+#: Relative key → its producers and consumers: the one declaration the routers' access control is
+#: generated from (``riskfield acl``, ``services/runtime/acl.py``). A key or role missing here is
+#: refused by the secure routers. ``map/esdf/query``'s producer serves it, its consumers query it.
+#: Besides these, each role with a service puts its own ``status/{service}`` and declares its own
+#: ``alive/{service}``, and ``READ_ALL`` roles read every key.
+ROUTES: dict[str, Route] = {
+    "camera/image": Route(("simulator", "camera"), ("perception", "ros2-bridge")),
+    "camera/depth": Route(("simulator",), ("perception",)),
+    "perception/frame": Route(("perception",), ("mapping", "camera")),  # camera: pace=perception's acks
+    "perception/alignment": Route(("perception",), ("mapping", "safety-filter")),
+    "map/esdf": Route(("mapping",), ("safety-filter", "navigator", "ros2-bridge", "planner")),
+    "map/esdf3d": Route(("mapping",), ("planner",)),
+    "map/esdf/query": Route(("mapping",), ("navigator", "planner")),
+    "map/objects": Route(("mapping",), ("safety-filter", "navigator", "planner")),
+    "state": Route(("simulator", "limo", "mavlink", "ros2-bridge"),
+                   ("perception", "mapping", "safety-filter", "navigator", "ros2-bridge", "planner")),
+    "state/relocalise": Route(("simulator",), ("mapping", "safety-filter")),
+    "cmd/ref": Route(("joystick", "teleop", "navigator", "operator", "ros2-bridge"), ("safety-filter",)),
+    "cmd/lock": Route(("joystick", "teleop", "operator"), ("safety-filter",)),
+    "cmd/safe": Route(("safety-filter",), ("limo", "mavlink", "simulator", "ros2-bridge")),
+    "safety/status": Route(("safety-filter",), ("ros2-bridge", "joystick")),
+    "nav/goal": Route(("operator",), ("navigator",)),
+    "config/risk": Route(("operator",), ("mapping", "safety-filter")),
+    "sim/truth": Route(("simulator",), ("perception",)),
+    "sim/spawn": Route(("operator",), ("simulator",)),
+    "sim/reset": Route(("operator",), ("simulator",)),
+    "sim/actors": Route(("simulator",), ()),
+    "limo/diagnostics": Route(("limo",), ()),
+    "relay/**": Route(("relay",), ()),
+}
+
+#: Keys outside ``{prefix}/`` that the ROS 2 bridges put and read, relative to the robot's ROS
+#: namespace (``{robot}/...``; docs/ros2.md).
+ROS_ROUTES: dict[str, Route] = {
+    "cmd_vel": Route(("ros2-bridge",), ("zenoh-bridge-ros2dds",)),
+    "riskfield/costmap": Route(("ros2-bridge",), ("zenoh-bridge-ros2dds",)),
+    "diagnostics": Route(("ros2-bridge",), ("zenoh-bridge-ros2dds",)),
+    "tf": Route(("ros2-bridge", "zenoh-bridge-ros2dds"), ("ros2-bridge", "zenoh-bridge-ros2dds")),
+    "cmd_vel_smoothed": Route(("zenoh-bridge-ros2dds",), ("ros2-bridge",)),
+    "odom": Route(("zenoh-bridge-ros2dds",), ("ros2-bridge",)),
+    "tf_static": Route(("zenoh-bridge-ros2dds",), ("ros2-bridge",)),
+}
 
 
 def _check(value: str, what: str, allow_slash: bool) -> str:
@@ -136,6 +239,7 @@ class Keys:
     state_relocalise = property(lambda self: self.key("state/relocalise"))
     cmd_ref = property(lambda self: self.key("cmd/ref"))
     cmd_safe = property(lambda self: self.key("cmd/safe"))
+    cmd_lock = property(lambda self: self.key("cmd/lock"))
     safety_status = property(lambda self: self.key("safety/status"))
     nav_goal = property(lambda self: self.key("nav/goal"))
     risk_config = property(lambda self: self.key("config/risk"))
@@ -144,6 +248,7 @@ class Keys:
     sim_actors = property(lambda self: self.key("sim/actors"))
     sim_reset = property(lambda self: self.key("sim/reset"))
     objects = property(lambda self: self.key("map/objects"))
+    alignment = property(lambda self: self.key("perception/alignment"))
 
     def alive(self, service: str) -> str:
         return self.key(f"alive/{_check(service, 'service', False)}")

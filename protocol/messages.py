@@ -90,13 +90,22 @@ class Image(Message):
     them); ``None``: uncalibrated, or distorted pixels."""
 
 
+DEPTH16, DEPTH32 = ArraySpec("<f2", (None, None)), ArraySpec("<f4", (None, None))
+
+
 class PerceptionFrame(Message):
-    """A camera-frame pointmap with pose, per-pixel confidence and ADE20K labels."""
+    """A camera-frame pointmap with pose, per-pixel confidence and ADE20K labels.
+
+    The pointmap comes as ``points`` (HxWx3 float32), or compact as ``depth`` (HxW, z in metres,
+    float16 or float32, 0 where nothing was seen) with ``intrinsics``: point = depth · ((u − cx)/fx,
+    (v − cy)/fy, 1), the pinhole convention of ``DepthImage`` (``pointmap()`` rebuilds it)."""
 
     SCHEMA: ClassVar[str] = "PerceptionFrame/1"
 
     T_WC: Annotated[np.ndarray, ArraySpec("<f8", (4, 4))]
-    points: Annotated[np.ndarray, ArraySpec("<f4", (None, None, 3))]
+    points: Annotated[np.ndarray, ArraySpec("<f4", (None, None, 3))] | None = None
+    """The camera-frame pointmap; ``None`` when the frame carries ``depth`` instead (additive: v1
+    senders always send it)."""
     confidence: Annotated[np.ndarray, ArraySpec("<f4", (None, None))]
     labels: Annotated[np.ndarray, ArraySpec("<u2", (None, None))]
     keyframe_id: int
@@ -108,15 +117,58 @@ class PerceptionFrame(Message):
     intrinsics: tuple[PosFloat, PosFloat, FiniteFloat, FiniteFloat] | None = None
     """Addition: pinhole intrinsics (fx, fy, cx, cy, pixels) of the pointmap's own pixel grid, when
     the backend knows them (sim, calibrated cameras); the mapper then integrates projectively."""
+    depth: Annotated[
+        Any, Field(json_schema_extra={"anyOf": [DEPTH16.json_schema(), DEPTH32.json_schema(), {"type": "null"}]})
+    ] = None
+    """Additive: the compact pointmap, z (m) along each pixel's ray, ``<f2`` or ``<f4``, ≥ 0 (0: no
+    return), with ``intrinsics`` required; sent instead of ``points`` (a quarter of their bytes in
+    float16, whose rounding is ≤ 1 mm up to 4 m and ≤ 2 mm up to 8 m)."""
+
+    @field_validator("depth", mode="plain")
+    @classmethod
+    def _depth(cls, value: Any, info: ValidationInfo) -> np.ndarray | None:
+        if value is None:
+            return None
+        half = (value.get("dtype") if isinstance(value, dict) else getattr(value, "dtype", None)) in ("<f2", np.float16)
+        arr = (DEPTH16 if half else DEPTH32).check(value, info)
+        if arr.size and float(arr.min()) < 0.0:
+            raise ValueError("depth must be ≥ 0 (0: no return)")
+        return arr
 
     @model_validator(mode="after")
     def _consistent(self) -> PerceptionFrame:
-        hw = self.points.shape[:2]
+        if self.points is None and self.depth is None:
+            raise ValueError("a frame needs points or depth")
+        if self.points is not None and self.depth is not None:
+            raise ValueError("a frame carries points or depth, not both")
+        if self.depth is not None and self.intrinsics is None:
+            raise ValueError("depth needs intrinsics")
+        hw = self.pixels
         if self.confidence.shape != hw:
-            raise ValueError(f"confidence shape {list(self.confidence.shape)} differs from points {list(hw)}")
+            raise ValueError(f"confidence shape {list(self.confidence.shape)} differs from the pointmap's {list(hw)}")
         if self.labels.shape != hw:
-            raise ValueError(f"labels shape {list(self.labels.shape)} differs from points {list(hw)}")
+            raise ValueError(f"labels shape {list(self.labels.shape)} differs from the pointmap's {list(hw)}")
         return self
+
+    @property
+    def pixels(self) -> tuple[int, int]:
+        """(H, W) of the pointmap's pixel grid."""
+        grid = self.points if self.points is not None else self.depth
+        return tuple(grid.shape[:2])  # type: ignore[union-attr,return-value]
+
+    def pointmap(self) -> np.ndarray:
+        """The camera-frame pointmap (HxWx3 float32): ``points``, or rebuilt from ``depth`` and
+        ``intrinsics`` (the pinhole of ``services.geometry.camera.PinholeCamera``)."""
+        if self.points is not None:
+            return self.points
+        fx, fy, cx, cy = self.intrinsics  # type: ignore[misc]  # the validator requires them with depth
+        z = np.asarray(self.depth, np.float32)
+        h, w = z.shape
+        out = np.empty((h, w, 3), np.float32)
+        out[..., 0] = ((np.arange(w, dtype=np.float32) - np.float32(cx)) / np.float32(fx))[None, :] * z
+        out[..., 1] = ((np.arange(h, dtype=np.float32) - np.float32(cy)) / np.float32(fy))[:, None] * z
+        out[..., 2] = z
+        return out
 
 
 class DepthImage(Message):
@@ -154,6 +206,10 @@ class EsdfGrid(Message):
     groups: list[str]
     max_distance: PosFloat
     unknown_is_occupied: bool
+    observed_free: Annotated[np.ndarray, ArraySpec("|u1", (None, None, None))] | None = None
+    """Additive: 1 where the mapper observed the cell's floor free within its ``observed_free_s``
+    before the stamp and no obstacle stands in it, else 0 (unknown is not free); None: not kept.
+    What an evading robot may retreat into."""
 
     @model_validator(mode="after")
     def _consistent(self) -> EsdfGrid:
@@ -161,6 +217,9 @@ class EsdfGrid(Message):
             raise ValueError(
                 f"risk_group shape {list(self.risk_group.shape)} differs from distance {list(self.distance.shape)}"
             )
+        if self.observed_free is not None and self.observed_free.shape != self.distance.shape:
+            raise ValueError(f"observed_free shape {list(self.observed_free.shape)} differs from distance "
+                             f"{list(self.distance.shape)}")
         if self.risk_group.size and int(self.risk_group.max()) > len(self.groups):
             raise ValueError(f"risk_group id {int(self.risk_group.max())} has no entry in groups")
         return self
@@ -238,6 +297,11 @@ class VelocityCommand(Message):
     linear: Vec3
     angular: Vec3
     source: str
+    engaged: bool | None = None
+    """Additive: whether the source asks for control (a joystick's dead-man held). ``False``: the
+    command does not renew the source's claim in the filter's arbitration (``cmd/ref`` sources with
+    priorities, ``ref_sources``), so a lower-priority source takes over once the claim times out;
+    ``None`` (older senders, planners): every command claims."""
 
     @classmethod
     def zero(cls, source: str, **kw: Any) -> VelocityCommand:
@@ -268,6 +332,56 @@ class SafetyStatus(Message):
     # objects on a collision course had their own barrier row on this step.
     yielding: bool = False
     object_rows: Annotated[int, Field(ge=0)] = 0
+    # Additive: with the filter's opt-in ``evade``, the command is a retreat from someone coming at
+    # the stopped robot, into floor the map observed free.
+    evading: bool = False
+    # Additive: the cmd/ref source the arbitration listens to now (None: no source is live, or a
+    # lock holds them all: ``fallback = "locked"``), and the risk configuration in force: its
+    # version (0: the built-in defaults; +1 on every change taken, kept across restarts with
+    # ``state_dir``) and hash (``RiskConfig.digest``).
+    ref_source: str | None = None
+    risk_version: Annotated[int, Field(ge=0)] = 0
+    risk_hash: str = ""
+    # Additive: while perception's map scale is uncertain (``perception/alignment``) the filter reads
+    # the field shrunk by ``distance_margin`` (m, at the critical point) and caps the speed at
+    # ``speed_cap`` (m/s; None: no cap); ``scale_uncertain`` says so.
+    scale_uncertain: bool = False
+    distance_margin: NonNegFloat = 0.0
+    speed_cap: NonNegFloat | None = None
+
+
+class Alignment(Message):
+    """Perception's similarity from its SLAM world into the odometry frame (REP 105's ``odom``,
+    metric): a SLAM point x lands at ``scale · R(rotation) · x + translation``. ``scale_sigma`` is the
+    scale's relative standard deviation, ``residual`` the RMS distance (m) between the camera positions
+    mapped by it and odometry's over the window, ``pairs`` how many there were, ``baseline`` their
+    spread (m), ``source`` where the scale came from (``floor``: the floor plane and the camera's height,
+    before the robot has moved; ``motion``: camera positions against odometry, Umeyama; ``fused``: both),
+    ``converged`` whether ``scale_sigma`` is below perception's threshold."""
+
+    SCHEMA: ClassVar[str] = "Alignment/1"
+
+    scale: PosFloat
+    rotation: Quat
+    translation: Vec3
+    scale_sigma: NonNegFloat
+    residual: NonNegFloat
+    pairs: Annotated[int, Field(ge=0)] = 0
+    baseline: NonNegFloat = 0.0
+    source: Literal["none", "floor", "motion", "fused"] = "none"
+    converged: bool = False
+
+
+class CommandLock(Message):
+    """Additive (``cmd/lock``): a lock on the ``cmd/ref`` arbitration, as twist_mux's lock topics.
+    While ``locked`` (or, with a lock timeout, while its source is silent) every source below the
+    lock's priority is held and the filter brakes (``fallback = "locked"``). Each ``source`` holds
+    its own lock; only the same source releases it."""
+
+    SCHEMA: ClassVar[str] = "CommandLock/1"
+
+    locked: bool
+    source: str
 
 
 class NavGoal(Message):
@@ -308,6 +422,10 @@ class NodeStatus(Message):
     handler_ms_p99: NonNegFloat = 0.0
     handler_ms_max: NonNegFloat = 0.0
     extra: dict[str, FiniteFloat] = Field(default_factory=dict)
+    # Additive: the risk configuration in force in a node that uses one (mapping, safety-filter):
+    # version and hash as in ``SafetyStatus``; None in the others.
+    risk_version: Annotated[int, Field(ge=0)] | None = None
+    risk_hash: str | None = None
 
 
 class LimoDiagnostics(Message):
@@ -407,7 +525,9 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     SafetyStatus,
     NavGoal,
     NodeStatus,
+    CommandLock,
     LimoDiagnostics,
     TrackedObjects,
     SimActors,
+    Alignment,
 )

@@ -6,10 +6,21 @@ Defaults follow the paper's benchmark: margins 0.15 / 0.05 / 0.00 m for high / m
 floor and ceiling (and other free surfaces) are never obstacles; walls and all other
 structure are obstacles of the low group; ``person`` and ``animal`` are high risk,
 ``ball`` low. Higher risk also gets smaller class-K gains (earlier, gentler braking).
+
+**The floor.** A configuration shapes how far the robot keeps from what the map holds, never
+whether it is there: every label except the free surfaces of ``FREE_LABELS`` (floor, ceiling,
+road, grass, …) is an obstacle of at least the last group (the lowest risk; groups go from high
+to low), whatever ``default_group`` and ``free_labels`` say. A configuration can raise a label's
+group, widen or narrow margins and change gains; ``default_group = None`` or an extra free label
+cannot make occupied geometry free space. A configuration that names no obstacle at all
+(``default_group`` null and every group's labels empty) is refused outright: it says something
+the floor would silently overrule, so it is a mistake or an attack, never a configuration.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 from functools import cached_property
 from typing import Annotated, ClassVar
 
@@ -48,13 +59,15 @@ MID_LABELS = _labels("chair", "armchair", "swivel chair", "sofa", "bed", "table"
                      "stool", "ottoman", "bench", "cabinet", "plant", "lamp", "television receiver", "computer",
                      "monitor", "bicycle", "minibike", "vase", "fan")
 LOW_LABELS = _labels("wall", "ball", "box", "door", "column", "bookcase", "shelf", "wardrobe")
+_FREE_BY_NATURE = np.asarray(FREE_LABELS, dtype=np.int64)  # the only labels the floor lets be free
 
 
 class RiskConfig(Message):
     """Label → risk group → (inflation margin, CBF gains). Group ids are 1-based, in order.
 
     A label listed in no group is an obstacle of ``default_group`` unless it is in
-    ``free_labels``; ``default_group = None`` makes unlisted labels free instead.
+    ``free_labels``; with ``default_group = None`` it is left to the floor (module doc): an
+    obstacle of the last group unless it is a free surface (``FREE_LABELS``).
     """
 
     SCHEMA: ClassVar[str] = "RiskConfig/1"
@@ -85,6 +98,9 @@ class RiskConfig(Message):
                 if lab in seen and seen[lab] != g.name:
                     raise ValueError(f"label {lab} is in groups {seen[lab]!r} and {g.name!r}")
                 seen[lab] = g.name
+        if self.default_group is None and not seen:
+            raise ValueError("a risk configuration with no obstacle labels (default_group null and every group's "
+                             "labels empty) would make every obstacle free: refused")
         return self
 
     @property
@@ -99,14 +115,37 @@ class RiskConfig(Message):
         return self.groups[group_id - 1] if group_id > 0 else None
 
     def label_to_group(self) -> np.ndarray:
-        """Lookup table over every uint16 label: its group id, 0 for labels that are free."""
+        """Lookup table over every uint16 label: its group id, 0 for labels that are free. Under
+        the floor (module doc): only a label of ``FREE_LABELS`` listed in no group is 0."""
         lut = np.zeros(65536, dtype=np.uint8)
         if self.default_group is not None:
             lut[:] = self.group_id(self.default_group)
             lut[np.asarray(self.free_labels, dtype=np.int64)] = 0
         for gid, g in enumerate(self.groups, start=1):
             lut[np.asarray(g.labels, dtype=np.int64)] = gid
+        lifted = lut == 0
+        lifted[_FREE_BY_NATURE] = False
+        lut[lifted] = len(self.groups)
         return lut
+
+    def below_floor(self) -> list[int]:
+        """Labels this configuration alone would make free that the floor keeps obstacles (module
+        doc), sorted; empty when the floor changes nothing. Worth a log line where one is applied."""
+        declared = np.zeros(65536, dtype=bool)
+        if self.default_group is not None:
+            declared[:] = True
+            declared[np.asarray(self.free_labels, dtype=np.int64)] = False
+        for g in self.groups:
+            declared[np.asarray(g.labels, dtype=np.int64)] = True
+        declared[_FREE_BY_NATURE] = True
+        return np.flatnonzero(~declared).tolist()
+
+    def digest(self) -> str:
+        """A short hash of the configuration's content (not its header): the same groups, labels,
+        margins, gains, free labels and default group give the same digest on every host."""
+        body = self.model_dump(mode="json", exclude={"header"})
+        text = json.dumps(body, sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def margins(self) -> np.ndarray:
         """Inflation margin (m) per group id; index 0 (no group) is 0."""

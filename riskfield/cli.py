@@ -46,7 +46,16 @@ def _missing_extras_in_one_line(command: Callable[..., Any]) -> Callable[..., An
 
 #: ``riskfield bench NAME`` runs ``riskfield.experiments.benches.NAME:app``, imported only when asked for.
 BENCHES: tuple[str, ...] = ("codec", "filter", "mapping", "latency", "safety", "teleop", "navigation", "sim",
-                            "perception", "crowd", "startup", "link")
+                            "perception", "crowd", "startup", "link", "scale")
+
+#: ``riskfield up --profile NAME``: one site's services, beside its router. ``robot`` is the robot
+#: computer (the camera, the LIMO bridge, the joystick gateway and the filter, as docker-compose.yml's
+#: ``robot`` profile); perception and mapping run on the server (``server``), whose router the robot's
+#: router dials (``--server``).
+UP_PROFILES: dict[str, tuple[str, ...]] = {
+    "robot": ("camera", "limo", "joystick", "safety-filter"),
+    "server": ("perception", "mapping"),
+}
 
 
 def _version(value: bool) -> None:
@@ -168,8 +177,16 @@ def _print_settings(service: str) -> None:
 @app.command()
 def up(
     services: Annotated[list[str] | None, typer.Argument(help="Services to start beside the router.")] = None,
+    profile: Annotated[str | None, typer.Option(help="A site's services (added to SERVICES): "
+                                                + "; ".join(f"{k}: {' '.join(v)}" for k, v in UP_PROFILES.items())
+                                                + ".")] = None,
     listen: Annotated[str, typer.Option(help="Endpoint of the embedded router.")] = "tcp/127.0.0.1:7447",
     router: Annotated[bool, typer.Option(help="Start the embedded router.")] = True,
+    server: Annotated[str | None, typer.Option(help="The server site's router, which the embedded router dials "
+                                               "(e.g. tcp/10.0.0.2:7447): the robot profile's link.")] = None,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="The LIMO bridge drives the real serial port with "
+                                          "stop frames only and counts the commands it withheld (bring-up).")
+                       ] = False,
     robot: Annotated[str | None, typer.Option()] = None,
     prefix: Annotated[str | None, typer.Option()] = None,
     config: Annotated[Path | None, typer.Option("--config", "-c")] = None,
@@ -195,8 +212,15 @@ def up(
     from riskfield.services.runtime import SERVICES, NodeSettings
     from riskfield.services.runtime.processes import NO_RESTART, ProcessRunner, RestartPolicy
 
-    names = services or []
+    if profile is not None and profile not in UP_PROFILES:
+        console.print(f"[red]unknown profile {escape(profile)!r}: use one of {', '.join(UP_PROFILES)}[/red]")
+        raise typer.Exit(2)
+    site = UP_PROFILES[profile] if profile else ()
+    names = [*site, *(n for n in services or [] if n not in site)]
     unknown = [n for n in names if n not in SERVICES or n == "router"]
+    if dry_run and "limo" not in names:
+        console.print("[red]--dry-run is the LIMO bridge's: add limo (or --profile robot)[/red]")
+        raise typer.Exit(2)
     if unknown:
         from riskfield.services.runtime.service import unknown_service
 
@@ -219,9 +243,9 @@ def up(
         raise typer.Exit(2) from None
     runner = ProcessRunner(listen, keys, echo=True, console=console, restart=policy)
     if router:
-        runner.add("router", "router", common)
+        runner.add("router", "router", [*common, *(["--connect", server] if server else [])])
     for name in names:
-        runner.add(name, name, common)
+        runner.add(name, name, [*common, *(["--set", "dry_run=true"] if dry_run and name == "limo" else [])])
     raise typer.Exit(runner.watch(duration))
 
 
@@ -324,6 +348,50 @@ def replay(
 
 
 @app.command()
+def view(
+    foxglove: Annotated[bool, typer.Option("--foxglove", help="Serve the live stack to Foxglove over its WebSocket "
+                                           "protocol (layout: deploy/foxglove/riskfield-layout.json) instead of "
+                                           "streaming it to Rerun.")] = False,
+    host: Annotated[str, typer.Option(help="--foxglove: address to bind (0.0.0.0 for other machines).")
+                    ] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="--foxglove: TCP port of the WebSocket server (0: any free one).")
+                    ] = 8765,
+    live: Annotated[bool, typer.Option(help="Rerun: open the viewer (the web viewer when headless).")] = True,
+    out: Annotated[Path | None, typer.Option(help="Rerun: folder for view.rrd.")] = None,
+    write_layout: Annotated[Path | None, typer.Option(
+        help="--foxglove: write the Foxglove layout for this robot and prefix to this file, then exit.")] = None,
+    connect: Connect = None,
+    robot: Annotated[str | None, typer.Option()] = None,
+    prefix: Annotated[str | None, typer.Option()] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+) -> None:
+    """Watch a running stack live: in Rerun (the `viewer` service), or with --foxglove in Foxglove
+    (the `foxglove` service: camera, ESDF grid, point cloud, robot footprint, tracked people with
+    velocity arrows, and the filter's intervention and its reason)."""
+    common = dict(connect=connect, robot=robot, prefix=prefix)
+    if foxglove and write_layout is not None:
+        import json
+
+        from riskfield.protocol import Keys
+
+        try:
+            from riskfield.services.recorder.live import layout
+
+            text = json.dumps(layout(Keys(robot or "limo1", prefix or "rf").root), indent=2) + "\n"
+        except ModuleNotFoundError as exc:
+            from riskfield.services.runtime.service import missing_extra
+
+            console.print(f"[red]{escape(missing_extra(exc) or str(exc))}[/red]")
+            raise typer.Exit(2) from None
+        write_layout.write_text(text)
+        console.print(f"wrote {write_layout}: import it in Foxglove (Layouts → Import from file)")
+        raise typer.Exit(0)
+    if foxglove:
+        _run_tool("foxglove", dict(common, host=host, port=port), duration)
+    _run_tool("viewer", dict(common, live=live, out=out), duration)
+
+
+@app.command()
 @_missing_extras_in_one_line
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder: summary.json, plots, recording.mcap, logs.")] = Path(
@@ -378,6 +446,55 @@ def warmup(
     except ServiceUnavailable as exc:
         console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
+
+
+Robots = Annotated[list[str] | None, typer.Option("--robot", "-r", help="Robot id (repeatable); default limo1.")]
+
+
+@app.command()
+def acl(
+    robot: Robots = None,
+    prefix: Annotated[str, typer.Option(help="Key prefix.")] = "rf",
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="File to write; default: print.")] = None,
+) -> None:
+    """The secure routers' config with its access control, generated from protocol/keys.py."""
+    from riskfield.services.runtime.acl import router_config
+
+    try:
+        text = router_config(robot or ["limo1"], prefix)
+    except ValueError as exc:
+        console.print(f"[red]{escape(str(exc))}[/red]")
+        raise typer.Exit(2) from None
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        out.write_text(text)
+        console.print(f"acl: {out}")
+
+
+@app.command()
+def secrets(
+    robot: Robots = None,
+    prefix: Annotated[str, typer.Option(help="Key prefix.")] = "rf",
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for users, certificates and the ACL.")] = Path(
+        "deploy/secrets"),
+    certs: Annotated[bool, typer.Option(help="Also make the certificates (needs openssl).")] = True,
+) -> None:
+    """Per-robot identities: passwords (mode 0600), certificates and the routers' access control."""
+    import subprocess
+
+    from riskfield.services.runtime.acl import make_secrets
+
+    try:
+        made = make_secrets(out, robot or ["limo1"], prefix, certs=certs)
+    except (ValueError, FileNotFoundError) as exc:
+        console.print(f"[red]{escape(str(exc))}[/red]")
+        raise typer.Exit(2) from None
+    except subprocess.CalledProcessError as exc:
+        console.print(f"[red]{escape(' '.join(exc.cmd[:2]))} failed: {escape(exc.stderr or '')}[/red]")
+        raise typer.Exit(1) from None
+    for path in made:
+        console.print(f"secrets: {path}")
 
 
 @app.command()

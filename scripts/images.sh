@@ -32,7 +32,8 @@ fi
 # The wheelhouse is rebuilt when the packaging changed since it was made (WHEELHOUSE=0: none,
 # the builds use the package index).
 stamp=deploy/wheels/.built
-if [ "${WHEELHOUSE:-1}" != 0 ] && { [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ]; }; then
+if [ "${WHEELHOUSE:-1}" != 0 ] && { [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] \
+    || [ deploy/requirements.py -nt "$stamp" ] || [ scripts/wheelhouse.sh -nt "$stamp" ]; }; then
   bash scripts/wheelhouse.sh && touch "$stamp"
 fi
 

@@ -4,8 +4,8 @@
 # from the package index otherwise). For machines whose builds cannot reach the index, and for
 # an air-gapped robot site, where the wheelhouse is carried over with the source.
 #
-#   scripts/wheelhouse.sh               # riskfield[robot,mapping,sim]: the CPU image's, a superset of the robot's
-#   EXTRAS=robot scripts/wheelhouse.sh  # the robot image's only
+#   scripts/wheelhouse.sh               # riskfield[robot,camera,mapping,sim]: the CPU image's and the robot's
+#   EXTRAS=robot,camera scripts/wheelhouse.sh  # the robot image's only (deploy/requirements.py SITES)
 #
 # The host's Python must match the images' (CPython 3.11, linux x86_64 / aarch64, glibc):
 # pip picks wheels for the interpreter it runs in. riskfield itself is not in the wheelhouse:
@@ -13,7 +13,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=deploy/wheels
-extras=${EXTRAS:-robot,mapping,sim}
+extras=${EXTRAS:-robot,camera,mapping,sim}
 py=${PYTHON:-python3}
 [ -x .venv/bin/python ] && py=${PYTHON:-.venv/bin/python}
 

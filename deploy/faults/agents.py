@@ -163,7 +163,6 @@ def probe(args: argparse.Namespace) -> None:
 
     session = open_session(args.connect)
     subs = [session.declare_subscriber(keys.esdf, on_esdf),
-            session.declare_subscriber(keys.key("relay/esdf"), on_esdf),
             session.declare_subscriber(keys.cmd_safe, on_cmd),
             session.declare_subscriber(keys.safety_status, on_status)]
     write({"t": time.monotonic(), "k": "probe_up"})

@@ -6,18 +6,22 @@
 #
 #   --server ENDPOINT   the server site's router (required), e.g. tcp/10.0.0.2:7447 or tls/srv:7447
 #   --robot ID          robot id, the key prefix part (default limo1)
-#   --services "A B"    nodes to run (default "safety-filter limo joystick"; e.g. "safety-filter mavlink")
-#   --listen ENDPOINT   where the robot's router serves its nodes (default tcp/127.0.0.1:7447)
-#   --secrets DIR       enable TLS + user/password: DIR holds certs/ (deploy/make-certs.sh, with
-#                       router-robot and one certificate per node) and USER.env (deploy/make-users.sh)
+#   --services "A B"    nodes to run (default "camera limo joystick safety-filter"; e.g. "safety-filter mavlink")
+#   --listen ENDPOINT   where the robot's router serves its nodes (default tcp/127.0.0.1:7447); beyond
+#                       loopback the router starts only with --secrets (TLS and users)
+#   --secrets DIR       enable TLS + user/password: DIR is what `riskfield secrets --robot ID` made:
+#                       certs/ (ID.router and ID.SERVICE), ID.*.env, users.txt, router-secure.json5
 #   --limo-port DEV     LIMO serial port (default /dev/ttyTHS1)
+#   --camera DEV        camera source (default /dev/video0; a video file or image folder works too)
+#   --dry-run           bring-up: the LIMO bridge sends stop frames only and counts what it withheld
 #   --prefix DIR        installation folder (default /opt/riskfield)
 #   --root DIR          install below DIR instead of / (packaging, tests); implies --no-start
 #   --no-pip            do not create the virtualenv (it exists, or the image provides it)
 #   --no-start          install only; do not enable and start the units
 #
-# Only the `robot` extra is installed (numpy, scipy, osqp, pyserial, pymavlink, evdev): no torch,
-# no open3d. Re-running updates the installation in place. Remove with:
+# Only the robot site's extras are installed (deploy/requirements.py SITES: `robot` — numpy, scipy,
+# osqp, pyserial, pymavlink, evdev — and `camera`, PyAV): no torch, no open3d. Re-running updates
+# the installation in place. Remove with:
 #   systemctl disable --now riskfield-router 'riskfield@*'; rm -r /opt/riskfield /etc/riskfield \
 #     /etc/systemd/system/riskfield-router.service /etc/systemd/system/riskfield@.service
 set -euo pipefail
@@ -26,10 +30,12 @@ HERE="$(cd "$(dirname "$0")" && pwd)"
 REPO="$(cd "$HERE/../.." && pwd)"
 SERVER=""
 ROBOT=limo1
-SERVICES="safety-filter limo joystick"
+SERVICES="camera limo joystick safety-filter"
 LISTEN=tcp/127.0.0.1:7447
 SECRETS=""
 LIMO_PORT=/dev/ttyTHS1
+CAMERA=/dev/video0
+DRY_RUN=false
 PREFIX=/opt/riskfield
 ROOT=""
 PIP=1
@@ -44,11 +50,13 @@ while [ $# -gt 0 ]; do
     --listen) LISTEN=${2:?}; shift 2 ;;
     --secrets) SECRETS="$(cd "${2:?}" && pwd)"; shift 2 ;;
     --limo-port) LIMO_PORT=${2:?}; shift 2 ;;
+    --camera) CAMERA=${2:?}; shift 2 ;;
+    --dry-run) DRY_RUN=true; shift ;;
     --prefix) PREFIX=${2:?}; shift 2 ;;
     --root) ROOT="$(mkdir -p "${2:?}" && cd "$2" && pwd)"; START=0; shift 2 ;;
     --no-pip) PIP=0; shift ;;
     --no-start) START=0; shift ;;
-    -h|--help) sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,26p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) die "unknown option $1 (see --help)" ;;
   esac
 done
@@ -57,12 +65,14 @@ done
 [[ $ROBOT =~ ^[A-Za-z0-9_.~+=@:-]+$ ]] || die "--robot $ROBOT: letters, digits and -_.~+=@:"
 for s in $SERVICES; do
   case $s in
-    safety-filter|limo|joystick|mavlink|relay) ;;
-    *) die "--services: $s does not run on the robot computer (safety-filter, limo, joystick, mavlink)" ;;
+    safety-filter|limo|joystick|camera|mavlink|relay) ;;
+    *) die "--services: $s does not run on the robot computer (camera, limo, joystick, safety-filter, mavlink)" ;;
   esac
 done
 if [ -n "$SECRETS" ]; then
   [[ $SERVER == tls/* ]] || die "--secrets needs a tls/ server endpoint"
+  [ -f "$SECRETS/$ROBOT.router.env" ] && [ -f "$SECRETS/router-secure.json5" ] \
+    || die "--secrets $SECRETS has no $ROBOT.router.env or router-secure.json5: make them with riskfield secrets --robot $ROBOT"
   LISTEN=${LISTEN/#tcp\//tls/}
 fi
 
@@ -81,7 +91,7 @@ if [ "$PIP" = 1 ]; then
     || die "Python 3.11 or newer is needed (python3 is $(python3 --version 2>&1))"
   [ -x "$DEST/venv/bin/python" ] || python3 -m venv "$DEST/venv"
   "$DEST/venv/bin/python" -m pip install -q --upgrade pip
-  "$DEST/venv/bin/python" -m pip install -q "$REPO[robot]"
+  "$DEST/venv/bin/python" -m pip install -q "$REPO[$(python3 "$REPO/deploy/requirements.py" --extras robot-site)]"
   # Compile the filter's step once now (numba's cache), not on the robot's first start.
   "$DEST/venv/bin/python" -c "from riskfield.services.safety_filter.filter import SafetyFilter; SafetyFilter()"
 fi
@@ -95,6 +105,8 @@ fi
   echo "RISKFIELD_ROBOT=$ROBOT"
   echo "RISKFIELD_CONNECT_TIMEOUT_S=60"
   echo "RISKFIELD_LIMO_PORT=$LIMO_PORT"
+  echo "RISKFIELD_CAMERA_SOURCE=$CAMERA"
+  echo "RISKFIELD_DRY_RUN=$DRY_RUN"
   echo "RISKFIELD_MAVLINK_URL=udpin:0.0.0.0:14550"
 } >"$ETC/robot.env"
 # The router: serves the nodes here and dials the server's router.
@@ -109,24 +121,26 @@ fi
 if [ -n "$SECRETS" ]; then
   install -d -m 750 "$ETC/tls"
   install -m 644 "$SECRETS/certs/ca.pem" "$ETC/tls/ca.pem"
-  install -m 644 "$SECRETS/certs/router-robot.pem" "$ETC/tls/router.pem"
-  install -m 600 "$SECRETS/certs/router-robot.key" "$ETC/tls/router.key"
-  install -m 600 "$SECRETS/users.txt" "$ETC/users.txt"
-  cp "$REPO/deploy/zenoh/router-secure.json5" "$ETC/router.json5"
+  install -m 644 "$SECRETS/certs/$ROBOT.router.pem" "$ETC/tls/router.pem"
+  install -m 600 "$SECRETS/certs/$ROBOT.router.key" "$ETC/tls/router.key"
+  # This robot's router checks only this robot's nodes: the fleet's other passwords stay off it.
+  (umask 077; awk -F: -v p="$ROBOT." 'index($1, p) == 1' "$SECRETS/users.txt" >"$ETC/users.txt")
+  chmod 600 "$ETC/users.txt"
+  install -m 644 "$SECRETS/router-secure.json5" "$ETC/router.json5"
   {
     echo "RISKFIELD_ZENOH_CONFIG=$SYS_ETC/router.json5"
-    cat "$SECRETS/router.env"
+    cat "$SECRETS/$ROBOT.router.env"
   } >>"$ETC/router.env"
   for s in $SERVICES; do
-    install -m 644 "$SECRETS/certs/$s.pem" "$ETC/tls/$s.pem"
-    install -m 600 "$SECRETS/certs/$s.key" "$ETC/tls/$s.key"
+    install -m 644 "$SECRETS/certs/$ROBOT.$s.pem" "$ETC/tls/$s.pem"
+    install -m 600 "$SECRETS/certs/$ROBOT.$s.key" "$ETC/tls/$s.key"
     {
-      echo "# $s's identity: its certificate and its user (= its role in the access control)."
+      echo "# $s's identity $ROBOT.$s: its certificate and its user (protocol/keys.py ROUTES say what it may do)."
       echo "RISKFIELD_TLS_ROOT_CA=$SYS_ETC/tls/ca.pem"
       echo "RISKFIELD_TLS_CERT=$SYS_ETC/tls/$s.pem"
       echo "RISKFIELD_TLS_KEY=$SYS_ETC/tls/$s.key"
       echo "RISKFIELD_TLS_MTLS=true"
-      cat "$SECRETS/$s.env"
+      cat "$SECRETS/$ROBOT.$s.env"
     } >"$ETC/$s.env"
   done
 fi
@@ -140,7 +154,7 @@ done
 echo "install: units in $UNITS, settings in $ETC (robot $ROBOT, server $SERVER, nodes: $SERVICES)"
 if [ "$START" = 1 ]; then
   id riskfield >/dev/null 2>&1 || useradd --system --home-dir "$PREFIX" --shell /usr/sbin/nologin riskfield
-  for g in dialout input; do getent group "$g" >/dev/null || groupadd --system "$g"; done
+  for g in dialout input video; do getent group "$g" >/dev/null || groupadd --system "$g"; done
   chown -R riskfield "$ETC"
   systemctl daemon-reload
   units=(riskfield-router.service)

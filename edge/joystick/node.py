@@ -145,7 +145,8 @@ class JoystickNode:
         if core.should_publish(now):
             c = core.command
             self.node.publish(self.node.keys.cmd_ref, VelocityCommand(
-                linear=(c.vx, c.vy, 0.0), angular=(0.0, 0.0, c.wz), source=self.s.source_name))
+                linear=(c.vx, c.vy, 0.0), angular=(0.0, 0.0, c.wz), source=self.s.source_name,
+                engaged=c.deadman))  # released: the filter's arbitration lets the navigator take over
             core.published(now)
             self.node.stats["deadman"] = float(c.deadman)
             self.node.stats["connected"] = float(core.connected)

@@ -2,7 +2,8 @@
 
 The bridge and the chassis emulator both import these, so the two agree by construction:
 
-* **Geometry.** The chassis steers its front wheels; the *central* angle c is the bicycle
+* **Geometry** (``protocol.platforms``, shared with the simulator). The chassis steers its front
+  wheels; the *central* angle c is the bicycle
   model's (a virtual wheel on the centre line, rear-axle radius r = L / tan c), the *inner*
   angle i the angle of the wheel on the inside of the turn, whose radius is r − T/2:
   tan i = L / (r − T/2). With the wheelbase L and track T the two convert exactly into each other.
@@ -31,7 +32,12 @@ Sources, read for their formulas (agilexrobotics/limo_ros at 4c78efc):
 
 from __future__ import annotations
 
-import math
+# The geometry is the platform's (the simulator steers with it too); the wire scale below is the LIMO's.
+from riskfield.protocol.platforms import central_to_inner, inner_to_central, min_turning_radius
+
+__all__ = ["COMMAND_SCALE", "FEEDBACK_SCALE_LEFT", "FEEDBACK_SCALE_RIGHT", "central_to_inner", "feedback_field",
+           "inner_from_command_field", "inner_from_feedback_field", "inner_to_central", "max_central_angle",
+           "min_turning_radius", "steering_field"]
 
 #: ``0x111``: the steering field is the inner angle divided by this, whatever the sign
 #: (limo_driver.cpp ``twistCmdCallback``; ``right_angle_scale_``).
@@ -42,36 +48,9 @@ FEEDBACK_SCALE_LEFT = 2.47
 FEEDBACK_SCALE_RIGHT = 1.64
 
 
-def central_to_inner(central: float, wheelbase: float, track: float) -> float:
-    """The inner front wheel's angle for a central (bicycle) angle, with its sign.
-
-    limo_driver.cpp ``convertCentralAngleToInner``: i = atan(2L sin|c| / (2L cos|c| − T sin|c|)).
-    ``atan2`` gives the same angle while the denominator is positive and stays monotonic past
-    it (|c| ≥ atan(2L/T), far beyond any steering limit), where ``atan`` would flip sign."""
-    s, c = math.sin(abs(central)), math.cos(abs(central))
-    inner = math.atan2(2 * wheelbase * s, 2 * wheelbase * c - track * s)
-    return math.copysign(inner, central) if central else 0.0
-
-
-def inner_to_central(inner: float, wheelbase: float, track: float) -> float:
-    """The central (bicycle) angle for an inner wheel angle, with its sign.
-
-    limo_driver.cpp ``convertInnerAngleToCentral``: r = L / tan|i| + T/2, c = atan(L / r).
-    At i = 0 the C code divides by zero into r = ∞ and c = 0; here that is explicit."""
-    if inner == 0.0:
-        return 0.0
-    r = wheelbase / math.tan(abs(inner)) + track / 2
-    return math.copysign(math.atan(wheelbase / r), inner)
-
-
 def max_central_angle(wheelbase: float, track: float, max_inner: float) -> float:
-    """The central angle at the inner wheel's limit: ~0.408 rad for the LIMO (0.2 m, 0.172 m, 0.488 rad)."""
+    """The central angle at the inner wheel's limit (``PlanarPlatform.max_central_steering`` for the LIMO)."""
     return inner_to_central(max_inner, wheelbase, track)
-
-
-def min_turning_radius(wheelbase: float, track: float, max_inner: float) -> float:
-    """Radius of the rear axle's centre at the steering limit: L / tan|i| + T/2, ~0.46 m for the LIMO."""
-    return wheelbase / math.tan(max_inner) + track / 2
 
 
 def steering_field(inner: float) -> float:

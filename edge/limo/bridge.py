@@ -14,6 +14,9 @@ serial link. Rules it enforces:
   ``stop_repeat_s`` while no command comes (a frame lost on the line cannot leave the robot
   moving). Shutdown returns a stop frame too.
 * **Limits.** Every command is scaled into the platform limits (``kinematics.command_to_motion``).
+* **Dry run.** ``dry_run`` keeps the link, the enable frame, the watchdog and the feedback as they
+  are and replaces every motion frame that would move the chassis by a stop, counting it
+  (``withheld_commands``): the first power-up on the real port and camera, wheels still.
 * **State.** Wheel odometry dead reckoning (IMU yaw when present) and the measured velocities
   of the motion state frame (IMU yaw rate when fresh) give ``PlanarState``. In Ackermann mode
   the yaw rate comes from the steering feedback, as AgileX's ``publishOdometry`` computes it:
@@ -61,6 +64,9 @@ class BridgeConfig(LimoLimits):
                                                           "until the chassis confirms it")
     feedback_timeout_s: Pos = Field(default=0.5, description="no feedback for this long: no state is published")
     use_imu: bool = Field(default=True, description="IMU yaw and yaw rate replace the wheels' when present")
+    dry_run: bool = Field(default=False, description=(
+        "bring-up: the real serial port and feedback, but every motion frame is a stop: each cmd/safe that "
+        "would have moved the chassis is withheld, counted (status: withheld_commands) and logged"))
 
     @field_validator("motion_mode", mode="before")
     @classmethod
@@ -109,6 +115,7 @@ class Diagnostics:
     unknown_frames: int = 0
     odometry_jumps: int = 0
     commands: int = 0
+    withheld_commands: int = 0  # dry run: commands that would have moved the chassis, sent as stops
     watchdog_stops: int = 0
     feedback_age_s: float = -1.0
 
@@ -120,6 +127,7 @@ class LimoBridge:
         self.odometry = WheelOdometry(self.config.limits.track)
         self.diag = Diagnostics()
         self.last_motion: MotionCommand | None = None  # what was last written
+        self.withheld: MotionCommand | None = None  # dry run: the last motion frame not sent
         self._last_cmd_t: float | None = None
         self._stopped = True
         self._last_stop_t = -math.inf
@@ -175,6 +183,10 @@ class LimoBridge:
         """The motion frame for a new ``cmd/safe`` (scaled into the limits)."""
         self.diag.commands += 1
         self.last_motion = command_to_motion(vx, vy, wz, self.mode, self.config.limits)
+        if self.config.dry_run and not self.last_motion.is_stop:
+            self.diag.withheld_commands += 1
+            self.withheld = self.last_motion
+            self.last_motion = MotionCommand()
         self._last_cmd_t = now
         self._stopped = self.last_motion.is_stop
         if self._stopped:

@@ -151,6 +151,9 @@ class ChassisEmulator:
         # Raw mode at once: the default line discipline would echo bytes and translate 0x0D.
         tty.setraw(slave)
         tty.setraw(master)
+        # A UART drops what nobody reads; a blocking write into a full pty would stall the chassis
+        # (and, holding the lock, its stop) once the bridge has gone.
+        os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self.path = os.ttyname(slave)
         self.parser.reset()

@@ -10,8 +10,8 @@ The chassis executes it differently per motion mode:
   field AgileX's driver sends: the curvature κ = ωz/vx gives the central (bicycle) angle
   c = atan(κ·L), the inner wheel's angle i follows from the geometry and the field is i / 1.64
   (``ackermann``). ``max_steering`` bounds the *inner* wheel; the central limit and the minimum
-  turning radius (~0.46 m) follow from it, the wheelbase and the track. At (near) zero speed
-  the chassis cannot turn: the wheels stay straight and ωz is dropped.
+  turning radius (``PlanarPlatform.min_turning_radius``) follow from it, the wheelbase and the
+  track. At (near) zero speed the chassis cannot turn: the wheels stay straight and ωz is dropped.
 * **mecanum**: linear = vx, lateral = vy, angular = ωz.
 
 Limits are applied by **scaling the whole command by one factor λ ∈ [0, 1]**, never by
@@ -44,7 +44,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from riskfield.protocol.platforms import LIMO
+from riskfield.protocol.platforms import LIMO, PlanarPlatform
 from riskfield.services.geometry.transforms import wrap_angle
 
 from . import ackermann
@@ -82,14 +82,20 @@ class LimoLimits(BaseModel):
     min_speed_for_steering: Pos = Field(default=1e-3, description=(
         "below this |speed| (m/s) an Ackermann chassis cannot turn: the steering is 0"))
 
+    @classmethod
+    def of(cls, p: PlanarPlatform, **overrides: float) -> LimoLimits:
+        """Another ground robot's limits (the LIMO's are the defaults)."""
+        names = ("max_linear", "max_lateral", "max_angular", "max_wheel_speed", "max_steering", "wheelbase", "track")
+        return cls(**{**{n: getattr(p, n) for n in names}, **overrides})
+
     @property
     def max_central_steering(self) -> float:
-        """|central (bicycle) angle| at the inner wheel's limit (~0.408 rad for the LIMO)."""
+        """|central (bicycle) angle| at the inner wheel's limit (``PlanarPlatform.max_central_steering``)."""
         return ackermann.max_central_angle(self.wheelbase, self.track, self.max_steering)
 
     @property
     def max_curvature(self) -> float:
-        """1 / the minimum turning radius of the rear axle's centre (~1 / 0.46 m for the LIMO)."""
+        """1 / the minimum turning radius of the rear axle's centre (``PlanarPlatform.min_turning_radius``)."""
         return 1.0 / ackermann.min_turning_radius(self.wheelbase, self.track, self.max_steering)
 
 

@@ -8,6 +8,9 @@ to ``{prefix}/{robot}/limo/diagnostics`` every ``diagnostics_period_s``.
 A second watchdog with the same ``watchdog_s`` runs on a thread of its own
 (``watchdog.CommandWatchdog``) and writes the stop frame if the loop cannot (a handler or a
 timer stuck); its counts are in the node's status (``watchdog_thread_stops``).
+
+``dry_run=true`` (first bring-up) keeps the real port and its feedback but writes stop frames only;
+each withheld command is logged (rate-limited) and counted in the status (``withheld_commands``).
 """
 
 from __future__ import annotations
@@ -70,6 +73,8 @@ class LimoNode:
         node.subscribe(node.keys.cmd_safe, VelocityCommand, self.on_command)
         node.every(s.poll_s, self.poll)
         node.every(s.diagnostics_period_s, self.publish_diagnostics)
+        if s.dry_run:
+            node.log.warning("dry run: %s is driven with stop frames only; cmd/safe is counted, not executed", s.port)
         self.poll()
 
     def _write(self, data: bytes) -> None:
@@ -86,7 +91,14 @@ class LimoNode:
 
     def on_command(self, cmd: VelocityCommand) -> None:
         now = time.monotonic()
+        withheld = self.core.diag.withheld_commands
         frame = self.core.on_command(cmd.linear[0], cmd.linear[1], cmd.angular[2], now)
+        if self.core.diag.withheld_commands > withheld:
+            m = self.core.withheld
+            assert m is not None
+            self.node.ratelog(logging.WARNING, "dry-run", f"dry run: withheld cmd/safe linear={m.linear:.3f} "
+                              f"lateral={m.lateral:.3f} angular={m.angular:.3f} steering={m.steering:.3f}, "
+                              f"sent a stop ({self.core.diag.withheld_commands} withheld so far)")
         self.watchdog.commanded(not self.core.stopped, now)
         if self.link.is_open:
             self._write(frame)
@@ -126,9 +138,11 @@ class LimoNode:
             reconnects=d.reconnects, watchdog_stops=d.watchdog_stops, commands=d.commands,
             odometry_jumps=d.odometry_jumps, feedback_age_ms=d.feedback_age_s * 1e3 if d.feedback_age_s >= 0 else -1.0,
         ))
-        for name in ("frames_ok", "frames_bad", "bytes_skipped", "reconnects", "watchdog_stops", "commands"):
+        for name in ("frames_ok", "frames_bad", "bytes_skipped", "reconnects", "watchdog_stops", "commands",
+                     "withheld_commands"):
             self.node.stats[name] = float(getattr(d, name))
         self.node.stats["connected"] = float(d.connected)
+        self.node.stats["dry_run"] = float(self.s.dry_run)
         self.node.stats["watchdog_thread_stops"] = float(self.watchdog.fired)
         self.node.stats["watchdog_thread_write_errors"] = float(self.watchdog.write_errors)
         if d.error_bits:

@@ -29,6 +29,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from riskfield.protocol.platforms import MULTICOPTER
 from riskfield.services.geometry.transforms import euler_zyx_matrix, matrix_to_quat
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -53,13 +54,14 @@ def attitude_ned_frd_to_enu_flu(roll: float, pitch: float, yaw: float) -> np.nda
 
 
 class VelocityLimits(BaseModel):
-    """Bounds of the setpoint; exceeded → the whole command is scaled by one factor (see below)."""
+    """Bounds of the setpoint; exceeded → the whole command is scaled by one factor (see below).
+    Defaults from the platform description ``protocol.platforms.MULTICOPTER``."""
 
     model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
-    max_horizontal: Pos = Field(default=1.0, description="|horizontal velocity| (m/s)")
-    max_vertical: Pos = Field(default=0.5, description="|vertical velocity| (m/s)")
-    max_yaw_rate: Pos = Field(default=1.0, description="|yaw rate| (rad/s)")
+    max_horizontal: Pos = Field(default=MULTICOPTER.max_speed, description="|horizontal velocity| (m/s)")
+    max_vertical: Pos = Field(default=MULTICOPTER.max_vertical, description="|vertical velocity| (m/s)")
+    max_yaw_rate: Pos = Field(default=MULTICOPTER.max_yaw_rate, description="|yaw rate| (rad/s)")
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,9 @@ world as it was ``LATENCY_S`` (0.1 s) before, on 5 cm voxels in a planar window 
 each obstacle inflated by its risk group's margin (people 0.15 m, ``high``; furniture 0.05 m,
 ``mid``; walls 0, ``low``), as the mapper does. The tracked objects are the people's true
 positions and velocities of that same instant, the velocity plus N(0, σ) per axis (σ = 0.15 m/s,
-the tracker's stated accuracy; the ``noise`` family draws σ in 0.15-0.3), stamped with the map,
+the filter's ``object_speed_sigma``; the ``noise`` family draws σ in ``NOISE_SIGMA``, the tracker's
+error measured by the stack's crowd bench: 0.09 m/s per axis from its median, 0.29 m/s RMS with
+the lag at walkers' stops and turns), stamped with the map,
 ``age_ms`` 100, into ``motion.object_table`` at every step. A person hidden from the camera (the
 line of sight from ``CAMERA_X`` ahead of the body centre crosses a static obstacle) is in
 neither: someone stepping out from behind a cabinet appears as a new, young track. There is no
@@ -37,10 +39,17 @@ exactly with the filter's own model (``model.integrate``) for the actual twist.
 overlapping a person while its nearest point moves towards them faster than 0.05 m/s) and the
 person's contacts; static contacts (any overlap of the rectangle with a wall or furniture);
 idle displacement (path length travelled while the reference was zero); blind reverse (travel
-against the heading the operator did not ask for: in this mode no space counts as observed, so
-all of it); the minimum body gap to people; success (the body centre past the goal within the
+against the heading the operator did not ask for while the floor behind the body was not seen
+free: the camera, ``CAMERA_HFOV_DEG`` wide from ``CAMERA_X`` ahead of the body centre, marks the
+floor its rays cross up to ``SEEN_RANGE`` or the first static obstacle at every map, and a cell
+stays seen free for the mapper's ``observed_free_s``, as ``mapping.free_floor`` keeps it); the
+minimum body gap to people; success (the body centre past the goal within the
 time limit, for the families with a goal) and the time to goal; time stopped (robot speed below
 ``FREEZE_SPEED`` while the reference is positive).
+
+**Evasion** (``--evade``: the filter's opt-in ``evade``) reads that seen floor, less the cells of
+the static obstacles and the people shown, as the mapper's ``EsdfGrid.observed_free``, through the
+supervisor's own ``Evader.step``.
 """
 
 from __future__ import annotations
@@ -59,7 +68,9 @@ from riskfield.experiments import people as P
 from riskfield.protocol import RiskConfig, TrackedObject, ade20k
 from riskfield.protocol.platforms import LIMO
 from riskfield.services.fields import EsdfField
+from riskfield.services.mapping.config import FloorParams
 from riskfield.services.safety_filter.config import LIMO_LENGTH, LIMO_WIDTH, FilterConfig
+from riskfield.services.safety_filter.evade import Evader, FreeFloor
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.motion import object_table
 from riskfield.services.safety_filter.state import FilterState
@@ -81,9 +92,15 @@ MAX_DISTANCE = 2.0
 CAMERA_X = 0.15
 COMMAND_DELAY_STEPS = 2
 TRACKER_SIGMA = 0.15
+#: m/s: the noise family's σ range, the tracker's velocity error per axis measured by
+#: ``riskfield bench crowd --variants motion --seeds 0,1`` (people.tracker_errors): robust σ to RMS
+NOISE_SIGMA = (0.09, 0.29)
 PATIENCE_S = 1.0
 MAX_DETOURS = 3
 FREEZE_SPEED = 0.02
+CAMERA_HFOV_DEG = 90.0  # the crowd bench's camera (scenarios.CROWD_HFOV_DEG)
+SEEN_RANGE = 4.0
+SEEN_RAYS = 91
 #: targets of the issue (``summarise``: which episodes miss them)
 SUCCESS_TARGET = 0.95
 RESULTS_BEGIN, RESULTS_END = "<!-- crowd-core:begin -->", "<!-- crowd-core:end -->"
@@ -382,7 +399,7 @@ def episode(family: str, seed: int) -> Episode:
         params["kinds"] = kinds
         goal = x0 + length
     else:  # noise
-        sigma = float(rng.uniform(0.15, 0.3))
+        sigma = float(rng.uniform(*NOISE_SIGMA))
         kinds = []
         for k in range(int(rng.integers(2, 5))):
             side = 1.0 if rng.uniform() < 0.5 else -1.0
@@ -407,7 +424,9 @@ def episode(family: str, seed: int) -> Episode:
 def _emerging_start(statics: list[Static], hide: np.ndarray, target: np.ndarray, speed: float, v_ref: float,
                     lead: float) -> tuple[float, float | None]:
     """The start time of the emerger's walk for which the nominal robot (straight on at ``v_ref``)
-    would touch them about ``lead`` s after they come into its camera's sight; (t, lead achieved)."""
+    would touch them about ``lead`` s after its camera first sees them walking; (t, lead achieved).
+    Walking, not standing: someone who stands in view beside the path is on no collision course,
+    so the lead a filter has is the time from the first sight of the step out."""
     t = np.arange(0.0, 16.0, 0.04)
     xy = np.column_stack([START[0] + v_ref * t, np.zeros_like(t)])
     d = target - hide
@@ -422,7 +441,7 @@ def _emerging_start(statics: list[Static], hide: np.ndarray, target: np.ndarray,
             continue
         cam = xy + np.array([CAMERA_X, 0.0])
         seen = visible(cam, c, statics)
-        first = np.flatnonzero(seen)
+        first = np.flatnonzero(seen & (t >= t_w))
         if not first.size:
             continue
         ahead = float(t[hit[0]] - t[first[0]])
@@ -504,6 +523,8 @@ class Trace:
     start_xy: np.ndarray
     start_yaw: float
     wall_s: float = 0.0
+    seen_behind: np.ndarray | None = None  # the floor behind the body was seen free (None: never)
+    evading: np.ndarray | None = None
 
 
 class _Person:
@@ -588,6 +609,40 @@ def _window_field(grid: tuple[np.ndarray, np.ndarray, np.ndarray], centre: np.nd
     return EsdfField(d, (origin[0], origin[1], 0.0), VOXEL, g[:, :, None], GROUPS, MAX_DISTANCE)
 
 
+def _mark_seen(seen: np.ndarray, grid: tuple[np.ndarray, np.ndarray, np.ndarray], cam: np.ndarray, yaw: float,
+               t: float) -> None:
+    """The camera's rays across the floor, to ``SEEN_RANGE`` or the first static obstacle: seen at t."""
+    lo, dist, _ = grid
+    half = math.radians(CAMERA_HFOV_DEG) / 2
+    a = yaw + np.linspace(-half, half, SEEN_RAYS)
+    r = np.arange(0.0, SEEN_RANGE, VOXEL / 2)
+    pts = cam[None, None, :] + r[None, :, None] * np.stack([np.cos(a), np.sin(a)], -1)[:, None, :]
+    ij = np.floor((pts - lo) / VOXEL + 0.5).astype(int)
+    ij = np.clip(ij, 0, np.array(dist.shape) - 1)
+    blocked = np.cumsum(dist[ij[..., 0], ij[..., 1]] < 0, axis=1) > 0
+    hit = ij[~blocked]
+    seen[hit[:, 0], hit[:, 1]] = t
+
+
+def _free_floor(seen: np.ndarray, grid: tuple[np.ndarray, np.ndarray, np.ndarray], people: Sequence[np.ndarray],
+                t: float, window_s: float) -> FreeFloor:
+    """What the mapper would publish as ``observed_free``: seen within the window, no obstacle now."""
+    lo, dist, _ = grid
+    free = (t - seen <= window_s) & (dist > 0)
+    if len(people):
+        gx, gy = lo[0] + VOXEL * np.arange(dist.shape[0]), lo[1] + VOXEL * np.arange(dist.shape[1])
+        for c in people:
+            free &= np.hypot(gx[:, None] - c[0], gy[None, :] - c[1]) > PERSON
+    return FreeFloor(lo.copy(), VOXEL, free)
+
+
+def _behind(xy: np.ndarray, yaw: float) -> np.ndarray:
+    """The rear edge of the body (corners and middle)."""
+    c, s_ = math.cos(yaw), math.sin(yaw)
+    local = np.array([[-HX, -HY], [-HX, 0.0], [-HX, HY]])
+    return xy + local @ np.array([[c, s_], [-s_, c]])
+
+
 def _towards(v: float, target: float, rate: float, dt: float) -> float:
     step = rate * dt
     return v + min(max(target - v, -step), step)
@@ -600,10 +655,15 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
     wall0 = time.perf_counter()
     filt = filt or SafetyFilter(FilterConfig())
     cfg, model = filt.config, filt.model
+    evader = Evader(model, cfg, filt.delta) if cfg.evade else None
+    gains = filt.gains.for_groups(GROUPS)
+    window_s = FloorParams().observed_free_s
     dt = 1.0 / RATE_HZ
     risk = RiskConfig()
     rng = np.random.default_rng([ep.seed, FAMILIES.index(ep.family), 99])
     grid = _static_grid(ep.statics, risk)
+    floor_seen = np.full(grid[1].shape, -math.inf)
+    floor: FreeFloor | None = None
     per_map, lag = round(MAP_PERIOD_S * RATE_HZ), round(LATENCY_S * RATE_HZ)
     s = FilterState.planar(*START)
     people = [_Person(dict(w)) for w in ep.walkers]
@@ -612,7 +672,8 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
     queue = [np.zeros(2)] * delay_steps
     v_act = w_act = 0.0
     steps = round(min(ep.duration_s, max_s or math.inf) * RATE_HZ)
-    rec: dict[str, list[Any]] = {k: [] for k in ("t", "xy", "yaw", "vel", "om", "vr", "wr", "u", "pp", "y", "o")}
+    rec: dict[str, list[Any]] = {k: [] for k in ("t", "xy", "yaw", "vel", "om", "vr", "wr", "u", "pp", "y", "o",
+                                                  "sb", "ev")}
     fallbacks: dict[str, int] = {}
     field_ = None
     msgs: list[TrackedObject] = []
@@ -631,6 +692,8 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
             seen = visible(np.repeat(cam[None], len(people), 0), then_xy, ep.statics) if people else np.zeros(0, bool)
             shown = [then_xy[i] for i in range(len(people)) if seen[i]]
             field_ = _window_field(grid, s.position[:2], shown, risk)
+            _mark_seen(floor_seen, grid, cam, float(then_pose[2]), t_obs)
+            floor = _free_floor(floor_seen, grid, shown, t_obs, window_s)
             msgs = []
             for i in range(len(people)):
                 if not seen[i]:
@@ -647,7 +710,9 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
         res = filt.filter(s, u_ref, field_, None, table)
         if res.fallback is not None:
             fallbacks[res.fallback] = fallbacks.get(res.fallback, 0) + 1
-        queue.append(np.asarray(res.u, float).copy())
+        u = np.asarray(res.u, float).copy()
+        retreat = None if evader is None else evader.step(s, res.yielding, not u_ref.any(), table, gains, field_, floor)
+        queue.append(u if retreat is None else retreat)
         cmd = queue.pop(0)
         v_cmd = float(np.clip(cmd[0], -LIMO.max_linear, LIMO.max_linear))
         w_cmd = float(np.clip(cmd[1], -LIMO.max_angular, LIMO.max_angular))
@@ -674,6 +739,8 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
         rec["pp"].append(np.array([p.xy for p in people]).reshape(-1, 2))
         rec["y"].append(bool(res.yielding))
         rec["o"].append(int(res.object_rows))
+        rec["sb"].append(floor is not None and floor.covers(_behind(rxy, ryaw)))
+        rec["ev"].append(retreat is not None)
         if ep.goal_x is not None and goal_at is None and rxy[0] >= ep.goal_x:
             goal_at = t
         if goal_at is not None and t - goal_at >= 0.5:
@@ -683,7 +750,7 @@ def run_episode(ep: Episode, filt: SafetyFilter | None = None, accel_limits: boo
                  np.array(rec["vel"]).reshape(-1, 2), np.array(rec["om"]), np.array(rec["vr"]), np.array(rec["wr"]),
                  np.array(rec["u"]).reshape(-1, 2), np.array(rec["pp"]).reshape(-1, n_p, 2),
                  np.array(rec["y"], bool), np.array(rec["o"], int), fallbacks, np.array(START[:2]), START[2],
-                 time.perf_counter() - wall0)
+                 time.perf_counter() - wall0, np.array(rec["sb"], bool), np.array(rec["ev"], bool))
 
 
 # -- metrics -----------------------------------------------------------------------------------------
@@ -699,6 +766,9 @@ def episode_metrics(ep: Episode, tr: Trace) -> dict[str, Any]:
     idle = (tr.v_ref == 0.0) & (tr.w_ref == 0.0)
     along = step[:, 0] * np.cos(prev_yaw) + step[:, 1] * np.sin(prev_yaw)
     unasked = tr.v_ref >= 0.0  # the operator did not ask for reverse
+    # was the floor behind the body seen free before the step (the first step: as after it)
+    seen_after = np.zeros(n, bool) if tr.seen_behind is None else tr.seen_behind
+    prev_seen = np.concatenate([seen_after[:1], seen_after[:-1]]) if n else seen_after
     total = P.Contacts()
     min_sep = math.inf
     for i in range(tr.people.shape[1] if tr.people.ndim == 3 else 0):
@@ -728,7 +798,8 @@ def episode_metrics(ep: Episode, tr: Trace) -> dict[str, Any]:
             "person_episodes": total.person_episodes, "static_contacts": static_samples,
             "static_episodes": static_episodes, "min_static_gap_m": min_static,
             "idle_displacement_m": float(dist[idle].sum()),
-            "blind_reverse_m": float(np.maximum(-along[unasked], 0.0).sum()),
+            "blind_reverse_m": float(np.maximum(-along[unasked & ~prev_seen], 0.0).sum()),
+            "evading_steps": 0 if tr.evading is None else int(tr.evading.sum()),
             "min_separation_m": min_sep, "reachable": ep.goal_x is not None, "success": reached,
             "time_to_goal_s": time_to_goal, "nominal_time_s": None if ep.goal_x is None or ep.v_ref <= 0
             else (ep.goal_x - START[0]) / ep.v_ref, "time_stopped_s": float(dt[freeze].sum()),
@@ -783,6 +854,7 @@ def summarise(rows: list[dict[str, Any]], wall_s: float) -> dict[str, Any]:
         "time_stopped_mean_s": float(np.mean([r["time_stopped_s"] for r in rows])) if rows else 0.0,
         "time_stopped_max_s": max((r["time_stopped_s"] for r in rows), default=0.0),
         "fallback_steps": sum(sum(r["fallbacks"].values()) for r in rows),
+        "evading_steps": sum(r.get("evading_steps", 0) for r in rows),
         "wall_s": wall_s, "sim_s": float(sum(r["sim_s"] for r in rows)),
         "missed": {"at_fault": _seeds(rows, lambda r: r["at_fault_contacts"] > 0),
                    "static": _seeds(rows, lambda r: r["static_contacts"] > 0),
@@ -840,9 +912,10 @@ def section_body(summary: dict[str, Any]) -> list[str]:
     missed = missed_lines(summary)
     return [table(summary), "",
             f"`{summary['command']}`: {summary['wall_time_s']:.0f} s wall for {summary['sim_time_s']:.0f} s simulated; "
-            "the filter core (FilterConfig() defaults, backend "
+            f"the filter core (FilterConfig({'evade=True' if summary.get('evade') else ''}), backend "
             f"`{summary['backend']}`) in closed loop at 50 Hz, ESDF (5 cm, planar) rebuilt at 10 Hz from the world "
-            "0.1 s before, tracks 0.1 s old with N(0, σ) velocity noise (σ 0.15 m/s; `noise`: 0.15–0.3), the LIMO's "
+            "0.1 s before, tracks 0.1 s old with N(0, σ) velocity noise (σ 0.15 m/s; `noise`: the tracker's "
+            "measured 0.09–0.29), the LIMO's "
             "acceleration limits and a 0.04 s command delay (`riskfield/experiments/crowd_core.py` defines each "
             "family and metric). Targets: 0 at-fault, 0 static contacts, idle displacement and blind reverse 0.00 m, "
             "success ≥ 95 % where the goal is reachable (idle families have none: –).", "",
@@ -850,18 +923,30 @@ def section_body(summary: dict[str, Any]) -> list[str]:
               else ["Every episode met every target."])]
 
 
+def _markers(summary: dict[str, Any]) -> tuple[str, str]:
+    """The run's section markers: the evading filter's table has its own section."""
+    if not summary.get("evade"):
+        return RESULTS_BEGIN, RESULTS_END
+    tag = "crowd-core-evade"
+    return RESULTS_BEGIN.replace("crowd-core", tag), RESULTS_END.replace("crowd-core", tag)
+
+
 def results_section(summary: dict[str, Any]) -> str:
     """The RESULTS.md section between its markers (heading outside them stays)."""
-    return "\n".join([RESULTS_BEGIN, "", *section_body(summary), "", RESULTS_END])
+    begin, end = _markers(summary)
+    return "\n".join([begin, "", *section_body(summary), "", end])
 
 
 def update_results(path: Path, summary: dict[str, Any]) -> None:
     """Rewrite the ``## Crowd families (core)`` section of ``path`` between its markers, or append it."""
     text = path.read_text() if path.is_file() else ""
     body = results_section(summary)
-    pattern = re.compile(re.escape(RESULTS_BEGIN) + r".*?" + re.escape(RESULTS_END), re.S)
+    begin, end = _markers(summary)
+    pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.S)
     if pattern.search(text):
         text = pattern.sub(lambda _: body, text, count=1)
     else:
-        text = text.rstrip() + "\n\n## Crowd families (core): `riskfield bench crowd --mode core`\n\n" + body + "\n"
+        heading = "with the opt-in evasion: `riskfield bench crowd --mode core --evade`" if summary.get("evade") \
+            else "`riskfield bench crowd --mode core`"
+        text = text.rstrip() + f"\n\n## Crowd families (core), {heading}\n\n" + body + "\n"
     path.write_text(text)

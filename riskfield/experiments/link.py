@@ -32,6 +32,7 @@ DIRECTION: dict[str, str] = {
     "limo/diagnostics": UP,
     "map/esdf": DOWN,
     "map/objects": DOWN,
+    "perception/alignment": DOWN,
     "cmd/ref": DOWN,
     "config/risk": DOWN,
     "cmd/safe": LOCAL,

@@ -16,6 +16,12 @@ walker. Pure functions of time series (no I/O), so each is unit-tested on its ow
   its body: the high-risk group's CBF (α = 0.6, margin 0.15 m, look-ahead 0.25 m) holds a 0.5 m/s
   robot below 80 % only within about 0.67 m of the inflated person ahead of the look-ahead point,
   so 1.1 m of body gap covers it.
+* **tracker accuracy** — each tracked person of ``map/objects`` against the true person nearest
+  it (within ``TRACK_MATCH``) at the instant it was observed (the message stamp minus ``age_ms``):
+  the velocity error per axis (its RMS, and the σ of its median magnitude, robust to the tail the
+  tracker's lag at a walker's stops and turns makes: what the filter's ``object_speed_sigma`` and
+  the core bench's noise family stand for) and the position error, over the tracks old enough for
+  the filter to count their whole velocity (``object_young_ms``) and over all.
 * **map lag** — for a map received at r (built from a frame stamped s), the map shows the
   person where they truly were at r − lag: lag = (r − s) + τ, τ the time shift that best fits the
   centroid of the map's high-risk cells near the person to the person's true track. Only while the
@@ -41,6 +47,8 @@ GHOST_FRACTION = 0.8
 RELEVANT_GAP = 1.1
 #: m/s: a reference below this is a stop, not a speed to keep
 MIN_REFERENCE = 0.05
+#: m: a track farther than this from every true person is a false track, not an error
+TRACK_MATCH = 0.6
 
 
 def body_frame(robot_xy: np.ndarray, yaw: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -218,6 +226,12 @@ class Track:
         i = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
         return np.hypot(self.v[i, 0], self.v[i, 1])
 
+    def velocity_at(self, t: np.ndarray) -> np.ndarray:
+        """The velocity of the segment each time falls in (piecewise constant, as the actors' plans)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        i = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
+        return self.v[i]
+
     def present(self, t: np.ndarray) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, float))
         return (t >= self.t[0]) & (t <= self.t[-1] + 0.5)
@@ -244,3 +258,55 @@ def best_shift(track: Track, stamp: float, centroid: np.ndarray, max_shift: floa
 def percentile(values: Sequence[float], q: float) -> float | None:
     vals = [float(v) for v in values if v is not None and math.isfinite(v)]
     return float(np.percentile(vals, q)) if vals else None
+
+
+@dataclass
+class TrackerErrors:
+    """Raw tracker errors (``tracker_errors``), pooled over cases by ``+``."""
+
+    velocity: list[list[float]] = field(default_factory=list)  # (dvx, dvy) per matched track
+    settled: list[bool] = field(default_factory=list)
+    position: list[float] = field(default_factory=list)
+    false_tracks: int = 0
+
+    def __add__(self, other: TrackerErrors) -> TrackerErrors:
+        return TrackerErrors(self.velocity + other.velocity, self.settled + other.settled,
+                             self.position + other.position, self.false_tracks + other.false_tracks)
+
+    def summary(self) -> dict[str, float | int | None]:
+        dv = np.asarray(self.velocity, float).reshape(-1, 2)
+        settled = dv[np.asarray(self.settled, bool)] if len(dv) else dv
+
+        def axis_rms(d: np.ndarray) -> float | None:
+            return float(np.sqrt(np.mean(np.square(d)))) if len(d) else None
+
+        speed_err = np.hypot(settled[:, 0], settled[:, 1]).tolist()
+        return {"matched": len(dv), "settled": len(settled), "false_tracks": self.false_tracks,
+                "velocity_sigma_settled_m_s": axis_rms(settled), "velocity_sigma_all_m_s": axis_rms(dv),
+                # σ of a 2-D normal error from its median magnitude (Rayleigh: median = σ √(2 ln 2)),
+                # which the tracker's lag at a walker's stops and turns (the RMS's tail) leaves alone
+                "velocity_sigma_robust_m_s": None if not speed_err else
+                float(np.median(speed_err)) / math.sqrt(2 * math.log(2)),
+                "velocity_error_p50_m_s": percentile(speed_err, 50),
+                "velocity_error_p95_m_s": percentile(speed_err, 95),
+                "position_error_p50_m": percentile(self.position, 50),
+                "position_error_p95_m": percentile(self.position, 95)}
+
+
+def tracker_errors(observations: Sequence[tuple[float, float, np.ndarray, np.ndarray]], tracks: Sequence[Track],
+                   settled_ms: float) -> TrackerErrors:
+    """The tracker's errors against the truth (module doc). ``observations``: per tracked person,
+    (observation time s, tracked_ms, position xy, velocity xy); ``settled_ms``: the age from which
+    a track's velocity counts whole."""
+    out = TrackerErrors()
+    for t, tracked_ms, xy, v in observations:
+        here = [(float(np.hypot(*(tr.at(t)[0] - xy))), tr) for tr in tracks if tr.present(np.array([t]))[0]]
+        gap, tr = min(here, key=lambda g: g[0], default=(math.inf, None))
+        if tr is None or gap > TRACK_MATCH:
+            out.false_tracks += 1
+            continue
+        dv = np.asarray(v, float)[:2] - tr.velocity_at(t)[0]
+        out.velocity.append([round(float(dv[0]), 4), round(float(dv[1]), 4)])
+        out.settled.append(bool(tracked_ms >= settled_ms))
+        out.position.append(round(gap, 4))
+    return out

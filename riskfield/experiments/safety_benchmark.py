@@ -17,11 +17,12 @@ Per scene:
    filter core (``SafetyFilter``, model ``double3d``) with its default barrier
    (``FilterConfig.barrier``) and identical class-K gains for every group. The barrier is the
    field's distance minus the robot radius minus the filter's *extra margin*: the sampled-data
-   δ = v_max T (2.5 cm) plus half a voxel of a gridded field (2.5 cm on 5 cm voxels; 0 for the
-   point cloud), see ``QpParams``. Every method is reported with that margin (``margin_m``),
-   and each ESDF variant is also driven with no extra margin (``VARIANTS``): by the default
-   filter, by the other barrier, and by the paper's filter (the HOCBF of its eq. 14 on the
-   trilinear field) — so the margin's share in the result is in the open. The per-step filter
+   δ = v_max T (2.5 cm) plus half the field's cell, ``voxel_size`` (the ESDF's 5 cm voxel, the point
+   cloud's 2.5 cm downsampling cell): one rule for every method. Every method is reported with that
+   margin (``margin_m``) and the filter backend it ran on, and each ESDF variant is also driven with
+   no extra margin (``variants``): by the default filter, by the other barrier where it can differ
+   (``barriers_differ``), and by the paper's filter (the HOCBF of its eq. 14 on the trilinear
+   field) — so the margin's share in the result is in the open. The per-step filter
    time (field query + QP) is what Table II reports.
 5. **Metrics** — ``metrics`` (progress, matched-progress clearance and collision rate).
 """
@@ -232,7 +233,7 @@ def build_pointcloud(frames: Sequence[Frame], budget_s: float, voxel: float,
     """The baseline's cloud. Geometry only, but with the usual ground (and ceiling) removal by
     height — points within 3 cm of ``z_range`` are dropped — since no method treats the floor
     as an obstacle."""
-    pc = PointCloudField(voxel=voxel / 2)
+    pc = PointCloudField(voxel_size=voxel / 2)
     used, spent = 0, 0.0
     for f in frames:
         if spent >= budget_s:
@@ -316,17 +317,28 @@ class Variant:
     overrides: tuple[tuple[str, object], ...]
 
 
-def variants(default_barrier: str | None = None) -> tuple[Variant, ...]:
-    """The no-extra-margin rows of each ESDF variant: the default filter, the other barrier, and
-    the paper's filter (eq. 14's HOCBF read from the trilinear field, as the paper's text says:
-    "ESDF gradients and Hessians are computed by finite differences and evaluated at query points
-    using trilinear interpolation")."""
-    barrier = default_barrier or FilterConfig().barrier
-    other = "braking" if barrier == "hocbf" else "hocbf"
-    return (Variant("no extra margin", ZERO_MARGIN),
-            Variant(f"{other} barrier, no extra margin", (("barrier", other), *ZERO_MARGIN)),
-            Variant("paper's HOCBF (trilinear), no extra margin",
-                    (("barrier", "hocbf"), ("interpolation", "trilinear"), *ZERO_MARGIN)))
+def barriers_differ(cfg: BenchConfig) -> bool:
+    """Whether the ``braking`` and ``hocbf`` barriers can steer differently in this bench: the
+    braking barrier *is* the HOCBF at approach speeds below its speed floor s₀ (a_b/k₂ of the
+    bench's gains unless ``brake_speed_floor`` fixes it), and no approach is faster than v_max."""
+    model = filter_safe_control(cfg).filt.model
+    floor = model.speed_floor or model.a_brake / type(model).roots(cfg.alpha1, cfg.alpha2)[1]
+    return cfg.v_max > floor
+
+
+def variants(cfg: BenchConfig) -> tuple[Variant, ...]:
+    """The no-extra-margin rows of each ESDF variant: the default filter, the other barrier (only
+    where it can differ: ``barriers_differ``; a row equal by construction shows nothing), and the
+    paper's filter (eq. 14's HOCBF read from the trilinear field, as the paper's text says: "ESDF
+    gradients and Hessians are computed by finite differences and evaluated at query points using
+    trilinear interpolation")."""
+    other = "braking" if FilterConfig().barrier == "hocbf" else "hocbf"
+    rows = [Variant("no extra margin", ZERO_MARGIN)]
+    if barriers_differ(cfg):
+        rows.append(Variant(f"{other} barrier, no extra margin", (("barrier", other), *ZERO_MARGIN)))
+    rows.append(Variant("paper's HOCBF (trilinear), no extra margin",
+                        (("barrier", "hocbf"), ("interpolation", "trilinear"), *ZERO_MARGIN)))
+    return tuple(rows)
 
 
 def filter_safe_control(cfg: BenchConfig, risk: RiskConfig | None = None,
@@ -354,6 +366,10 @@ class _FilterStep:
         """The extra margin beyond the robot radius on ``field_``: δ + ``map_margin_voxels`` voxels
         of a gridded field (the filter's ``hb``)."""
         return float(self.filt.delta + self.filt.config.map_margin_voxels * getattr(field_, "voxel_size", 0.0))
+
+    def backend_on(self, field_: DistanceField) -> str:
+        """What a step on ``field_`` runs on: compiled only on a grid ESDF (``SafetyFilter.filter``)."""
+        return self.filt.backend if isinstance(self.filt.field_for(field_), EsdfField) else "numpy"
 
     @property
     def barrier(self) -> str:

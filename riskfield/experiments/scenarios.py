@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from riskfield.protocol import RiskConfig
+from riskfield.protocol.platforms import LIMO
 from riskfield.services.simulator.scenario import ObjectSpec, build_scene, load_scenario, object_from_spec
 from riskfield.services.simulator.scene import Scene
 
@@ -257,7 +258,7 @@ def crowd_case(kind: str, speed: float, seed: int, v_ref: float = CROWD_V_REF) -
 
     # time (s) for a robot at ``v_ref`` to close a ``gap`` (m) to a standing person ahead of its centre
     def reach(gap: float) -> float:
-        return (gap - 0.161 - 0.22) / v_ref
+        return (gap - LIMO.length / 2 - 0.22) / v_ref  # the body's front, the person's radius
 
     walkers: list[dict[str, Any]] = []
     if kind == "crossing":

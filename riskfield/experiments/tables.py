@@ -77,8 +77,9 @@ def safety_table(rows: Mapping[str, Mapping[str, float]], n_pairs: int, barrier:
     filt = f" The default filter's barrier is `{barrier}`." if barrier else ""
     out = [f"**Full-run safety.** {n_pairs} trajectories; a collision is any step whose ground-truth clearance "
            "(distance to the obstacle surfaces minus the robot radius) is below zero, wherever it happens."
-           + (" Extra margin: what the filter keeps beyond the robot radius (the sampled-data δ plus half a voxel "
-              "of a gridded field; 0 on the no-extra-margin rows). Rows named with a suffix are matched with the "
+           + (" Extra margin: what the filter keeps beyond the robot radius (the sampled-data δ plus half the "
+              "field's cell, `voxel_size`: the ESDF's voxel, the point cloud's downsampling cell; 0 on the "
+              "no-extra-margin rows). Rows named with a suffix are matched with the "
               "other two methods in place of their own." + filt if margin else ""), "",
            "| Method |" + (" Extra Margin (m) |" if margin else "")
            + " Collision Rate ↓ | Min. Clearance (m) ↑ | Progress ↑ | Relaxed Steps ↓ | MP Collision Rate ↓ |",

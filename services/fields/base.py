@@ -10,27 +10,18 @@ so every point is inside.
 
 The in-map rule (one rule, used by ``FieldSample.inside``, the safety filter's ``outside_map``
 brake and the ``in_map`` flag of the mapping query service) is stated in
-:mod:`riskfield.services.fields.grid`.
+:mod:`riskfield.protocol.field`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class FieldSample:
-    """Field values at N query points (rows in the order of the query)."""
-
-    distance: np.ndarray  # (N,) metres, signed
-    gradient: np.ndarray  # (N, 3)
-    hessian: np.ndarray | None  # (N, 3, 3) when asked for
-    risk_group: np.ndarray  # (N,) int, 1-based index into the field's groups, 0 = none
-    inside: np.ndarray  # (N,) bool: within the field's domain (the in-map rule)
+# One home with the grid query it comes from (external clients read grids without the services).
+from riskfield.protocol.field import FieldSample
 
 
 class DistanceField(Protocol):
@@ -40,3 +31,6 @@ class DistanceField(Protocol):
     def groups(self) -> Sequence[str]: ...
 
     def query(self, points: np.ndarray, hessian: bool = False) -> FieldSample: ...
+
+
+__all__ = ["DistanceField", "FieldSample"]

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 class PointCloudField:
     """Accumulates world points (voxel-downsampled) and answers nearest-point distances."""
 
-    voxel: float = 0.02
+    voxel_size: float = 0.02  # the downsampling cell (m); the filter's map margin reads it as a grid's
     min_distance: float = 1e-4  # keeps n and the Hessian finite exactly on a point
     far: float = 2.0  # distance reported with no points at all (like an ESDF's max_distance)
     curvature: bool = True  # report the point's Hessian; False: the local tangent-plane model (∇²d = 0)
@@ -47,7 +47,7 @@ class PointCloudField:
         p = p[np.isfinite(p).all(axis=1)]
         if p.size == 0:
             return
-        keys = np.floor(p / self.voxel).astype(np.int64)
+        keys = np.floor(p / self.voxel_size).astype(np.int64)
         _, first = np.unique(keys, axis=0, return_index=True)
         for k, q in zip(map(tuple, keys[first]), p[first], strict=True):
             if k not in self._keys:

@@ -4,7 +4,7 @@ The trilinear field of the paper has a piecewise-constant exact gradient; ``fiel
 around it with finite differences through the interpolant, which are continuous but are not
 the derivatives of the distance they accompany (a CBF row then predicts a rate of h that h
 does not have). Here the distance is a piecewise cubic whose gradient and Hessian are its own
-exact derivatives. Both kernels use the same 4-per-axis stencil (positions -1, 0, 1, 2 around
+exact derivatives. The kernels use the same 4-per-axis stencil (positions -1, 0, 1, 2 around
 the query's cell, fraction t ∈ [0, 1) inside it) as ``fields.grid``, as a tensor product over
 the 2 or 3 axes:
 
@@ -35,45 +35,14 @@ SPM 16(6), 1999 (the B-spline prefilter; scipy implements it in ``ndimage/_inter
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
-Kernel = Literal["catmull_rom", "bspline", "bspline_smooth"]
-KERNELS: tuple[Kernel, ...] = ("catmull_rom", "bspline", "bspline_smooth")
+# The kernels' weights are part of the grid query (riskfield.protocol.field, shared with external
+# clients); only the prefilter, which needs scipy, lives here.
+from riskfield.protocol.field import _MATRIX, KERNELS, Kernel
+from riskfield.protocol.field import kernel_weights as axis_weights
 
-# Weights of the stencil positions (-1, 0, 1, 2) as polynomials in t: w_p(t) = Σ_k M[p, k] t^k.
-_CATMULL_ROM = 0.5 * np.array([
-    [0.0, -1.0, 2.0, -1.0],
-    [2.0, 0.0, -5.0, 3.0],
-    [0.0, 1.0, 4.0, -3.0],
-    [0.0, 0.0, -1.0, 1.0],
-])
-_BSPLINE = np.array([
-    [1.0, -3.0, 3.0, -1.0],
-    [4.0, 0.0, -6.0, 3.0],
-    [1.0, 3.0, 3.0, -3.0],
-    [0.0, 0.0, 0.0, 1.0],
-]) / 6.0
-_MATRIX = {"catmull_rom": _CATMULL_ROM, "bspline": _BSPLINE, "bspline_smooth": _BSPLINE}
-
-
-def axis_weights(t: np.ndarray, h: float, kernel: Kernel, orders: int) -> np.ndarray:
-    """Per-axis stencil weights of the value and its first ``orders - 1`` derivatives.
-
-    ``t`` (N, dims) fractions in the cell; returns (N, dims, orders, 4): row 0 interpolates the
-    value, row 1 the first derivative (1/m), row 2 the second (1/m²) — the layout
-    ``fields.grid.EsdfField`` contracts with the stencil.
-    """
-    m = _MATRIX[kernel]
-    t = np.asarray(t, np.float64)
-    one, t2 = np.ones_like(t), t * t
-    powers = [np.stack([one, t, t2, t2 * t], axis=-1)]  # d⁰/dt⁰ of (1, t, t², t³)
-    if orders > 1:
-        powers.append(np.stack([0 * t, one, 2 * t, 3 * t2], axis=-1) / h)
-    if orders > 2:
-        powers.append(np.stack([0 * t, 0 * t, 2 * one, 6 * t], axis=-1) / (h * h))
-    return np.stack(powers, axis=-2) @ m.T
+__all__ = ["KERNELS", "_MATRIX", "Kernel", "axis_weights", "prefilter"]
 
 
 def prefilter(distance: np.ndarray, kernel: Kernel, planar: bool) -> np.ndarray:

@@ -49,6 +49,20 @@ class PinholeCamera:
         """Principal point at the image centre ((W − 1)/2, (H − 1)/2)."""
         return cls(width, height, fx, fx if fy is None else fy, (width - 1) / 2, (height - 1) / 2)
 
+    def strided(self, stride: int) -> PinholeCamera:
+        """The camera of every ``stride``-th pixel in each direction (pixels 0, s, 2s, …): pixel
+        u' = u / s, so fx, fy, cx, cy all scale by 1 / s."""
+        if stride < 1:
+            raise ValueError("stride must be ≥ 1")
+        s = float(stride)
+        return PinholeCamera(-(-self.width // stride), -(-self.height // stride), self.fx / s, self.fy / s,
+                             self.cx / s, self.cy / s)
+
+    @property
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy): the wire contract's ``intrinsics``."""
+        return (float(self.fx), float(self.fy), float(self.cx), float(self.cy))
+
     @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])

@@ -308,10 +308,22 @@ class ObjectParams(BaseModel):
     last position and velocity and a growing ``age_ms``."""
 
 
+class FloorParams(BaseModel):
+    """Which floor counts as observed free (``free_floor``): what an evading robot may retreat into."""
+
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
+
+    observed_free_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)] = 5.0
+    """s: a floor cell a camera ray crossed without meeting a surface counts as observed free for
+    this long (what an evading robot may retreat into); 0: the layer is not kept."""
+    observed_free_stride: Annotated[int, Field(ge=1, le=64)] = 8
+    """Pixel stride of the rays that mark the floor observed free."""
+
+
 P = TypeVar("P", bound=BaseModel)
 
 
-class MapperConfig(ObjectParams, DynamicParams, EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
+class MapperConfig(FloorParams, ObjectParams, DynamicParams, EsdfParams, OccupancyParams, TsdfParams, VolumeParams):
     """Everything that shapes the map: the stages' parameter structs, composed (see the module
     doc). Group names, labels and margins come from the ``RiskConfig`` instead (hot-reloadable),
     not from here."""
@@ -321,8 +333,9 @@ class MapperConfig(ObjectParams, DynamicParams, EsdfParams, OccupancyParams, Tsd
     @classmethod
     def compose(cls, volume: VolumeParams | None = None, tsdf: TsdfParams | None = None,
                 occupancy: OccupancyParams | None = None, esdf: EsdfParams | None = None,
-                dynamic: DynamicParams | None = None, objects: ObjectParams | None = None) -> MapperConfig:
-        parts = (volume, tsdf, occupancy, esdf, dynamic, objects)
+                dynamic: DynamicParams | None = None, objects: ObjectParams | None = None,
+                floor: FloorParams | None = None) -> MapperConfig:
+        parts = (volume, tsdf, occupancy, esdf, dynamic, objects, floor)
         return cls.model_validate({k: v for p in parts if p is not None for k, v in p.model_dump().items()})
 
     def part(self, params: type[P]) -> P:
@@ -335,6 +348,7 @@ class MapperConfig(ObjectParams, DynamicParams, EsdfParams, OccupancyParams, Tsd
     esdf = property(lambda self: self.part(EsdfParams), doc="The ``EsdfParams`` part.")
     dynamic = property(lambda self: self.part(DynamicParams), doc="The ``DynamicParams`` part.")
     objects = property(lambda self: self.part(ObjectParams), doc="The ``ObjectParams`` part.")
+    floor = property(lambda self: self.part(FloorParams), doc="The ``FloorParams`` part.")
 
     @property
     def surface_band(self) -> float:

@@ -58,8 +58,9 @@ import numpy as np
 from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig, ade20k
 
 from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
-from .config import MapperConfig
+from .config import FloorParams, MapperConfig
 from .esdf_integrator import EsdfIntegrator
+from .free_floor import FreeFloorIntegrator, FreeFloorLayer
 from .keyframes import NEW, UPDATE, KeyframeMap
 from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
 from .occupancy import semantic_occupancy
@@ -114,6 +115,10 @@ class Mapper:
         self.semantic_integrator = SemanticIntegrator(c)
         self.projective_integrator = ProjectiveIntegrator(c)
         self.esdf_integrator = EsdfIntegrator(c)
+        #: the floor seen free (free_floor.py): what an evading robot may retreat into
+        self.free_floor = FreeFloorLayer(self.shape)
+        self.free_floor_integrator = FreeFloorIntegrator(c.part(FloorParams), c.truncation, c.min_confidence,
+                                                         c.min_depth, c.max_depth)
         self.robot_position: np.ndarray | None = None
         self.field: EsdfField | None = None
         self.frames = 0
@@ -184,6 +189,7 @@ class Mapper:
             self.present.shift(delta)
             self.present_semantic.shift(delta)
         self.esdf_integrator.shift(delta)
+        self.free_floor.shift(delta)
         self.shifts += 1
         self._last3d = None
         self.dirty = True
@@ -201,8 +207,10 @@ class Mapper:
         shifted = self._accept(points, confidence, labels, T_WC)
         # An unstamped pointmap counts as data of now (its integration), never of a later rebuild.
         stamp = int(stamp_ns) if stamp_ns is not None else time.time_ns()
+        now_ms = self.clock(stamp or time.time_ns())
         rays, votes = self._integrate_into(self.tsdf, self.semantic, self._integrators(), points, confidence,
-                                           labels, T_WC, intrinsics, self.clock(stamp or time.time_ns()))
+                                           labels, T_WC, intrinsics, now_ms)
+        self.observe_floor(points, confidence, T_WC, now_ms)
         self.changed(stamp if rays > 0 else None, frame_id)
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
 
@@ -230,6 +238,14 @@ class Mapper:
         rays = ray.integrate(self.volume, tsdf, points, confidence, T_WC, now_ms)
         return rays, sem.integrate(self.volume, semantic, points, confidence, labels, T_WC)
 
+    def observe_floor(self, points: np.ndarray, confidence: np.ndarray, T_WC: np.ndarray, now_ms: int) -> int:
+        """A current frame's rays → the floor seen free (``free_floor``); the cells marked."""
+        if self.volume is None or self.config.observed_free_s == 0:
+            return 0
+        base = float(self.robot_position[2]) if self.robot_position is not None else 0.0
+        return self.free_floor_integrator.integrate(self.volume, self.free_floor, points, confidence, T_WC, base,
+                                                    base + self.config.band[1], now_ms)
+
     def clock(self, stamp_ns: int) -> int:
         """The frame time ``stamp_ns`` on the layers' ``hit`` clock (ms since the first frame);
         also the mapper's ``now_ms`` when it is the newest yet."""
@@ -250,14 +266,16 @@ class Mapper:
         if frame_id:
             self.frame_id = frame_id
 
-    def integrate_present(self, frame: PerceptionFrame) -> tuple[int, int]:
-        """A current frame under the keyframe protocol → the present layer (module doc)."""
+    def integrate_present(self, frame: PerceptionFrame, points: np.ndarray | None = None) -> tuple[int, int]:
+        """A current frame under the keyframe protocol → the present layer (module doc); ``points``:
+        its pointmap when already rebuilt (``PerceptionFrame.pointmap``)."""
         assert self.volume is not None
         if self.present is None or self.present_semantic is None:
             self.present = TsdfLayer(self.shape, self.config.truncation)
             self.present_semantic = SemanticLayer(self.shape)
         stamp = int(frame.header.stamp_ns) or time.time_ns()
-        return self._integrate_into(self.present, self.present_semantic, self._integrators(), frame.points,
+        pts = frame.pointmap() if points is None else points
+        return self._integrate_into(self.present, self.present_semantic, self._integrators(), pts,
                                     frame.confidence, frame.labels, frame.T_WC, frame.intrinsics, self.clock(stamp))
 
     def clear_present(self) -> None:
@@ -391,7 +409,7 @@ class Mapper:
             raise FutureFrame(f"stamped {(frame.header.stamp_ns - latest_ns) / 1e9:.3f} s after this clock allows")
         if frame.kind is not None:  # new / updated keyframe or tracking frame: see keyframes.py
             return self._integrate_keyframe_protocol(frame)
-        return self.integrate(frame.points, frame.confidence, frame.labels, frame.T_WC,
+        return self.integrate(frame.pointmap(), frame.confidence, frame.labels, frame.T_WC,
                               stamp_ns=frame.header.stamp_ns, frame_id=frame.header.frame_id,
                               intrinsics=frame.intrinsics)
 
@@ -400,22 +418,25 @@ class Mapper:
         contributions; a current frame (``keyframe_new``, ``tracking``) also reaches the present layer."""
         t0 = time.perf_counter()
         kind, kid = frame.kind, int(frame.keyframe_id)
-        shifted = self._accept(frame.points, frame.confidence, frame.labels, frame.T_WC)
+        points = frame.pointmap()  # a compact frame's depth, rebuilt once
+        shifted = self._accept(points, frame.confidence, frame.labels, frame.T_WC)
         assert self.volume is not None
         stamp = int(frame.header.stamp_ns)
         rays = votes = 0
         if self.keyframes.admit(kind, kid):
             assert kind in (NEW, UPDATE)
             rays, votes, reposed = self.keyframes.integrate(
-                self.volume, self.tsdf, self.semantic, kind, kid, frame.points, frame.confidence, frame.labels,
+                self.volume, self.tsdf, self.semantic, kind, kid, points, frame.confidence, frame.labels,
                 frame.T_WC, self.clock(stamp or time.time_ns()))
-            if reposed:
+            if reposed:  # what was seen free was seen in the old frame of reference
                 self.clear_present()
+                self.free_floor.clear()
             self.dirty = True
             if kind == UPDATE:
                 self.frames += 1
         if kind != UPDATE:  # new keyframes and tracked frames show the camera's present view
-            rays, votes = self.integrate_present(frame)
+            rays, votes = self.integrate_present(frame, points)
+            self.observe_floor(points, frame.confidence, frame.T_WC, self.clock(stamp or time.time_ns()))
             self.changed(stamp if rays > 0 else None, frame.header.frame_id)
         self.keyframes.count(kind)
         return FrameResult(rays, votes, shifted, (time.perf_counter() - t0) * 1e3)
@@ -428,10 +449,11 @@ class Mapper:
         pts = np.zeros((2, 2, 3), np.float32)
         pts[..., 2] = self.config.voxel_size
         conf, labels, T = np.ones((2, 2), np.float32), np.zeros((2, 2), np.uint16), np.eye(4)
-        for readonly in (False, True):
+        # writable, decoded (read-only), and a compact frame's: its rebuilt pointmap writable, the rest decoded
+        for readonly in ((False,) * 4, (True,) * 4, (False, True, True, True)):
             arrays = [a.copy() for a in (pts, conf, labels, T)]
-            for a in arrays:
-                a.flags.writeable = not readonly
+            for a, ro in zip(arrays, readonly, strict=True):
+                a.flags.writeable = not ro
             self.tsdf_integrator.integrate(scratch, tsdf, arrays[0], arrays[1], arrays[3])
             self.semantic_integrator.integrate(scratch, sem, arrays[0], arrays[1], arrays[2], arrays[3])
             self.projective_integrator.integrate(scratch, tsdf, sem, arrays[0], arrays[1], arrays[2], arrays[3],
@@ -484,8 +506,12 @@ class Mapper:
             dist, grp = self.esdf_integrator.compute_slice(groups, k_lo, k_hi, self.margins)
             origin = self.volume.origin.copy()
             origin[2] = z
+            free = None
+            if c.observed_free_s > 0:
+                band_obstacle = (groups[:, :, max(k_lo, 0):max(k_hi, 0)] > 0).any(axis=2)
+                free = self.free_floor.observed_free(self.now_ms, c.observed_free_s, band_obstacle)
             out.slice2d = EsdfGrid(header=header.model_copy(), origin=tuple(origin.tolist()), distance=dist,
-                                   risk_group=grp, **common)
+                                   risk_group=grp, observed_free=free, **common)
             t2 = time.perf_counter()
             out.timings_ms["esdf2d"] = (t2 - t1) * 1e3
             t1 = t2

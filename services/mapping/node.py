@@ -24,7 +24,12 @@ perception latency and keeps growing while perception is silent. A rejected fram
 a stamp more than ``clock_tolerance_s`` ahead of this clock) is counted (``rejected_frames``; the last also in
 ``future_frames``) and logged at most once per period, and changes nothing; the node keeps serving.
 A risk file (``risk_file``, see ``runtime.risk_file``) is loaded at start and re-read when it
-changes; a bad change keeps the configuration in force and is counted (``risk_errors``).
+changes; a bad change keeps the configuration in force and is counted (``risk_errors``). Whatever
+a configuration says, what the map holds stays an obstacle of at least the last group
+(``RiskConfig``'s floor); one naming no obstacle does not decode (counted in ``NodeStatus.invalid``),
+one the mapper cannot use is counted in ``risk_refused``. The configuration in force has a version
+and a hash (``RiskStore``), echoed in ``status/mapping`` (``NodeStatus.risk_version``, ``risk_hash``)
+and, with ``state_dir``, kept there and reloaded at the next start.
 """
 
 from __future__ import annotations
@@ -49,7 +54,7 @@ from ..runtime.continuity import StateGate, report_refused
 from ..runtime.memory import keep_freed_heap
 from ..runtime.node import Node
 from ..runtime.rate import TokenBucket
-from ..runtime.risk_file import watch_risk_file
+from ..runtime.risk_file import RiskStore, watch_risk_file
 from ..runtime.service import ServiceSpec
 from .mapper import FrameRejected, FutureFrame, Mapper, MapUpdate
 from .objects import ObjectTracker
@@ -63,18 +68,21 @@ class MappingNode:
 
     def __init__(self, node: Node, settings: MappingSettings):
         self.node, self.s = node, settings
-        risk = None
+        # The configuration in force, its version and digest, kept under state_dir (module doc).
+        self.risk_store = RiskStore(settings.state_dir, node.service, node.log)
         if settings.risk_file is not None:  # a bad file at start is a configuration error
-            risk = watch_risk_file(node, settings.risk_file, settings.risk_poll_s, self._set_risk_from_file)
+            self.risk_store.commit(watch_risk_file(node, settings.risk_file, settings.risk_poll_s,
+                                                   self._set_risk_from_file), str(settings.risk_file))
         keep_freed_heap(settings.heap_keep_mb)  # before the warm-up's first large arrays
-        self.mapper = Mapper(settings.mapper_config(), risk)
+        self.mapper = Mapper(settings.mapper_config(), self.risk_store.risk)
+        self._show_risk()
         self.mapper.warm_up()
         self.tracker = ObjectTracker.warmed(self.mapper.config) if settings.object_tracking else None
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)
         self.rejected = 0
         self.updates = 0
         self.gate = StateGate.of(settings, settings.clock_tolerance_s)
-        node.stats.update(state_refused=0, future_frames=0)
+        node.stats.update(state_refused=0, future_frames=0, risk_refused=0)
         self._period = 1.0 / settings.esdf_rate_hz
         # An average-rate cap that lets a frame that comes a little early through (see rate.py).
         self._bucket = TokenBucket(settings.esdf_rate_hz, burst=2.0)
@@ -149,15 +157,26 @@ class MappingNode:
                        "the volume stays where it is")
 
     def on_risk_config(self, risk: RiskConfig) -> None:
+        # One naming no obstacle never gets here: it does not decode (RiskConfig's floor), and the
+        # runtime counts it (NodeStatus.invalid) and logs why.
         try:
             self.mapper.set_risk_config(risk)
         except ValueError as exc:
-            self.node.ratelog(logging.WARNING, "risk", f"rejected a risk config: {exc}")
+            self.node.stats["risk_refused"] += 1
+            self.node.ratelog(logging.WARNING, "risk", f"rejected a risk config: {exc}; keeping "
+                              f"v{self.risk_store.version} {self.risk_store.digest}")
             return
-        self.node.log.info("risk config updated: groups %s", risk.group_names)
+        self.risk_store.commit(risk, self.node.keys.risk_config)
+        self._show_risk()
 
     def _set_risk_from_file(self, risk: RiskConfig) -> None:
         self.mapper.set_risk_config(risk)  # a ValueError keeps the configuration in force
+        self.risk_store.commit(risk, str(self.s.risk_file))
+        self._show_risk()
+
+    def _show_risk(self) -> None:
+        self.node.status_fields.update(risk_version=self.risk_store.version, risk_hash=self.risk_store.digest)
+        self.node.stats["risk_version"] = self.risk_store.version
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_esdf(self) -> None:

@@ -20,7 +20,10 @@ as is across depth jumps, at the image edge and where p is over 1.5 voxels from 
 plane reach past a convex edge): the range difference overestimates the distance
 by 1/cos θ at incidence θ, which leaves holes in the surface band of obliquely seen faces (the
 floor, the top of a box), where the ray integrators are saved by evaluating every voxel on the ray
-through its own hit point. q' = q in the surface band (sdf ≤ τ) and q' = ``carve_weight``·q in front of it (free
+through its own hit point. q' = q·max(1, fx·fy·v²/c_z²) in the surface band (sdf ≤ τ; v the voxel
+size: q times the pixels the voxel covers, as many as the ray integrators' rays that meet it)
+where the plane is found, q where not (an isolated or edge pixel weighs one pixel), and
+q' = ``carve_weight``·q in front of it (free
 space: every voxel between the camera and the band is carved in the same pass, at no extra
 cost, where the ray integrators walk a second, long ray). A free-space observation raises W only
 up to ``max_free_weight`` (``TsdfParams``), so that a surface appearing in long-seen free space
@@ -32,7 +35,11 @@ which the occupancy's solid fill marches along. Semantic votes take the same pas
 pixel's label with weight q.
 
 Each voxel gets one observation per frame (the ray integrators give one per pixel or merged ray
-that crosses it), so weights grow by a pixel's confidence per frame.
+that crosses it). Its surface weight counts the pixels it covers, so that a surface has the ray
+integrators' weight per frame whatever the confidence's scale: with q = 1 (depth cameras, the
+simulator's truth) and q per voxel, a person appearing in free space long seen (weight
+``max_free_weight``) would need ~9 frames to reach the surface band, and one walking by never
+would. Free space keeps q per voxel (the ray integrators carve with fewer rays than they fuse).
 
 The grid is cut into cubic blocks of ``block_size`` voxels; a block is visited only if its
 bounding sphere meets the view frustum (the four side planes, in front of the camera, nearer
@@ -75,23 +82,24 @@ def _far_range(points: np.ndarray, conf: np.ndarray, q_min: float, r_min: float,
 @njit(cache=True, nogil=True, error_model="numpy")
 def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, px: float, py: float, pz: float,
                     r: float, x: float, y: float, z: float, q_min: float, trunc: float, reach: float,
-                    sdf: float) -> float:
+                    sdf: float) -> tuple[float, bool]:
     """The band's signed distance from the voxel centre (x, y, z) to the plane of pixel (iv, iu),
-    ``(c − p)·n`` with the pointmap's normal n turned to the camera; ``sdf`` (the range difference)
-    where the neighbours do not give a normal (image edge, invalid or across a depth jump) or the
-    point is farther than ``reach`` from the centre (the plane would reach past a convex edge)."""
+    ``(c − p)·n`` with the pointmap's normal n turned to the camera, and True; ``sdf`` (the range
+    difference) and False where the neighbours do not give a normal (image edge, invalid or across
+    a depth jump) or the point is farther than ``reach`` from the centre (the plane would reach
+    past a convex edge)."""
     if (x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2 > reach * reach:
-        return sdf
+        return sdf, False
     h, w = conf.shape
     ul, ur, vu, vd = max(iu - 1, 0), min(iu + 1, w - 1), max(iv - 1, 0), min(iv + 1, h - 1)
     if ul == ur or vu == vd:
-        return sdf
+        return sdf, False
     for vv, uu in ((iv, ul), (iv, ur), (vu, iu), (vd, iu)):
         if not conf[vv, uu] >= q_min or conf[vv, uu] <= 0.0:
-            return sdf
+            return sdf, False
         rn = np.sqrt(points[vv, uu, 0] ** 2 + points[vv, uu, 1] ** 2 + points[vv, uu, 2] ** 2)
         if abs(rn - r) > trunc:
-            return sdf  # a depth jump: no plane here
+            return sdf, False  # a depth jump: no plane here
     ax = points[iv, ur, 0] - points[iv, ul, 0]
     ay = points[iv, ur, 1] - points[iv, ul, 1]
     az = points[iv, ur, 2] - points[iv, ul, 2]
@@ -101,11 +109,11 @@ def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, px: 
     nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
     nn = np.sqrt(nx * nx + ny * ny + nz * nz)
     if not nn > 0.0:
-        return sdf
+        return sdf, False
     if nx * px + ny * py + nz * pz > 0.0:
         nn = -nn  # face the camera
     d = ((x - px) * nx + (y - py) * ny + (z - pz) * nz) / nn
-    return min(max(d, -trunc), trunc)
+    return min(max(d, -trunc), trunc), True
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -126,6 +134,7 @@ def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarr
     for m in range(4):
         planes[m] /= np.sqrt(planes[m, 0] ** 2 + planes[m, 1] ** 2 + planes[m, 2] ** 2)
     carve_to = min(far, r_max) - trunc  # where the band of the farthest usable surface begins
+    foot = fx * fy * vs * vs  # pixels a voxel covers at camera depth 1 m
     for b in prange(bx * by * bz):
         ib, jb, kb = b // (by * bz), (b // bz) % by, b % bz
         i0, j0, k0 = ib * block, jb * block, kb * block
@@ -186,9 +195,13 @@ def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarr
                         d, qq = trunc, q * carve_scale
                     else:
                         hit[i, j, k] = now
-                        sdf = _point_to_plane(points, conf, iv, iu, px, py, pz, r, x, y, z, q_min, trunc, 1.5 * vs,
-                                              sdf)
-                        d, qq = sdf, q
+                        sdf, planar = _point_to_plane(points, conf, iv, iu, px, py, pz, r, x, y, z, q_min, trunc,
+                                                      1.5 * vs, sdf)
+                        # The ray integrators give a surface voxel one observation per pixel whose
+                        # ray meets it; this pass gives one per voxel, so it weighs it by the pixels
+                        # the voxel covers — where its pixel's neighbours agree on a plane, not for
+                        # an isolated (flying) pixel, which the ray integrators weigh as one.
+                        d, qq = sdf, q * max(1.0, foot / (z * z)) if planar else q
                         if sdf < 0.0:
                             view[i, j, k, 0] = np.int8(np.rint(127.0 * ex / t))
                             view[i, j, k, 1] = np.int8(np.rint(127.0 * ey / t))

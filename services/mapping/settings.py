@@ -13,11 +13,12 @@ from typing import Annotated, ClassVar
 from pydantic import Field
 
 from ..runtime.continuity import StateGateSettings
+from ..runtime.risk_file import RiskStateSettings
 from ..runtime.settings import NodeSettings
 from .config import REFERENCE_IMPLEMENTATIONS, MapperConfig
 
 
-class MappingSettings(NodeSettings, MapperConfig, StateGateSettings):
+class MappingSettings(NodeSettings, MapperConfig, StateGateSettings, RiskStateSettings):
     SERVICE: ClassVar[str] = "mapping"
     REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
 

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from riskfield.protocol.platforms import PlanarPlatform, SpatialPlatform, platform
 
 from .clf import DoubleIntegratorCLF, UnicycleCLF
+
+#: The platform a model drives when none is named.
+MODEL_PLATFORM = {"unicycle": "limo", "double_integrator": "point_mass"}
 
 
 class NavigatorConfig(BaseModel):
@@ -20,6 +25,9 @@ class NavigatorConfig(BaseModel):
 
     model: Literal["unicycle", "double_integrator"] = "unicycle"
     """unicycle: planar LIMO-like robot (v, omega); double_integrator: 3-D point robot (body-frame velocity)."""
+    platform: str | None = None
+    """The robot's description (protocol/platforms.py PLATFORMS): its limits cap v_max, w_max and a_max; None: limo
+    for the unicycle, point_mass for the double integrator."""
     k_rho: float = Field(0.8, gt=0)
     """unicycle: forward speed per metre of distance to the waypoint (1/s)."""
     k_alpha: float = Field(2.0, gt=0)
@@ -53,8 +61,28 @@ class NavigatorConfig(BaseModel):
     escape_distance: float = Field(0.8, gt=0)
     """Distance (m) of the side sub-goal from the robot."""
 
+    @model_validator(mode="after")
+    def _platform_fits_the_model(self) -> NavigatorConfig:
+        p = self.robot_platform
+        kind = PlanarPlatform if self.model == "unicycle" else SpatialPlatform
+        if not isinstance(p, kind):
+            what = "ground robot" if kind is PlanarPlatform else "point robot"
+            raise ValueError(f"platform {p.name!r} is not a {what} for the {self.model} model")
+        return self
+
+    @property
+    def robot_platform(self) -> PlanarPlatform | SpatialPlatform:
+        return platform(self.platform or MODEL_PLATFORM[self.model])
+
     def unicycle(self) -> UnicycleCLF:
-        return UnicycleCLF(self.k_rho, self.k_alpha, self.v_max, self.w_max, self.allow_reverse)
+        v_max, w_max, p = self.v_max, self.w_max, self.robot_platform
+        if isinstance(p, PlanarPlatform):
+            v_max, w_max = min(v_max, p.max_linear), min(w_max, p.max_angular)
+        return UnicycleCLF(self.k_rho, self.k_alpha, v_max, w_max, self.allow_reverse)
 
     def double_integrator(self) -> DoubleIntegratorCLF:
-        return DoubleIntegratorCLF(self.k_p, self.k_d, self.v_max, self.a_max)
+        v_max, a_max, p = self.v_max, self.a_max, self.robot_platform
+        if isinstance(p, SpatialPlatform):
+            v_max = min(v_max, p.max_speed)
+            a_max = a_max if p.max_accel is None else min(a_max, p.max_accel)
+        return DoubleIntegratorCLF(self.k_p, self.k_d, v_max, a_max)

@@ -15,7 +15,10 @@ plus EfficientViT would plausibly give:
   ``p_confuse``, relabelled as a plausible confusion (dog → cat-like ``animal`` stays, box →
   cabinet, chair → armchair, …) over a random window of its pixels, plus sparse salt noise
   ``p_salt``;
-* **optional pose drift** — a random walk on translation and yaw applied to ``T_WC``.
+* **optional pose drift** — a random walk on translation and yaw applied to ``T_WC``;
+* **optional SLAM world and odometry errors** (``SlamErrorConfig``, off by default) — SLAM's
+  scale error and scale drift, its heading drift (``SlamWorld``), and wheel slip in the odometry
+  perception aligns to (``OdometrySlip``).
 
 θ is the angle between the viewing ray and the surface normal, estimated from the pointmap
 itself (cross product of neighbouring points), as a real pipeline would have to.
@@ -23,6 +26,7 @@ itself (cross product of neighbouring points), as a real pipeline would have to.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -232,3 +236,111 @@ class Degrader:
                 step[:3, 3] = self.rng.normal(0.0, cfg.drift_t, 3) * np.array([1.0, 1.0, 0.2])
             self.drift = self.drift @ step
         return self.drift @ T_WC
+
+
+@dataclass(frozen=True)
+class SlamErrorConfig:
+    """How a monocular SLAM's world differs from the metric one, and odometry from the truth. All off
+    by default (the identity: ``SimBackend`` then publishes exactly what it did without them).
+
+    * ``slam_scale`` — SLAM's scale s at the first image: its world is the true one scaled by s
+      about the first camera (MASt3R-SLAM keeps the first keyframe's scale);
+    * ``scale_drift`` — σ of a random walk of log s per √m of camera travel (relative per √m);
+    * ``yaw_drift`` — σ (rad per √m) of a random walk of SLAM's heading about the vertical;
+    * ``odom_slip`` — wheel odometry overstates every step of travel by this fraction (slip of
+      driven wheels), the pose perception aligns to.
+    """
+
+    slam_scale: float = 1.0
+    scale_drift: float = 0.0  # per √m
+    yaw_drift: float = 0.0  # rad per √m
+    odom_slip: float = 0.0  # fraction
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.slam_scale) and self.slam_scale > 0):
+            raise ValueError("slam_scale must be finite and positive")
+        for name in ("scale_drift", "yaw_drift", "odom_slip"):
+            v = getattr(self, name)
+            if not math.isfinite(v) or v < 0:
+                raise ValueError(f"{name} must be finite and non-negative")
+
+    @property
+    def is_identity(self) -> bool:
+        return self.slam_scale == 1.0 and self.scale_drift == 0.0 and self.yaw_drift == 0.0
+
+    @classmethod
+    def bench(cls, slam_scale: float) -> SlamErrorConfig:
+        """``riskfield bench scale``'s drifting SLAM: 1 %/√m of scale, 0.01 rad/√m of heading, 1 % slip."""
+        return cls(slam_scale, 0.01, 0.01, 0.01)
+
+
+class SlamWorld:
+    """A drifting SLAM's world, seeded: each step of true camera travel Δp becomes s·R(ψ)·Δp in SLAM's
+    world while s and ψ random-walk (``SlamErrorConfig``); near the current camera the true → SLAM map
+    is the similarity x ↦ s·R(ψ)·(x − p) + p_slam (``to_slam``)."""
+
+    def __init__(self, config: SlamErrorConfig, seed: int = 0):
+        self.config = config
+        self.rng = np.random.default_rng([seed, 0x5CA1E])  # its own stream: the degrader's draws stay
+        self.log_s = math.log(config.slam_scale)
+        self.yaw = 0.0
+        self.p_true: np.ndarray | None = None
+        self.p_slam: np.ndarray | None = None
+        self.travelled = 0.0
+
+    @property
+    def scale(self) -> float:
+        return math.exp(self.log_s)
+
+    def step(self, T_WC_true: np.ndarray) -> None:
+        p = np.asarray(T_WC_true[:3, 3], np.float64)
+        if self.p_true is None:
+            self.p_true, self.p_slam = p.copy(), p.copy()  # anchored at the first camera
+            return
+        dp = p - self.p_true
+        ds = float(np.linalg.norm(dp))
+        c = self.config
+        if ds > 0:
+            if c.scale_drift > 0:
+                self.log_s += self.rng.normal(0.0, c.scale_drift * math.sqrt(ds))
+            if c.yaw_drift > 0:
+                self.yaw += self.rng.normal(0.0, c.yaw_drift * math.sqrt(ds))
+        assert self.p_slam is not None
+        self.p_slam = self.p_slam + self.scale * _yaw(self.yaw) @ dp
+        self.p_true = p.copy()
+        self.travelled += ds
+
+    def to_slam(self, T_WC: np.ndarray) -> tuple[np.ndarray, float]:
+        """A camera pose (true world) in SLAM's world, and the factor its camera-frame points take."""
+        assert self.p_true is not None and self.p_slam is not None, "step() first"
+        R = _yaw(self.yaw)
+        out = np.eye(4)
+        out[:3, :3] = R @ T_WC[:3, :3]
+        out[:3, 3] = self.scale * R @ (T_WC[:3, 3] - self.p_true) + self.p_slam
+        return out, self.scale
+
+
+class OdometrySlip:
+    """Wheel odometry that overstates travel by ``slip``: each true step Δp of the base is
+    (1 + slip)·Δp; the heading stays true."""
+
+    def __init__(self, slip: float):
+        self.slip = slip
+        self.p_true: np.ndarray | None = None
+        self.p_odom: np.ndarray | None = None
+
+    def pose(self, T_true: np.ndarray) -> np.ndarray:
+        p = np.asarray(T_true[:3, 3], np.float64)
+        if self.p_true is None or self.p_odom is None:
+            self.p_true, self.p_odom = p.copy(), p.copy()
+        else:
+            self.p_odom = self.p_odom + (1.0 + self.slip) * (p - self.p_true)
+            self.p_true = p.copy()
+        out = np.array(T_true, np.float64)
+        out[:3, 3] = self.p_odom
+        return out
+
+
+def _yaw(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

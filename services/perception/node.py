@@ -3,10 +3,11 @@
 Settings choose the geometry (``sim`` | ``mast3r`` | ``rgbd``) and the labels (``sim`` |
 ``efficientvit``). With ``geometry = sim`` each image is paired with the simulator's ground-truth
 frame carrying the same ``header.stamp_ns`` (key ``{prefix}/{robot}/sim/truth``, see the simulator
-node); with ``geometry = rgbd`` with the ``DepthImage`` of the same stamp on ``camera/depth``, and
-``state`` poses the camera. Images wait at most ``pair_timeout_s`` for their companion. Output
-frames keep the image's stamp. A backend that cannot start (unknown name, missing weights, config,
-CUDA) stops the node with one line naming what is missing.
+node; at ``truth_stride``, every n-th pixel); with ``geometry = rgbd`` with the ``DepthImage`` of the
+same stamp on ``camera/depth``, and ``state`` poses the camera. Images wait at most ``pair_timeout_s``
+for their companion. Output frames keep the image's stamp; a frame with intrinsics goes out compact
+(``compact``: depth at ``pixel_stride``, ``frame_depth``). A backend that cannot start (unknown name,
+missing weights, config, CUDA) stops the node with one line naming what is missing.
 """
 
 from __future__ import annotations
@@ -21,12 +22,15 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
 
 from riskfield.protocol import DepthImage, Image, Keys, PerceptionFrame, RobotState, ade20k
+from riskfield.protocol.platforms import LIMO
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec, ServiceUnavailable
 from ..runtime.settings import NodeSettings
+from .alignment import AlignerConfig, FrameAligner
 from .backend import Labeller, MissingBackend, PerceptionBackend
-from .degrade import DegradationConfig
+from .compact import compact, frame_stride
+from .degrade import DegradationConfig, OdometrySlip, SlamErrorConfig
 from .sim_backend import SimBackend, SimBackendConfig
 
 TRUTH_KEY = Keys().relative(Keys().sim_truth)  # the wire contract's key, relative to {prefix}/{robot}
@@ -42,6 +46,14 @@ class PerceptionSettings(NodeSettings):
     publish: Literal["keyframe", "frame", "updates"] = "keyframe"
     """keyframe: the frame with its keyframe's fused points; frame: the frame's own points; updates: the keyframe
     map-update protocol."""
+    frame_depth: Literal["float16", "float32", "points"] = "float16"
+    """How a frame with intrinsics crosses the wire: depth along the pixel rays (float16: ≤ 1 mm of
+    rounding below 4 m; float32) + intrinsics, or HxWx3 float32 points (for receivers older than
+    ``PerceptionFrame.depth``). Frames without intrinsics (mast3r) always carry points."""
+    pixel_stride: int = Field(2, ge=1, le=16)
+    """Frames carry every n-th pixel of the image in each direction: the mapping's ``pixel_stride``,
+    applied at the source. A backend's frame already that small (sim: the simulator's
+    ``truth_stride``) is sent as it is."""
     truth_key: str = TRUTH_KEY
     """Where the simulator's ground-truth frames come from (geometry sim), relative to {prefix}/{robot}/."""
     pair_timeout_s: float = Field(0.5, gt=0)
@@ -70,6 +82,22 @@ class PerceptionSettings(NodeSettings):
     drift_yaw: float = Field(0.0, ge=0)
     """sim: pose drift, std (rad) per frame of the yaw random walk; 0 = no drift."""
     correct_every: int = Field(0, ge=0, description="sim: a loop closure every n keyframes re-poses them (0: never)")
+    slam_scale: float = Field(1.0, gt=0)
+    """sim: SLAM's scale at the first image (its world is the true one scaled about the first camera); 1: metric."""
+    scale_drift: float = Field(0.0, ge=0)
+    """sim: SLAM's scale drift, σ of a random walk of log scale per √m of travel; 0 = none."""
+    yaw_drift: float = Field(0.0, ge=0)
+    """sim: SLAM's heading drift, σ (rad) of a random walk per √m of travel; 0 = none."""
+    odom_slip: float = Field(0.0, ge=0)
+    """sim: the odometry perception aligns to overstates travel by this fraction (wheel slip); 0 = none."""
+    align: bool | None = None
+    """Estimate SLAM's world → odometry similarity online (camera positions against odometry, Umeyama;
+    the floor plane before moving), publish frames in the odometry frame and the estimate on
+    perception/alignment. None: on for mast3r, off for sim and rgbd (metric worlds already)."""
+    align_window_m: float = Field(1.5, gt=0)
+    """align: the odometry path length (m) of camera pairs the estimate is fitted over."""
+    align_converged_sigma: float = Field(0.01, gt=0)
+    """align: the scale's relative standard deviation below which the estimate is converged."""
     update_every: int = Field(5, ge=1, description="re-send a refined keyframe every n tracked frames")
     confidence_threshold: float | None = Field(None, ge=0, description="pixels whose average confidence is "
                                                "below are sent with confidence 0; None: the backend's default "
@@ -99,10 +127,11 @@ class PerceptionSettings(NodeSettings):
     # rgbd: depth camera + odometry
     depth_key: str = "camera/depth"
     """geometry rgbd: key of the depth images paired with the camera's, relative to {prefix}/{robot}/."""
-    camera_position: tuple[float, float, float] = (0.15, 0.0, 0.1)
-    """geometry rgbd: camera position (m) in the robot's base frame, x forward, y left, z up."""
-    camera_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """geometry rgbd: camera roll, pitch, yaw (degrees) in the robot's base frame."""
+    camera_position: tuple[float, float, float] = LIMO.camera.position
+    """geometry rgbd, mast3r and align: camera position (m) in the robot's base frame, x forward, y left, z up
+    (default: the platform description's camera mount, ``protocol.platforms.LIMO.camera``)."""
+    camera_rpy_deg: tuple[float, float, float] = LIMO.camera.rpy_deg
+    """geometry rgbd, mast3r and align: camera roll, pitch, yaw (degrees) in the robot's base frame."""
     rgbd_label: str = Field("wall", description="the ADE20K class of every pixel when labels are not from a network")
     rgbd_max_depth: float = Field(6.0, gt=0)
     """geometry rgbd: depth beyond this (m) is dropped as invalid."""
@@ -183,14 +212,30 @@ def build_backend(s: PerceptionSettings) -> PerceptionBackend:
     return SimBackend(SimBackendConfig(deg, s.publish, s.kf_min_overlap, s.kf_max_translation, s.kf_max_rotation_deg,
                                        s.q_conf, seed=s.seed, correct_every=s.correct_every,
                                        update_every=s.update_every,
-                                       c_conf=s.confidence_threshold or 0.0), labeller)
+                                       c_conf=s.confidence_threshold or 0.0,
+                                       slam=SlamErrorConfig(s.slam_scale, s.scale_drift, s.yaw_drift, s.odom_slip)),
+                      labeller)
+
+
+def build_aligner(s: PerceptionSettings) -> FrameAligner | None:
+    """The SLAM → odometry aligner the settings ask for (``align``), or None."""
+    if not (s.align if s.align is not None else s.geometry == "mast3r"):
+        return None
+    from .rgbd_backend import T_base_camera
+
+    slip = OdometrySlip(s.odom_slip) if s.geometry == "sim" and s.odom_slip > 0 else None
+    return FrameAligner(T_base_camera(s.camera_position, s.camera_rpy_deg), LIMO.camera.height_sigma,
+                        AlignerConfig(window_m=s.align_window_m, converged_sigma=s.align_converged_sigma),
+                        odometry_view=slip)
 
 
 class Perception:
     """Pairs images with truth, runs the backend, publishes its frames."""
 
-    def __init__(self, node: Node, s: PerceptionSettings, backend: PerceptionBackend):
+    def __init__(self, node: Node, s: PerceptionSettings, backend: PerceptionBackend,
+                 aligner: FrameAligner | None = None):
         self.node, self.s, self.backend = node, s, backend
+        self.aligner = aligner  # SLAM's world → odometry (``alignment``), None: the backend's world is metric
         self.truths: OrderedDict[int, PerceptionFrame | DepthImage] = OrderedDict()
         self.paired = backend.needs_truth or getattr(backend, "needs_depth", False)
         self.companion_key = s.truth_key if backend.needs_truth else s.depth_key
@@ -229,12 +274,17 @@ class Perception:
             self.node.ratelog(logging.WARNING, "unpaired", f"an image got no {self.companion_key} in time (is "
                               "the simulator or the camera driver publishing it? simulator: publish_depth=true)")
 
+    def _compact(self, frame: PerceptionFrame, image: Image) -> PerceptionFrame:
+        """The frame at the mapping's pixel stride, as depth (``compact``)."""
+        have = frame_stride((image.height, image.width), frame.pixels) or 1
+        return compact(frame, self.s.frame_depth, max(1, self.s.pixel_stride // have))
+
     def _run(self, image: Image, truth: PerceptionFrame | DepthImage | None) -> None:
         try:
             image = decode_image(image)
-            if isinstance(truth, PerceptionFrame) and truth.points.shape[:2] != (image.height, image.width):
-                raise ValueError(f"truth is {truth.points.shape[1]}x{truth.points.shape[0]}, "
-                                 f"the image {image.width}x{image.height}")
+            if isinstance(truth, PerceptionFrame) and frame_stride((image.height, image.width), truth.pixels) is None:
+                raise ValueError(f"truth is {truth.pixels[1]}x{truth.pixels[0]}, the image "
+                                 f"{image.width}x{image.height} (nor every n-th pixel of it)")
             t0 = time.perf_counter()
             if image.header.stamp_ns > 0:  # image stamp → processing starts: transport, pairing, decode
                 self.node.stats["start_age_ms"] = (time.time_ns() - image.header.stamp_ns) / 1e6
@@ -245,12 +295,36 @@ class Perception:
             self.node.stats["frames_rejected"] = self.rejected
             self.node.ratelog(logging.WARNING, "reject", f"could not process a frame: {exc}")
             return
+        if self.aligner is not None:
+            frames = self._align(frames, image.header.stamp_ns)
         for f in frames:
-            self.node.publish(self.node.keys.perception_frame, f)
+            self.node.publish(self.node.keys.perception_frame, self._compact(f, image))
         if isinstance(self.backend, SimBackend):
             self.node.stats["keyframes"] = self.backend.n_keyframes
             m = self.backend.last_matches
             self.node.stats["overlap"] = m.overlap if m is not None else 1.0
+
+
+    def _align(self, frames: list[PerceptionFrame], stamp_ns: int) -> list[PerceptionFrame]:
+        """The frames in the odometry frame, and the estimate on ``perception/alignment``; none
+        while no odometry has posed a camera yet (counted in ``unaligned``)."""
+        assert self.aligner is not None
+        try:
+            out = self.aligner.align(frames, stamp_ns)
+        except ValueError as exc:
+            out = []
+            self.node.ratelog(logging.WARNING, "align", f"could not align a frame: {exc}")
+        if frames and not out:
+            self.node.stats["unaligned"] = self.node.stats.get("unaligned", 0) + len(frames)
+            self.node.ratelog(logging.WARNING, "unaligned", f"frames held back: no odometry on "
+                              f"{self.node.keys.state} near the image to scale SLAM's world by")
+        est = self.aligner.last
+        if est is not None:
+            self.node.publish(self.node.keys.alignment, est.message(stamp_ns))
+            self.node.stats["align_scale"] = est.similarity.scale
+            self.node.stats["align_sigma"] = est.scale_sigma
+            self.node.stats["align_residual"] = est.residual
+        return out
 
 
 def setup(node: Node, s: PerceptionSettings) -> Perception:
@@ -260,8 +334,11 @@ def setup(node: Node, s: PerceptionSettings) -> Perception:
         raise ServiceUnavailable(f"perception backend unavailable: {exc}") from exc
     if isinstance(backend, SimBackend):
         backend.warm_up()  # compile before the first frame, not on it
-    p = Perception(node, s, backend)
+    aligner = build_aligner(s)
+    p = Perception(node, s, backend, aligner)
     node.subscribe(node.keys.camera_image, Image, p.on_image, queue="latest")
+    if aligner is not None:
+        node.subscribe(node.keys.state, RobotState, aligner.odometry.on_state, queue="fifo", maxlen=64)
     if backend.needs_truth:
         node.subscribe(node.keys.key(s.truth_key), PerceptionFrame, p.on_truth, queue="fifo", maxlen=4)
         node.every(0.1, p.expire)

@@ -44,7 +44,7 @@ from ..geometry.camera import PinholeCamera
 from ..geometry.transforms import inverse as _inv
 from ..geometry.transforms import transform_points
 from .backend import Labeller, image_rgb
-from .degrade import DegradationConfig, Degrader, Observation
+from .degrade import DegradationConfig, Degrader, Observation, SlamErrorConfig, SlamWorld
 from .fusion import Q_CONF, KeyframeFusion, scatter_to_frame
 from .kernels import HAVE_NUMBA
 
@@ -65,6 +65,7 @@ class SimBackendConfig:
     update_every: int = 5  # publish = "updates": re-send the refined keyframe every n fused frames
     max_keyframes: int = 32  # publish = "updates": keyframes kept for corrections
     c_conf: float = 0.0  # pixels below this confidence are sent with confidence 0
+    slam: SlamErrorConfig = field(default_factory=SlamErrorConfig)  # SLAM's scale and heading errors (off)
 
     def __post_init__(self) -> None:
         if self.publish not in ("keyframe", "frame", "updates"):
@@ -111,6 +112,8 @@ class SimBackend:
         self.kept: dict[int, _Keyframe] = {}  # publish = "updates": keyframes a correction re-poses
         self.since_update = 0
         self.corrections = 0
+        #: SLAM's world (``degrade.SlamWorld``), None when it is the true one (the default)
+        self.slam = None if self.config.slam.is_identity else SlamWorld(self.config.slam, self.config.seed)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels before the first camera frame: a
@@ -123,9 +126,13 @@ class SimBackend:
         points = np.stack([(u - w / 2) / w, (v - h / 2) / w, np.ones((h, w))], axis=-1) * 2.0
         truth = PerceptionFrame(T_WC=np.eye(4), points=points.astype(np.float32), keyframe_id=0,
                                 confidence=np.ones((h, w), np.float32), labels=np.zeros((h, w), np.uint16))
-        scratch = SimBackend(self.config, compiled=True)
-        for i in range(2):
-            scratch.process(None, decode(encode(truth), PerceptionFrame), i + 1)
+        # and compact (depth + intrinsics, the simulator's sim/truth): a rebuilt, writable pointmap
+        compact = truth.model_copy(update={"points": None, "depth": points[..., 2].astype(np.float32),
+                                           "intrinsics": (w / 2, w / 2, w / 2, h / 2)})
+        for t in (truth, compact):
+            scratch = SimBackend(self.config, compiled=True)
+            for i in range(2):
+                scratch.process(None, decode(encode(t), PerceptionFrame), i + 1)
 
     # -- the steps ------------------------------------------------------------------------------
     def match(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray, T_WC_true: np.ndarray,
@@ -166,11 +173,16 @@ class SimBackend:
                                float(self.config.depth_tol_rel), idx, valid, Qk)
         return Matches(idx, valid, Qk, float(n_valid) / max(1, int(kf.valid.sum())))
 
-    def _intrinsics(self, points: np.ndarray, valid: np.ndarray) -> None:
-        # The truth carries no K: recover it from the pointmap (x/z is affine in u, y/z in v).
+    def _intrinsics(self, points: np.ndarray, valid: np.ndarray,
+                    intrinsics: tuple[float, float, float, float] | None = None) -> None:
         h, w = valid.shape
+        if intrinsics is not None:  # the simulator's (strided) camera, as the truth carries it
+            self._camera = PinholeCamera(w, h, *intrinsics)
+            self._k_shape = (h, w)
+            return
         if getattr(self, "_k_shape", None) == (h, w):
             return
+        # A truth without K (full pointmaps): recover it from the pointmap (x/z is affine in u, y/z in v).
         vv, uu = np.nonzero(valid)
         vv, uu = vv[::7], uu[::7]  # plenty of pixels for a 2-parameter line fit
         if vv.size < 3:
@@ -199,15 +211,35 @@ class SimBackend:
 
     # -- the interface --------------------------------------------------------------------------
     def process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
+        frames = self._process(image, truth, stamp_ns)
+        if self.slam is None or truth is None:
+            return frames
+        # Everything leaves in SLAM's world: poses through its similarity, pointmaps at its scale.
+        self.slam.step(np.asarray(truth.T_WC, np.float64))
+        out = []
+        for f in frames:
+            T, k = self.slam.to_slam(np.asarray(f.T_WC, np.float64))
+            update: dict[str, object] = {"T_WC": T}
+            if f.points is not None:
+                update["points"] = (np.asarray(f.points, np.float32) * np.float32(k)).astype(np.float32)
+            if f.depth is not None:
+                update["depth"] = (np.asarray(f.depth, np.float32) * np.float32(k)).astype(np.asarray(f.depth).dtype)
+            out.append(f.model_copy(update=update))
+        return out
+
+    def _process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
         if truth is None:
             return []
-        points = np.asarray(truth.points)
+        points = np.asarray(truth.pointmap())  # compact truths (depth + intrinsics) at the mapping's stride
         valid = (np.asarray(truth.confidence) > 0) & (points[..., 2] > 0)
         T_WC_true = np.asarray(truth.T_WC, np.float64)
-        self._intrinsics(points, valid)
+        self._intrinsics(points, valid, truth.intrinsics)
         obs = self.degrader.observe(points, np.asarray(truth.labels), T_WC_true, valid)
         if self.labeller is not None and image is not None:
             labels = self.labeller(image_rgb(image))
+            sv, su = labels.shape[0] // valid.shape[0], labels.shape[1] // valid.shape[1]
+            if sv >= 1 and su >= 1 and labels[::sv, ::su].shape == valid.shape:
+                labels = labels[::sv, ::su]  # the truth's pixels 0, s, 2s, … of the image
             if labels.shape != valid.shape:
                 raise ValueError(f"labeller returned {labels.shape}, the frame is {valid.shape}")
             obs.labels = np.where(valid, labels, obs.labels).astype(np.uint16)

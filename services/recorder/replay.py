@@ -1,7 +1,7 @@
 """Replay planning: remaps of whole key prefixes, command keys withheld, and the schedule.
 
 A replay must never drive a live robot by accident: command keys (``cmd/safe``, ``cmd/ref``,
-``nav/goal``) are withheld unless asked for, and so is the robot's ``state`` (``state``,
+``cmd/lock``, ``nav/goal``) are withheld unless asked for, and so is the robot's ``state`` (``state``,
 ``state/relocalise``): a recorded state put beside a live robot's moves its mapping volume and
 feeds its filter a position the robot is not at. A remap rewrites a whole key prefix or is refused
 (no wildcards, no empty chunks, a trailing slash is normalised), and a remap that matches no
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from .mcap_io import KeyInfo, Record
 
 #: Keys (relative to a robot root) that move a robot; replayed only with ``include_commands``.
-COMMAND_KEYS = ("cmd/safe", "cmd/ref", "nav/goal")
+COMMAND_KEYS = ("cmd/safe", "cmd/ref", "cmd/lock", "nav/goal")  # a replayed unlock would release a live lock
 # the key chunk alphabet of riskfield.protocol.keys, without the wildcard-forming `*` and `$`
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.~+=@:]+$")
 

@@ -29,6 +29,13 @@ schema id 0, as https://docs.foxglove.dev/docs/sdk/schemas describes).
   fields ``x y z`` (float32), ``confidence`` (float32) and ``class_id`` (uint16, ADE20K).
 - ``RobotState`` (``state``) → ``foxglove.FrameTransform`` ``map → base_link`` on
   ``{root}/tf`` and ``foxglove.PoseInFrame`` on the key itself.
+- ``TrackedObjects`` (``map/objects``) → ``foxglove.SceneUpdate``: per object a cylinder of its
+  radius, coloured by risk group, an arrow of its velocity (its length the distance covered in one
+  second) and a label; the update first deletes every entity, so an object no longer tracked
+  disappears.
+- ``RobotState`` with the newest ``SafetyStatus`` → ``foxglove.SceneUpdate`` of the robot's
+  footprint (``robot_view``, the live view's ``{root}/robot``): green while the filter passes the
+  command, amber while it intervenes, red while it brakes, with the reason as text.
 - anything else → JSON of the message map (small arrays as nested lists).
 """
 
@@ -47,10 +54,21 @@ from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.VoxelGrid_pb2 import VoxelGrid
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from riskfield.protocol import EsdfGrid, Image, Message, PerceptionFrame, RobotState
+from riskfield.protocol import (
+    EsdfGrid,
+    Image,
+    Message,
+    PerceptionFrame,
+    RobotState,
+    SafetyStatus,
+    TrackedObjects,
+    ade20k,
+)
 
 #: Arrays up to this many elements are written into JSON views as lists; larger ones as a note.
 JSON_ARRAY_LIMIT = 4096
@@ -164,7 +182,7 @@ def esdf_view(topic: str, m: EsdfGrid) -> list[View]:
 
 def pointcloud_view(topic: str, m: PerceptionFrame, stride: int = 8) -> list[View]:
     """Pointmap → decimated world-frame PointCloud with confidence and class id (18 bytes a point)."""
-    pts = m.points[::stride, ::stride].reshape(-1, 3).astype(np.float64)
+    pts = m.pointmap()[::stride, ::stride].reshape(-1, 3).astype(np.float64)
     conf = m.confidence[::stride, ::stride].ravel()
     cls = m.labels[::stride, ::stride].ravel()
     ok = np.isfinite(pts).all(axis=1)
@@ -215,3 +233,92 @@ def jsonable(obj: Any) -> Any:
 def json_view(topic: str, obj: dict, schema: str) -> list[View]:
     return [View(topic, "json", "", json.dumps(jsonable(obj), separators=(",", ":")).encode(),
                  (("riskfield_schema", schema),))]
+
+
+#: RGBA by risk group id (0 = none, then high, mid, low as the default groups), for scene entities.
+GROUP_COLOURS = ((0.6, 0.6, 0.6, 0.8), (0.9, 0.1, 0.1, 0.8), (0.95, 0.55, 0.1, 0.8), (0.95, 0.85, 0.2, 0.8))
+
+
+def _colour(target: Any, rgba: tuple[float, float, float, float]) -> None:
+    target.r, target.g, target.b, target.a = rgba
+
+
+def _heading(target: Any, v: np.ndarray) -> None:
+    """Orientation turning +x (an arrow's axis) onto ``v``: yaw about z, then pitch about y."""
+    yaw = float(np.arctan2(v[1], v[0]))
+    pitch = float(-np.arctan2(v[2], np.hypot(v[0], v[1])))
+    cy, sy, cp, sp = np.cos(yaw / 2), np.sin(yaw / 2), np.cos(pitch / 2), np.sin(pitch / 2)
+    target.x, target.y, target.z, target.w = -sy * sp, cy * sp, sy * cp, cy * cp
+
+
+def objects_view(topic: str, m: TrackedObjects, groups: tuple[str, ...] = ("high", "mid", "low"),
+                 height: float = 1.7) -> list[View]:
+    """``TrackedObjects`` → SceneUpdate: a cylinder (radius, ``height`` tall, on the object's
+    centre), a velocity arrow and a label per object, after deleting every earlier entity."""
+    up = SceneUpdate()
+    gone = up.deletions.add(type=SceneEntityDeletion.ALL)
+    _stamp(gone.timestamp, m)
+    for o in m.objects:
+        e = up.entities.add(frame_id=m.header.frame_id or PARENT_FRAME, id=f"object/{o.id}")
+        _stamp(e.timestamp, m)
+        name = ade20k.CLASSES[o.label] if o.label < ade20k.NUM_CLASSES else str(o.label)
+        group = groups[o.risk_group - 1] if 0 < o.risk_group <= len(groups) else "none"
+        e.metadata.add(key="class", value=name)
+        e.metadata.add(key="risk_group", value=group)
+        rgba = GROUP_COLOURS[min(o.risk_group, len(GROUP_COLOURS) - 1)]
+        c = e.cylinders.add()
+        c.pose.position.x, c.pose.position.y, c.pose.position.z = o.position
+        c.pose.orientation.w = 1.0
+        c.size.x = c.size.y = 2 * max(o.radius, 0.01)
+        c.size.z = height
+        c.bottom_scale = c.top_scale = 1.0
+        _colour(c.color, rgba)
+        v = np.asarray(o.velocity, dtype=float)
+        speed = float(np.linalg.norm(v))
+        if speed > 1e-3:
+            a = e.arrows.add(shaft_length=speed, shaft_diameter=0.04, head_length=0.12, head_diameter=0.1)
+            a.pose.position.x, a.pose.position.y, a.pose.position.z = o.position
+            _heading(a.pose.orientation, v)
+            _colour(a.color, (rgba[0], rgba[1], rgba[2], 1.0))
+        label = e.texts.add(billboard=True, font_size=14, scale_invariant=True,
+                            text=f"{name} #{o.id} ({group}) {speed:.2f} m/s")
+        label.pose.position.x, label.pose.position.y = o.position[0], o.position[1]
+        label.pose.position.z = o.position[2] + height / 2 + 0.1
+        label.pose.orientation.w = 1.0
+        _colour(label.color, (1.0, 1.0, 1.0, 1.0))
+    return [_proto(topic, up)]
+
+
+def robot_view(topic: str, m: RobotState, radius: float, status: SafetyStatus | None = None) -> list[View]:
+    """The robot's footprint (a disc of ``radius`` at its pose) coloured by what the filter does:
+    green while it passes the command, amber while it intervenes, red while it brakes
+    (``fallback``), with the reason as text."""
+    up = SceneUpdate()
+    e = up.entities.add(frame_id=m.header.frame_id or PARENT_FRAME, id="robot")
+    _stamp(e.timestamp, m)
+    if status is None:
+        rgba, text = (0.6, 0.6, 0.6, 0.7), "no safety status"
+    elif status.fallback:
+        rgba, text = (0.9, 0.1, 0.1, 0.8), f"braking: {status.fallback}"
+    elif status.intervening:
+        rgba, text = (0.95, 0.6, 0.1, 0.8), f"intervening (h = {status.h:.2f} m)"
+    else:
+        rgba, text = (0.1, 0.8, 0.3, 0.7), f"passing (h = {status.h:.2f} m)"
+    e.metadata.add(key="safety", value=text)
+    c = e.cylinders.add()
+    c.pose.position.x, c.pose.position.y, c.pose.position.z = m.position
+    c.pose.orientation.x, c.pose.orientation.y, c.pose.orientation.z, c.pose.orientation.w = m.orientation
+    c.size.x = c.size.y = 2 * radius
+    c.size.z = 0.05
+    c.bottom_scale = c.top_scale = 1.0
+    _colour(c.color, rgba)
+    heading = e.arrows.add(shaft_length=radius, shaft_diameter=0.03, head_length=0.06, head_diameter=0.07)
+    heading.pose.position.x, heading.pose.position.y, heading.pose.position.z = m.position
+    q = heading.pose.orientation
+    q.x, q.y, q.z, q.w = m.orientation
+    _colour(heading.color, (1.0, 1.0, 1.0, 1.0))
+    t = e.texts.add(billboard=True, font_size=14, scale_invariant=True, text=text)
+    t.pose.position.x, t.pose.position.y, t.pose.position.z = m.position[0], m.position[1], m.position[2] + 0.4
+    t.pose.orientation.w = 1.0
+    _colour(t.color, rgba)
+    return [_proto(topic, up)]

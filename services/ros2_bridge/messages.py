@@ -330,37 +330,6 @@ def costmap(esdf: EsdfGrid, scaling_by_group: dict[str, float], default_scaling:
     return COST_TRANSLATION[nav2_cost(esdf.distance[:, :, 0], k, inscribed_radius, inflation_radius)]
 
 
-# -- input arbitration --------------------------------------------------------------------------
-@dataclass
-class VelocityInput:
-    name: str
-    priority: int
-    timeout_s: float  # 0: never expires
-    stamp: float = -math.inf
-
-    def expired(self, now: float) -> bool:
-        return self.timeout_s > 0 and now - self.stamp > self.timeout_s
-
-
-class TwistMux:
-    """Priority arbitration of velocity inputs, as twist_mux does it (ros-teleop/twist_mux,
-    ``TwistMux::hasPriority`` in src/twist_mux.cpp and ``TopicHandle_::hasExpired`` in
-    include/twist_mux/topic_handle.hpp): a message is forwarded iff its input is the
-    highest-priority input that has not expired (received within its timeout, a timeout of 0
-    never expires); among equal priorities the first declared wins. No locks."""
-
-    def __init__(self, inputs: Sequence[VelocityInput]):
-        self.inputs = {i.name: i for i in inputs}
-
-    def offer(self, name: str, now: float) -> bool:
-        self.inputs[name].stamp = now
-        best: VelocityInput | None = None
-        for i in self.inputs.values():
-            if not i.expired(now) and (best is None or i.priority > best.priority):
-                best = i
-        return best is not None and best.name == name
-
-
 # -- camera -------------------------------------------------------------------------------------
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"

@@ -29,6 +29,7 @@ from pydantic import Field, model_validator
 
 from riskfield.protocol import EsdfGrid, RobotState, SafetyStatus, VelocityCommand
 
+from ..runtime.arbiter import CommandMux, MuxInput
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
@@ -40,9 +41,7 @@ from .messages import (
     Odometry,
     RosCodec,
     Transform,
-    TwistMux,
     TwistType,
-    VelocityInput,
     costmap,
     decode_camera_info,
     decode_compressed_image,
@@ -163,10 +162,10 @@ class Ros2Bridge:
     def __init__(self, s: Ros2BridgeSettings):
         self.s = s
         self.codec = RosCodec(s.ros_distro)
-        inputs = [VelocityInput("nav", s.cmd_in_priority, s.cmd_in_timeout_s)] if s.cmd_in_topic else []
+        inputs = [MuxInput("nav", s.cmd_in_priority, s.cmd_in_timeout_s)] if s.cmd_in_topic else []
         if s.teleop_topic:
-            inputs.append(VelocityInput("teleop", s.teleop_priority, s.teleop_timeout_s))
-        self.mux = TwistMux(inputs)
+            inputs.append(MuxInput("teleop", s.teleop_priority, s.teleop_timeout_s))
+        self.mux = CommandMux(inputs)  # twist_mux's rules (runtime.arbiter), no locks
         self.last_cmd = -float("inf")
         self.map_frame = s.map_frame
         self.static_tf: dict[tuple[str, str], Transform] = {}
@@ -180,7 +179,7 @@ class Ros2Bridge:
         lin, ang, frame = self.codec.decode_twist(raw, kind)
         if frame and frame != self.s.base_frame:
             raise FrameMismatch(f"TwistStamped in frame {frame!r}, not the body frame {self.s.base_frame!r}")
-        if not self.mux.offer(name, now):
+        if self.mux.admit(name, now) is not None:
             return None
         cmd = VelocityCommand(linear=lin, angular=ang, source=f"ros2/{name}")
         # The ROS stamp may be simulation time; the filter judges freshness by our wall clock.

@@ -85,6 +85,7 @@ class Node:
         self.log = setup_logging(service, settings.log_level)
         self.ratelog = RateLimitedLog(self.log)
         self.stats: dict[str, float] = {}  # extra numbers a service wants in its NodeStatus
+        self.status_fields: dict[str, Any] = {}  # optional NodeStatus fields a service sets (risk_version, ...)
         self.arrival_ns = 0  # wall-clock arrival time of the message being handled
         # Zenoh source of the message being handled ("<zid>/<eid>" of its publisher), or None
         # when the publisher set no source info (foreign clients); see ``publish``.
@@ -364,6 +365,7 @@ class Node:
             handler_ms_p99=float(np.percentile(d, 99)),
             handler_ms_max=float(d.max()),
             extra=extra,
+            **self.status_fields,
         )
 
     def _publish_status(self) -> None:

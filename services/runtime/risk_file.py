@@ -20,14 +20,16 @@ back to the defaults would silently shrink a margin the user had widened.
 from __future__ import annotations
 
 import difflib
+import json
 import logging
 import os
+import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, Field, ValidationError
 
 from riskfield.protocol import RiskConfig, ade20k
 from riskfield.protocol.risk import RiskGroup
@@ -167,4 +169,79 @@ def watch_risk_file(node: Node, path: str | Path, period_s: float,
     return reloader.initial
 
 
-__all__ = ["RiskFileError", "RiskFileReloader", "RiskFileWatcher", "load_risk_file", "parse_risk", "watch_risk_file"]
+class RiskStateSettings(BaseModel):
+    """Where a node that uses a risk configuration keeps the one in force (``RiskStore``)."""
+
+    state_dir: Path | None = Field(default=None, description=(
+        "directory where the node keeps what must survive a restart: the risk configuration in force "
+        "with its version (risk-<service>.json, reloaded at start); unset: nothing is kept, a restart "
+        "starts from the built-in defaults (or risk_file) at version 0"))
+
+
+class RiskStore:
+    """The risk configuration in force, its version and digest, kept under a node's ``state_dir``.
+
+    The version counts the changes this node took (0: the built-in defaults, never changed); a
+    configuration with the digest of the one in force changes nothing. With a ``state_dir`` every
+    change is written (atomically, readable by the service's user only) to
+    ``<state_dir>/risk-<service>.json`` and reloaded by the next start, so a restart neither loses
+    a configuration set over the wire nor reports a different version for it. A state file that
+    does not load is a ``RiskFileError`` at start: the node refuses to guess what was in force.
+    """
+
+    def __init__(self, state_dir: str | Path | None, service: str, log: logging.Logger | None = None):
+        self.path = None if state_dir is None else Path(state_dir) / f"risk-{service}.json"
+        self.log = log or logging.getLogger(__name__)
+        self.version = 0
+        self.risk = RiskConfig()
+        if self.path is not None and self.path.exists():
+            try:
+                data = json.loads(self.path.read_text())
+                self.risk = RiskConfig.model_validate(data["config"])
+                self.version = int(data["version"])
+                if self.version < 0:
+                    raise ValueError(f"version {self.version} is negative")
+            except (OSError, ValueError, KeyError, TypeError) as exc:  # a ValidationError is a ValueError
+                text = str(exc).replace("\n", "; ")
+                raise RiskFileError(f"risk state {self.path}: {text}") from None
+        self.digest = self.risk.digest()
+        if self.version:
+            self.log.info("risk configuration v%d %s reloaded from %s: groups %s", self.version, self.digest,
+                          self.path, ", ".join(self.risk.group_names))
+
+    def commit(self, risk: RiskConfig, origin: str) -> bool:
+        """``risk`` is now in force (the caller applied it): a new version, kept, and one log line
+        naming where it came from and what the floor kept (``RiskConfig.below_floor``). False when
+        it is the configuration already in force."""
+        digest = risk.digest()
+        if digest == self.digest:
+            return False
+        self.risk, self.version, self.digest = risk, self.version + 1, digest
+        if self.path is not None:
+            self._write()
+        lifted = risk.below_floor()
+        floor = f"; {len(lifted)} label(s) it leaves free stay obstacles of {risk.group_names[-1]!r} (the floor)" \
+            if lifted else ""
+        self.log.info("risk configuration v%d %s from %s: groups %s%s", self.version, digest, origin,
+                      ", ".join(risk.group_names), floor)
+        return True
+
+    def _write(self) -> None:
+        assert self.path is not None
+        self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        body = json.dumps({"version": self.version, "digest": self.digest,
+                           "config": self.risk.model_dump(mode="json", exclude={"header"})})
+        fd, tmp = tempfile.mkstemp(prefix=".risk-", dir=self.path.parent)  # mode 0600
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(body)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)  # a crash leaves the old file or the new one, never half of one
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+
+__all__ = ["RiskFileError", "RiskFileReloader", "RiskFileWatcher", "RiskStateSettings", "RiskStore",
+           "load_risk_file", "parse_risk", "watch_risk_file"]

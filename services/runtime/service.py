@@ -36,6 +36,7 @@ SERVICES: dict[str, str] = {
     "joystick": "riskfield.edge.joystick.node:SERVICE",
     "mavlink": "riskfield.edge.mavlink.node:SERVICE",
     "record": "riskfield.services.recorder.node:RECORD",
+    "foxglove": "riskfield.services.recorder.live:SERVICE",
     "replay": "riskfield.services.recorder.node:REPLAY",
     "ros2-bridge": "riskfield.services.ros2_bridge.node:SERVICE",
     "viewer": "riskfield.services.viewer.node:SERVICE",
@@ -54,6 +55,7 @@ EXTRAS: dict[str, str] = {
     "joystick": "robot",
     "mavlink": "robot",
     "record": "tools",
+    "foxglove": "foxglove",
     "replay": "tools",
     "viewer": "viz",
     "ros2-bridge": "ros2",
@@ -67,6 +69,7 @@ MODULE_EXTRAS: dict[str, str] = {
     "mcap": "tools",
     "mcap_protobuf": "tools",
     "foxglove_schemas_protobuf": "tools",
+    "foxglove": "foxglove",
     "matplotlib": "tools",
     "osqp": "robot",
     "serial": "robot",
@@ -84,7 +87,7 @@ MODULE_EXTRAS: dict[str, str] = {
 
 #: Modules a service imports only once it runs (so that importing its module stays cheap):
 #: checked before it starts and by ``riskfield services``.
-RUNTIME_NEEDS: dict[str, tuple[str, ...]] = {"viewer": ("rerun",)}
+RUNTIME_NEEDS: dict[str, tuple[str, ...]] = {"viewer": ("rerun",), "foxglove": ("foxglove",)}
 
 
 def install_hint(module: str | None, service: str | None = None) -> str:

@@ -7,6 +7,7 @@ helpers (``riskfield/testing.py``), the fault-drill agents and the codec bench a
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import json
 import logging
 import re
@@ -124,12 +125,72 @@ def zenoh_config(s: NodeSettings) -> zenoh.Config:
     return cfg
 
 
+class InsecureListen(ValueError):
+    """A node would listen beyond loopback without TLS and users, and ``insecure`` is not set."""
+
+
+#: Protocols whose links are encrypted and authenticate the router (Zenoh's TLS and QUIC links).
+_ENCRYPTED = frozenset({"tls", "quic"})
+
+
+def _loopback(host: str) -> bool:
+    host = host.strip("[]").split("%")[0]
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name or an interface: reachable from elsewhere
+
+
+def exposed(cfg: zenoh.Config, published_on: str | None = None) -> list[str]:
+    """The listen endpoints of ``cfg`` that others than this host reach without TLS and users: any
+    host:port listener off loopback (``[::]`` and ``0.0.0.0`` included) unless it is a TLS/QUIC link
+    and the config holds a user dictionary (``transport/auth/usrpwd/dictionary_file``). In a
+    container, ``published_on`` is the host address its listeners are published on: they count as
+    reachable from there (the container's own network holds only the project's containers)."""
+    raw = json.loads(cfg.get_json("listen/endpoints"))
+    mode = json.loads(cfg.get_json("mode"))
+    # Zenoh's default is per mode ({"router": [...], "peer": [...]}; DEFAULT_CONFIG.json5 `listen`).
+    endpoints = raw.get(mode, []) if isinstance(raw, dict) else raw
+    users = json.loads(cfg.get_json("transport/auth/usrpwd/dictionary_file")) is not None
+    out = []
+    for e in endpoints:
+        m = _ENDPOINT.match(e)
+        if m is None or m["proto"] not in _HOST_PORT:
+            continue  # unix sockets, serial lines: not on a network
+        a = _HOST_PORT_ADDR.match(m["address"])
+        if a is not None and (_loopback(a["host"]) or (published_on is not None and _loopback(published_on))):
+            continue
+        if m["proto"] in _ENCRYPTED and users:
+            continue
+        out.append(e)
+    return out
+
+
+def check_exposure(cfg: zenoh.Config, s: NodeSettings) -> None:
+    """Refuse (or, with ``insecure``, warn about) listening beyond loopback in the clear."""
+    bare = exposed(cfg, s.published_on)
+    if not bare:
+        return
+    what = ", ".join(bare) + ("" if s.published_on is None else f" (published on {s.published_on})")
+    if not s.insecure:
+        raise InsecureListen(
+            f"refusing to listen on {what} without TLS and users: anyone on that network could put "
+            "cmd/safe. Listen on tcp/127.0.0.1:PORT, or use tls/ endpoints with a user dictionary "
+            "(deploy/zenoh/router-secure.json5, `riskfield secrets`), or set insecure=true to accept it")
+    log.warning("INSECURE: listening on %s without TLS and users (insecure=true): anyone who reaches it "
+                "may put any key, cmd/safe included", what)
+
+
 def open_session(s: NodeSettings) -> zenoh.Session:
     """Open a session, retrying while the router is not up yet (up to ``connect_timeout_s``).
 
     The wait is said once, then counted down every ``_COUNTDOWN_S``; a config Zenoh rejects
-    (not a missing router) fails at once."""
+    (not a missing router) fails at once. A node that would listen beyond loopback without TLS
+    and users does not start (``check_exposure``)."""
     cfg = zenoh_config(s)  # endpoint syntax is checked here, before anything is dialled
+    check_exposure(cfg, s)
     deadline = time.monotonic() + s.connect_timeout_s
     delay = 0.05
     said_at: float | None = None

@@ -62,7 +62,8 @@ ENV_PREFIX = "RISKFIELD_"
 #: (``RISKFIELD_LIMO_PORT``, ...) are their settings' aliases, known like any other service's.
 NOT_SETTINGS: frozenset[str] = frozenset({
     "SERVER", "TAG", "IMAGE_PREFIX", "SECRETS", "CHECKPOINTS_VOLUME", "CHECKPOINTS_DIR",
-    "ROUTER_PORT", "ROBOT_ROUTER_PORT", "ROUTER_REST_PORT", "SERVER_NETWORK",
+    "ROUTER_PORT", "ROBOT_ROUTER_PORT", "ROUTER_REST_PORT", "SERVER_NETWORK", "ROUTER_ADDRESS",
+    "ROBOT_ROUTER_ADDRESS", "CAMERA_DEVICE", "CAMERA_CALIBRATION_DIR",
 })
 
 
@@ -359,6 +360,12 @@ class NodeSettings(BaseSettings):
     """Password of user; password_file keeps it out of the environment."""
     password_file: Path | None = Field(default=None, description="file holding the password (Docker/systemd secrets)")
     zenoh_config: Path | None = Field(default=None, description="a full zenoh JSON5 config used as the base")
+    insecure: bool = False
+    """Listen beyond loopback without TLS and users anyway: anyone who reaches the port may put any key,
+    cmd/safe included. Without it such a node refuses to start; with it, it warns at start."""
+    published_on: str | None = None
+    """In a container: the host address its listen port is published on (compose `ports:`). The
+    listeners then count as reachable from that address only (docker-compose.yml sets it; never on a host)."""
     connect_timeout_s: float = Field(default=30.0, gt=0)
     """How long a node retries opening its session while no router answers, then exits with code 3."""
     log_level: str = "INFO"

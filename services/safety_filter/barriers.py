@@ -79,7 +79,7 @@ def disc_cover(length: float, width: float, discs: int, capsule: bool = False) -
     with radius √((ℓ/2)² + (W/2)²) contains that slice (its farthest points are the slice's
     corners). A capsule (a W-wide rectangle of length L - W with half-disc ends) is covered the
     same way with the centres on its segment and the end discs' radius W/2 reaching its ends.
-    For the LIMO (0.322 × 0.220 m, k = 3) the discs overhang the sides by 1.2 cm.
+    For the LIMO's body (``protocol.platforms.LIMO``, k = 3) the discs overhang the sides by 1.2 cm.
     """
     if discs < 1 or length <= 0 or width <= 0:
         raise ValueError("a footprint needs positive length and width and at least one disc")

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from riskfield.protocol import ade20k
-from riskfield.protocol.platforms import LIMO
+from riskfield.protocol.platforms import LIMO, PlanarPlatform
 
 from ..fields.grid import Interpolation
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
@@ -34,11 +34,20 @@ P = TypeVar("P", bound=BaseModel)
 #: The AgileX LIMO's footprint (m), the unicycle model's default body (``protocol.platforms.LIMO``).
 LIMO_LENGTH, LIMO_WIDTH = LIMO.length, LIMO.width
 
+
+def platform_bounds(p: PlanarPlatform) -> dict[str, float]:
+    """A ground robot's input bounds for the unicycle model: its speed, yaw rate and deceleration."""
+    return {"v_max": p.max_linear, "w_max": p.max_angular, "a_max": p.max_accel}
+
+
+def platform_footprint(p: PlanarPlatform, discs: int = 3) -> Footprint:
+    """A ground robot's body rectangle as the filter's footprint (``discs`` discs on its medial axis)."""
+    return Footprint(shape="rectangle", length=p.length, width=p.width, discs=discs)
+
+
 #: The input bounds a model defaults to where the configuration sets none, over ``BoundsParams``'
 #: (a generic robot's): the unicycle is the LIMO, whose limits live in ``protocol.platforms``.
-MODEL_BOUNDS: dict[str, dict[str, float]] = {
-    "unicycle": {"v_max": LIMO.max_linear, "w_max": LIMO.max_angular, "a_max": LIMO.max_accel},
-}
+MODEL_BOUNDS: dict[str, dict[str, float]] = {"unicycle": platform_bounds(LIMO)}
 
 
 class Footprint(BaseModel):
@@ -224,7 +233,8 @@ class MotionParams(BaseModel):
     The collision course (``model.object_course``): within ``collision_horizon_s`` the object,
     moving on with its velocity and uncertain by ``object_speed_sigma`` · t, comes inside its
     group's margin of the robot's body, with the body moving on as the reference asks or braking
-    to rest. 1.5 s at σ = 0.15 m/s (the tracker's accuracy, ``mapping.objects``) grows a walker's
+    to rest. 1.5 s at σ = 0.15 m/s (between the tracker's velocity error per axis, 0.09 m/s from its
+    median and 0.29 m/s RMS with its lag at stops and turns: ``riskfield bench crowd``) grows a walker's
     reach by 0.23 m: a person walking past at a body gap of 0.5 m stays out (0.5 - 0.15 - 0.23 -
     δ > 0), one walking at 1.2 m/s is seen 1.8 m ahead of the contact, more than the LIMO needs to
     stop from 1 m/s (0.33 m at 1.5 m/s²) with the pipeline's latency."""
@@ -262,6 +272,16 @@ class MotionParams(BaseModel):
         "ADE20K labels whose risk groups yield: the ESDF's rows there may slow and stop the robot but "
         "never push it (no recovery drive away from a person); empty: every group keeps the static "
         "barrier's recovery"))
+    evade: bool = Field(default=False, description=(
+        "opt-in: retreat from a moving object on a collision course with the stopped robot, at most "
+        "evade_speed and evade_distance, only into floor the map observed free (evade.py); false: the "
+        "robot stays stopped and lets it pass"))
+    evade_speed: Annotated[float, Field(gt=0, le=2, allow_inf_nan=False)] = Field(default=0.3, description=(
+        "m/s: the speed of a retreat"))
+    evade_distance: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = Field(default=0.5, description=(
+        "m: the farthest a retreat goes while one threat lasts"))
+    evade_lookahead_s: Annotated[float, Field(gt=0, le=5, allow_inf_nan=False)] = Field(default=1.0, description=(
+        "s: the footprint a retreat sweeps in this time must lie in observed-free floor, clear of obstacles"))
 
     @model_validator(mode="after")
     def _known_labels(self) -> MotionParams:
@@ -307,7 +327,7 @@ class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
         if self.footprint is not None:
             return self.footprint
         if self.model == "unicycle":
-            return Footprint(shape="rectangle")
+            return platform_footprint(LIMO)
         return Footprint(shape="sphere")
 
     def _discs(self) -> tuple[list[tuple[float, float, float]], list[float]]:

@@ -477,23 +477,30 @@ def object_course(df, dl, pts, v_ref, vel, obj, margin, delta, horizon, a_stop):
     velocity ``vel`` to rest (the stopping footprint). The object moves on at its velocity, its
     position uncertain by σ t (σ: OBJ_SIGMA); the margin is the group's inflation plus δ. Someone
     walking past beside the robot or crossing behind it never comes inside: no row, no slowing."""
-    radii = view1(df, dl, _D.radii)
-    cx, cy, wx, wy = obj[OBJ_X], obj[OBJ_Y], obj[OBJ_VX], obj[OBJ_VY]
-    reach = obj[OBJ_RADIUS] + margin + delta
     speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1])
     ux, uy = (vel[0] / speed, vel[1] / speed) if speed > 1e-9 else (0.0, 0.0)
     for k in range(COURSE_SAMPLES + 1):
         t = horizon * k / COURSE_SAMPLES
-        ox, oy = cx + wx * t, cy + wy * t
-        grow = reach + obj[OBJ_SIGMA] * t
+        grow = margin + delta + obj[OBJ_SIGMA] * t
         s = _stopping(speed, a_stop, t)
         for f in range(2):
             dx, dy = (v_ref[0] * t, v_ref[1] * t) if f == 0 else (ux * s, uy * s)
-            for i in range(radii.shape[0]):
-                ex, ey = pts[i, 0] + dx - ox, pts[i, 1] + dy - oy
-                if math.sqrt(ex * ex + ey * ey) - radii[i] <= grow:
-                    return t
+            if object_gap(df, dl, pts, dx, dy, obj, t) <= grow:
+                return t
     return math.inf
+
+
+@jit
+def object_gap(df, dl, pts, dx, dy, obj, t):
+    """The horizontal gap between the body, moved by (dx, dy), and a moving object's cylinder
+    after t s at its velocity: the smallest over the body's discs (< 0: they overlap)."""
+    radii = view1(df, dl, _D.radii)
+    ox, oy = obj[OBJ_X] + obj[OBJ_VX] * t, obj[OBJ_Y] + obj[OBJ_VY] * t
+    best = math.inf
+    for i in range(radii.shape[0]):
+        ex, ey = pts[i, 0] + dx - ox, pts[i, 1] + dy - oy
+        best = min(best, math.sqrt(ex * ex + ey * ey) - radii[i])
+    return best - obj[OBJ_RADIUS]
 
 
 @jit

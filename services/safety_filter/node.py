@@ -3,7 +3,8 @@
 Subscribes ``{robot}/map/esdf``, ``{robot}/state`` and ``{robot}/cmd/ref`` (latest-value queues),
 ``{robot}/config/risk`` and ``{robot}/map/objects`` (tracked people and animals: their motion
 enters the barrier, ``supervisor``; missing, stale or invalid it is the static barrier, counted in
-``objects_missing``, ``objects_stale``, ``invalid_objects``, never a brake); publishes on every
+``objects_missing``, ``objects_stale``, ``invalid_objects``, never a brake) and ``{robot}/perception/alignment``
+(the map scale's uncertainty: a shrunk distance and a speed cap, ``scale_guard``); publishes on every
 new reference, on every map taken (accepted or unusable; ``step_on_map``) and at ``rate_hz`` (a
 tick is skipped when such a step went out less than half a period before). The map, state and
 reference are decoded here rather than by the runtime so that a bad message is not only counted
@@ -17,6 +18,21 @@ future, whose publisher's ``seq`` went backwards, or that is older than the map 
 refused, counted (``map_refused``, ``map_refused_<reason>``) and logged, and the map in force is
 kept; ``SafetyStatus.esdf_age_ms`` is the content age, ``esdf_publishers`` the number of
 publishers on ``map/esdf`` lately (2 or more is a fault: a stuck or rogue mapper).
+
+Several sources may publish ``cmd/ref``; the node takes a reference only from the one the
+arbitration names (``runtime.arbiter``, twist_mux's rules): the highest-priority source (by
+``VelocityCommand.source``, ``ref_sources``; the joystick outranks the navigator) that sent a
+claiming command within its timeout. Others are counted (``ref_refused``, ``ref_refused_<reason>``).
+A joystick whose dead-man is released sends ``engaged = False``: it keeps control until its claim
+times out, then the navigator's next command is taken. ``{robot}/cmd/lock`` (additive key,
+``CommandLock``) holds every source below ``lock_priority``: while the reference in force comes from
+a held source the filter brakes with ``fallback = "locked"``. ``SafetyStatus.ref_source`` names the
+source listened to. The arbitration decides which reference enters the step, never the step itself.
+
+The risk configuration in force has a version and a hash (``runtime.risk_file.RiskStore``), in
+``SafetyStatus.risk_version`` / ``risk_hash`` and ``NodeStatus``; with ``state_dir`` it is kept
+there and reloaded at the next start (the risk file, when set, is loaded over it). One that names
+no obstacle does not decode (``RiskConfig``'s floor): counted in ``NodeStatus.invalid`` and logged.
 
 A state that jumps farther than the robot can move since the last one taken, or is stamped ahead
 of this clock, is refused (``runtime.continuity``; ``state_refused``, ``state_refused_<reason>``):
@@ -37,6 +53,8 @@ import time
 from typing import Any
 
 from riskfield.protocol import (
+    Alignment,
+    CommandLock,
     DecodeError,
     EsdfGrid,
     Limits,
@@ -47,9 +65,10 @@ from riskfield.protocol import (
     decode,
 )
 
+from ..runtime.arbiter import LOCKED
 from ..runtime.continuity import StateGate, report_refused
 from ..runtime.node import Node
-from ..runtime.risk_file import watch_risk_file
+from ..runtime.risk_file import RiskStore, watch_risk_file
 from ..runtime.service import ServiceSpec
 from .filter import SafetyFilter
 from .settings import FilterSettings
@@ -62,10 +81,17 @@ class FilterNode:
     def __init__(self, node: Node, s: FilterSettings):
         self.node = node
         self.settings = s
+        # The configuration in force, its version and digest, kept under state_dir (module doc).
+        self.risk_store = RiskStore(s.state_dir, node.service, node.log)
         # A bad file at start is a configuration error; later ones keep the configuration in force.
-        risk = watch_risk_file(node, s.risk_file, s.risk_poll_s, self._set_risk) if s.risk_file else None
+        if s.risk_file:
+            self.risk_store.commit(watch_risk_file(node, s.risk_file, s.risk_poll_s, self._set_risk),
+                                   str(s.risk_file))
+        risk = self.risk_store.risk
+        self._show_risk()
         self.supervisor = FilterSupervisor(SafetyFilter(s.filter_config(), risk, warm_up=False), s.map_timeout_s,
-                                           s.state_timeout_s, s.ref_timeout_s, s.clock_tolerance_s)
+                                           s.state_timeout_s, s.ref_timeout_s, s.clock_tolerance_s,
+                                           s.scale_guard())
         self.period = 1.0 / s.rate_hz
         self._last_pub = -1e9
         self._last_fallback: str | None = "start"
@@ -76,16 +102,20 @@ class FilterNode:
         self._last_motion = self.supervisor.motion
         for name in ("steps", "brakes", "slack", "intervening", "invalid_map", "invalid_state", "invalid_ref",
                      "risk_reloads", "risk_errors", "map_refused", "esdf_publishers", "invalid_objects",
-                     "objects_missing", "objects_stale", "objects_moving", "state_refused", "yielding", "object_rows"):
+                     "objects_missing", "objects_stale", "objects_moving", "state_refused", "yielding", "object_rows",
+                     "ref_refused", "locks"):
             node.stats[name] = 0.0
+        self.mux = s.command_mux()  # cmd/ref arbitration (module doc)
         self.state_gate = StateGate.of(s, s.clock_tolerance_s)  # continuity of the state (module doc)
         k = node.keys
         node.subscribe(k.esdf, None, self._on_map, queue="latest")
         node.subscribe(k.state, None, self._on_state, queue="latest")
         node.subscribe(k.state_relocalise, None, self._on_relocalise, queue="fifo", maxlen=4)
         node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
+        node.subscribe(k.cmd_lock, CommandLock, self._on_lock, queue="fifo", maxlen=64)
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
         node.subscribe(k.objects, None, self._on_objects, queue="latest")
+        node.subscribe(k.alignment, Alignment, self._on_alignment, queue="latest")
         node.every(self.period, self._on_timer)
         # The compiled step is loaded (or compiled) here, in setup, never on a control step; after
         # subscribing, so that what arrives meanwhile waits in the inbox for the loop.
@@ -152,8 +182,29 @@ class FilterNode:
     def _on_ref(self, key: str, payload: bytes) -> None:
         msg = self._decode("ref", payload, VelocityCommand, self._small_limits)
         if msg is not None:
-            self.supervisor.on_ref(msg, time.monotonic())
+            now = time.monotonic()
+            refused = self.mux.admit(msg.source, now, claims=msg.engaged is not False)
+            if refused is not None:
+                st = self.node.stats
+                st["ref_refused"] += 1
+                st[f"ref_refused_{refused}"] = st.get(f"ref_refused_{refused}", 0) + 1
+                if refused != "preempted":  # giving way is the normal case; the others are worth a line
+                    self.node.ratelog(logging.WARNING, f"ref_refused:{refused}",
+                                      f"not taking cmd/ref from {msg.source!r} ({refused}; listening to "
+                                      f"{self.mux.active(now)!r})")
+                return
+            self.supervisor.on_ref(msg, now)
         self._step()  # a bad reference brakes at once, too
+
+    def _on_lock(self, lock: CommandLock) -> None:
+        now = time.monotonic()
+        was = self.mux.lock_priority(now)
+        self.mux.lock(lock.source, lock.locked, now)
+        self.node.stats["locks"] += lock.locked
+        if self.mux.lock_priority(now) != was:
+            self.node.log.warning("cmd/ref lock %s by %r: sources below priority %d held", "on" if lock.locked
+                                  else "off", lock.source, self.mux.lock_priority(now))
+        self._step()  # a lock brakes now, not at the next tick
 
     def _on_objects(self, key: str, payload: bytes) -> None:
         try:
@@ -167,14 +218,28 @@ class FilterNode:
             return
         self.supervisor.on_objects(msg, time.monotonic())
 
+    def _on_alignment(self, msg: Alignment) -> None:
+        # Not a brake when bad or missing: the runtime drops and counts an invalid one, and the last
+        # good one times out into "not converged" (speed cap) while the map it scaled goes stale.
+        self.supervisor.on_alignment(msg, time.monotonic())
+        self.node.stats["align_sigma"] = msg.scale_sigma
+
     def _on_risk(self, risk: RiskConfig) -> None:
+        # A configuration naming no obstacle never gets here: it does not decode (RiskConfig's
+        # floor), counted in NodeStatus.invalid and logged by the runtime.
         self.supervisor.set_risk(risk)
         self.node.stats["risk_reloads"] += 1
-        self.node.log.info("risk configuration updated from %s: groups %s", self.node.keys.risk_config,
-                           ", ".join(risk.group_names))
+        self.risk_store.commit(risk, self.node.keys.risk_config)
+        self._show_risk()
 
     def _set_risk(self, risk: RiskConfig) -> None:
         self.supervisor.set_risk(risk)
+        self.risk_store.commit(risk, str(self.settings.risk_file))
+        self._show_risk()
+
+    def _show_risk(self) -> None:
+        self.node.status_fields.update(risk_version=self.risk_store.version, risk_hash=self.risk_store.digest)
+        self.node.stats["risk_version"] = self.risk_store.version
 
     # -- output -----------------------------------------------------------------------------------
     def _on_timer(self) -> None:
@@ -184,6 +249,7 @@ class FilterNode:
     def _brake(self, reason: str) -> None:
         """Publish a zero command and a status saying ``reason``, outside the supervisor's tick."""
         cmd, status = self.supervisor.brake(reason, time.monotonic())
+        status.risk_version, status.risk_hash = self.risk_store.version, self.risk_store.digest
         self.node.publish(self.node.keys.cmd_safe, cmd)
         self.node.publish(self.node.keys.safety_status, status)
         self._last_pub = time.monotonic()
@@ -197,13 +263,19 @@ class FilterNode:
     def _step(self) -> None:
         now = time.monotonic()
         try:
-            cmd, status = self.supervisor.tick(now, time.time_ns())
+            ref = self.supervisor.reference
+            if ref is not None and self.mux.masked(ref.source, now):
+                cmd, status = self.supervisor.brake(LOCKED, now)  # the reference in force is held by a lock
+            else:
+                cmd, status = self.supervisor.tick(now, time.time_ns())
         except Exception:
             # A bug in the core must not leave the last moving command in force; the runtime
             # logs and counts the error (Node._call) and the next step tries again.
             self._brake("internal_error")
             raise
         status.risk_errors = int(self.node.stats.get("risk_errors", 0))
+        status.ref_source = self.mux.active(now)
+        status.risk_version, status.risk_hash = self.risk_store.version, self.risk_store.digest
         fresh = self.supervisor.freshness
         status.esdf_publishers = fresh.publishers(now)
         status.esdf_refused = fresh.refused_total
@@ -226,6 +298,7 @@ class FilterNode:
         st["solve_us"] = status.solve_us
         st["h"] = status.h
         st["esdf_publishers"] = status.esdf_publishers
+        st["scale_uncertain"] = st.get("scale_uncertain", 0) + status.scale_uncertain
         motion = self.supervisor.motion
         if motion in ("missing", "stale", "ok"):
             st["objects_" + ("moving" if motion == "ok" else motion)] += 1

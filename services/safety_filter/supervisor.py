@@ -23,6 +23,11 @@ than the ESDF in force. Missing or stale, the step uses the static barrier; ``mo
 (``off``, ``missing``, ``stale``, ``ok``) and ``counts`` counts the steps (``objects_missing``,
 ``objects_stale``).
 
+Perception's alignment (``perception/alignment``, ``on_alignment``) never brakes either: once one
+has arrived the field is read shrunk by the map scale's uncertainty, and while the estimate has not
+converged the speed is capped (``scale_guard``); the status says so (``scale_uncertain``,
+``distance_margin``, ``speed_cap``) and ``counts`` counts the steps (``scale_uncertain``).
+
 ``slack`` is the one fallback that does not brake: the QP was infeasible with fresh inputs and
 the command is the slack-relaxed QP's, at least as safe as maximal braking along the field's
 gradient (``filter``); the status says ``fallback="slack"`` on every such step.
@@ -36,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from riskfield.protocol import (
+    Alignment,
     EsdfGrid,
     Header,
     RiskConfig,
@@ -46,9 +52,11 @@ from riskfield.protocol import (
 )
 
 from ..fields import DistanceField, EsdfField
+from .evade import Evader, FreeFloor
 from .filter import FilterResult, SafetyFilter
 from .freshness import MapFreshness
 from .motion import object_table
+from .scale_guard import ScaleGuard, ScaleGuardConfig
 from .state import FilterState
 
 SOURCE = "safety-filter"
@@ -67,8 +75,11 @@ class FilterSupervisor:
     """Tracks the inputs and turns them into (cmd/safe, safety/status) on every tick."""
 
     def __init__(self, filt: SafetyFilter, map_timeout_s: float = 0.3, state_timeout_s: float = 0.3,
-                 ref_timeout_s: float = 0.2, clock_tolerance_s: float = 0.1):
+                 ref_timeout_s: float = 0.2, clock_tolerance_s: float = 0.1,
+                 scale_guard: ScaleGuardConfig | None = None):
         self.filter = filt
+        #: the map's scale uncertainty (``perception/alignment``): a shrunk distance, a speed cap
+        self.guard = ScaleGuard(scale_guard)
         self.freshness = MapFreshness(map_timeout_s, clock_tolerance_s, window_s=max(2.0, 5 * map_timeout_s))
         self._wall_ns: int | None = None  # the wall clock of the current tick, when the caller gives it
         self.timeouts = {"map": map_timeout_s, "state": state_timeout_s, "ref": ref_timeout_s}
@@ -76,6 +87,9 @@ class FilterSupervisor:
         self.last: FilterResult | None = None
         self.counts: dict[str, int] = {}
         self._objects: tuple[TrackedObjects, float] | None = None
+        #: the opt-in retreat (``evade``), and the floor the newest map says was seen free
+        self.evader = Evader(filt.model, filt.config, filt.delta)
+        self._floor: FreeFloor | None = None
         self.motion = "off" if not filt.config.object_motion else "missing"
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -88,6 +102,7 @@ class FilterSupervisor:
             self.invalid("map", now)
             return str(exc)
         self._set("map", field, now)
+        self._floor = FreeFloor.from_grid(grid) if isinstance(grid, EsdfGrid) else None
         return None
 
     def admit_map(self, grid: EsdfGrid, now: float, wall_ns: int, publisher: str | None,
@@ -133,6 +148,16 @@ class FilterSupervisor:
 
     def on_ref(self, msg: VelocityCommand, now: float) -> None:
         self._set("ref", msg, now)
+
+    def on_alignment(self, msg: Alignment, now: float) -> None:
+        """Perception's newest SLAM → odometry estimate: how far the map's distances can be trusted."""
+        self.guard.on_alignment(msg, now)
+
+    @property
+    def reference(self) -> VelocityCommand | None:
+        """The newest valid reference taken (fresh or not), or None."""
+        value = self._slots["ref"].value
+        return value if isinstance(value, VelocityCommand) else None
 
     def invalid(self, what: str, now: float) -> None:
         """The newest message on ``what`` ("map", "state", "ref") was unusable: brake until a valid one."""
@@ -184,8 +209,11 @@ class FilterSupervisor:
         assert isinstance(ref, VelocityCommand) and isinstance(state, FilterState)
         model = self.filter.model
         lin, ang = np.asarray(ref.linear, np.float64), np.asarray(ref.angular, np.float64)
+        lin, ang, cap = self.guard.cap(lin, ang, now)
         u_ref = model.reference(lin, ang, state)
-        res = self.filter.filter(state, u_ref, field, ang, self.objects(state, now))  # type: ignore[arg-type]
+        field = self.guard.field(field)  # type: ignore[arg-type]
+        objects = self.objects(state, now)
+        res = self.filter.filter(state, u_ref, field, ang, objects)  # type: ignore[arg-type]
         self.last = res
         if res.fallback is not None and res.fallback != "slack":
             return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)
@@ -194,14 +222,29 @@ class FilterSupervisor:
             # A zero reference (the stick centred, the dead-man released) is a zero command: the
             # filter never moves the robot on its own, whatever comes at it.
             out_lin, out_ang = np.zeros(3), np.zeros(3)
+        retreat = None
+        if self.filter.config.evade and ref.engaged is not False:  # a released dead-man: nobody asked
+            groups = getattr(self.filter.field_for(field), "groups", ())  # type: ignore[arg-type]
+            retreat = self.evader.step(state, res.yielding, not (lin.any() or ang.any()), objects,
+                                       self.filter.gains.for_groups(groups), field, self._floor)  # type: ignore[arg-type]
+        if retreat is not None:
+            out_lin, out_ang = model.command(retreat, np.zeros(3), state)
+            self._count("evading")
         if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
             return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
+        if cap is not None:  # the QP may trade speed for safety, never exceed the cap
+            out_lin, out_ang, _ = self.guard.cap(out_lin, out_ang, now)
         self._count(res.fallback)
         cmd = VelocityCommand(header=Header(frame_id="base_link"), linear=tuple(out_lin.tolist()),
                               angular=tuple(out_ang.tolist()), source=f"{SOURCE}/{ref.source}")
         status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=res.fallback,
                               solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now), yielding=res.yielding,
-                              object_rows=res.object_rows)
+                              object_rows=res.object_rows, evading=retreat is not None,
+                              scale_uncertain=self.guard.uncertain(now),
+                              distance_margin=self.guard.margin_at(res.h + float(np.min(self.filter.model.radius))),
+                              speed_cap=cap)
+        if status.scale_uncertain:
+            self._count("scale_uncertain")
         if res.yielding:
             self._count("yielding")
         return cmd, status

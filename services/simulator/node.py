@@ -3,8 +3,9 @@
 Simulation-only keys (additive; nothing outside simulation depends on them):
 
 * ``{prefix}/{robot}/sim/truth`` — ``PerceptionFrame/1`` with the perfect camera-frame
-  pointmap, the true ``T_WC``, confidence 1 (0 where a ray hit nothing) and ground-truth ADE20K
-  labels, published right after each image **with the same header stamp**, so the perception
+  pointmap as depth + intrinsics at every ``truth_stride``-th pixel, the true ``T_WC``, confidence 1
+  (0 where a ray hit nothing) and ground-truth ADE20K labels, published right after each image
+  **with the same header stamp**, so the perception
   ``sim`` backend pairs image and truth by ``stamp_ns`` across processes.
 * ``{prefix}/{robot}/camera/depth`` — with ``publish_depth``: ``DepthImage/1`` (additive), the
   rendered depth (z, metres; 0 where nothing was hit) and the camera's intrinsics, stamped like
@@ -42,9 +43,11 @@ from pydantic import Field, ValidationError
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, SimActors, VelocityCommand
 from riskfield.protocol.messages import Header
 
+from ..geometry.camera import PinholeCamera
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
+from .camera import Render
 from .robots import ROBOT_TYPES
 from .scenario import ObjectSpec, load_scenario
 from .world import World
@@ -64,6 +67,10 @@ class SimulatorSettings(NodeSettings):
     """A command older than this is replaced by zero (the robot brakes), like the LIMO bridge's watchdog."""
     publish_truth: bool = True
     """Publish the camera's ground-truth frame on sim/truth (what perception's sim geometry needs)."""
+    truth_stride: int = Field(2, ge=1, le=16)
+    """sim/truth carries every n-th pixel of the image in each direction, as depth (float32) and
+    intrinsics: the size perception's sim geometry and the mapping work at (the mapping's
+    ``pixel_stride``); 1: every pixel."""
     image_encoding: Literal["rgb8", "jpeg"] = Field(
         "jpeg", description="camera/image as JPEG (what crosses a robot's Wi-Fi: ~13 KB a frame here against "
         "590 KB of rgb8) or raw rgb8")
@@ -87,6 +94,15 @@ def jpeg_bytes(rgb: np.ndarray, quality: int) -> bytes:
     out = io.BytesIO()
     PILImage.fromarray(rgb).save(out, format="JPEG", quality=quality)
     return out.getvalue()
+
+
+def truth_frame(render: Render, camera: PinholeCamera, stride: int, header: Header, seq: int) -> PerceptionFrame:
+    """The ``sim/truth`` of one render: every ``stride``-th pixel (0, n, 2n, …) as float32 depth with
+    the strided camera's intrinsics, confidence 1 where a ray hit (0 elsewhere), the true labels."""
+    depth = np.ascontiguousarray(render.depth[::stride, ::stride], np.float32)
+    return PerceptionFrame(header=header, T_WC=render.T_WC, depth=depth, intrinsics=camera.strided(stride).intrinsics,
+                           confidence=(depth > 0).astype(np.float32),
+                           labels=np.ascontiguousarray(render.labels[::stride, ::stride]), keyframe_id=seq)
 
 
 class Simulator:
@@ -199,9 +215,8 @@ class Simulator:
                 header=Header(stamp_ns=stamp, frame_id=self.s.camera_frame), depth=frame.depth, fx=cam.fx, fy=cam.fy,
                 cx=cam.cx, cy=cam.cy))
         if self.s.publish_truth:
-            self.node.publish(self.node.keys.sim_truth, PerceptionFrame(
-                header=Header(stamp_ns=stamp, frame_id=self.s.map_frame), T_WC=frame.T_WC, points=frame.points,
-                confidence=frame.valid.astype(np.float32), labels=frame.labels, keyframe_id=self.frames))
+            self.node.publish(self.node.keys.sim_truth, truth_frame(frame, cam, self.s.truth_stride, Header(
+                stamp_ns=stamp, frame_id=self.s.map_frame), self.frames))
         if self.s.publish_actors:
             self.publish_actors(stamp)
         self.frames += 1

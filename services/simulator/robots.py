@@ -1,5 +1,9 @@
-"""Robot kinematics for the simulator: the LIMO in its three motion modes, and the 3-D single and
-double integrators of the paper's benchmark.
+"""The simulator's plants: a robot's motion, built from its platform description
+(``riskfield.protocol.platforms``) and one kinematics function per way of moving (``KINEMATICS``):
+``DifferentialPlant``, ``AckermannPlant`` and ``MecanumPlant`` for a wheeled ground robot such as the
+LIMO in its three motion modes, ``VelocityPointPlant`` and ``PointMassPlant`` for the paper's 3-D
+point robot. They are plants (what moves), named apart from the safety filter's barrier models
+(what it plans with, ``safety_filter.barriers``).
 
 Every model takes the wire contract's velocity command — body-frame ``linear`` (m/s) and
 ``angular`` (rad/s) — through ``step(linear, angular, dt)`` and reports ``state()``: position,
@@ -15,11 +19,12 @@ constant body twist ``(vx, vy, ω)`` the SE(2) exponential is
 rotated into the world by the heading at the start of the step, and θ ← θ + ωΔt. With
 ``vy = 0`` this is the unicycle's arc of radius v/ω; with ω → 0 the straight line.
 
-LIMO values (``LIMO``) come from ``riskfield.protocol.platforms.LIMO``, the one home of the
-platform's figures (the bridge and the filter read them too; its docstring gives the sources):
-about 1 m/s, in Ackermann mode a 0.2 m wheelbase and ±0.488 rad steering (0.4 m minimum turning
-radius), |ω| ≤ 2 rad/s, |a| ≤ 1.5 m/s², |α| ≤ 6 rad/s². They are parameters; a real unit should be
-measured.
+Every figure comes from the platform's description (``protocol.platforms``, which gives the
+sources): the limits, the wheelbase and, for Ackermann steering, the *central* (bicycle) angle's
+limit, which follows from the inner wheel's mechanical limit, the wheelbase and the track
+(``PlanarPlatform.max_central_steering``, the conversion the LIMO bridge uses). A robot type is
+``PLATFORM`` or ``PLATFORM:KINEMATICS`` (``limo:ackermann``); the names ``limo``, ``ackermann``,
+``mecanum``, ``single_integrator`` and ``double_integrator`` stay as they were (``ROBOT_TYPES``).
 """
 
 from __future__ import annotations
@@ -30,7 +35,8 @@ from typing import Protocol
 
 import numpy as np
 
-from riskfield.protocol.platforms import LIMO as PLATFORM
+from riskfield.protocol.platforms import LIMO as LIMO_PLATFORM
+from riskfield.protocol.platforms import PLATFORMS, POINT_MASS, PlanarPlatform, SpatialPlatform, platform
 
 from ..geometry.transforms import wrap_angle, yaw_matrix, yaw_of, yaw_quaternion
 
@@ -59,17 +65,20 @@ class Robot(Protocol):
 
 @dataclass(frozen=True)
 class PlanarLimits:
-    v_max: float = PLATFORM.max_linear  # |forward speed| (m/s)
+    v_max: float = LIMO_PLATFORM.max_linear  # |forward speed| (m/s)
     vy_max: float = 0.0  # |lateral speed| (m/s); > 0 only for mecanum
-    w_max: float = PLATFORM.max_angular  # |yaw rate| (rad/s)
-    a_max: float = PLATFORM.max_accel  # |linear acceleration| (m/s²)
-    alpha_max: float = PLATFORM.max_yaw_accel  # |yaw acceleration| (rad/s²)
+    w_max: float = LIMO_PLATFORM.max_angular  # |yaw rate| (rad/s)
+    a_max: float = LIMO_PLATFORM.max_accel  # |linear acceleration| (m/s²)
+    alpha_max: float = LIMO_PLATFORM.max_yaw_accel  # |yaw acceleration| (rad/s²)
+
+    @classmethod
+    def of(cls, p: PlanarPlatform, lateral: bool = False) -> PlanarLimits:
+        """A platform's limits; ``lateral``: it may slide sideways (mecanum)."""
+        return cls(p.max_linear, p.max_lateral if lateral else 0.0, p.max_angular, p.max_accel, p.max_yaw_accel)
 
 
-LIMO = PlanarLimits()
-LIMO_MECANUM = PlanarLimits(vy_max=PLATFORM.max_lateral)
-LIMO_WHEELBASE = PLATFORM.wheelbase
-LIMO_MAX_STEER = PLATFORM.max_steering
+LIMO = PlanarLimits.of(LIMO_PLATFORM)
+LIMO_MECANUM = PlanarLimits.of(LIMO_PLATFORM, lateral=True)
 
 
 def _towards(current: float, target: float, rate: float, dt: float) -> float:
@@ -136,8 +145,8 @@ class _Planar:
 
 
 @dataclass
-class Unicycle(_Planar):
-    """LIMO differential (four-wheel skid-steer) mode: ẋ = v cos θ, ẏ = v sin θ, θ̇ = ω.
+class DifferentialPlant(_Planar):
+    """Differential (four-wheel skid-steer) drive, the LIMO's default mode: ẋ = v cos θ, ẏ = v sin θ, θ̇ = ω.
     Uses ``linear[0]`` and ``angular[2]``; lateral commands are ignored (it cannot slide)."""
 
     def step(self, linear: np.ndarray, angular: np.ndarray, dt: float) -> None:
@@ -150,15 +159,17 @@ class Unicycle(_Planar):
 
 
 @dataclass
-class Ackermann(_Planar):
-    """LIMO Ackermann mode as a kinematic bicycle: θ̇ = v·tan δ / L with |δ| ≤ ``max_steer``.
+class AckermannPlant(_Planar):
+    """Ackermann steering as a kinematic bicycle: θ̇ = v·tan δ / L with |δ| ≤ ``max_steer``, the
+    central angle's limit (``PlanarPlatform.max_central_steering``, where the inner wheel reaches its
+    ``max_steering``: a tighter limit than that one).
 
     The command's yaw rate is turned into the steering angle that would produce it at the
     commanded speed, δ = atan(ω L / v), clamped; the robot then turns at v·tan δ / L. It cannot
     turn in place: at v = 0 the yaw rate is 0."""
 
-    wheelbase: float = LIMO_WHEELBASE
-    max_steer: float = LIMO_MAX_STEER
+    wheelbase: float = LIMO_PLATFORM.wheelbase
+    max_steer: float = LIMO_PLATFORM.max_central_steering
     steer: float = 0.0
 
     def step(self, linear: np.ndarray, angular: np.ndarray, dt: float) -> None:
@@ -181,8 +192,8 @@ class Ackermann(_Planar):
 
 
 @dataclass
-class Mecanum(_Planar):
-    """LIMO mecanum mode: independent body velocities vx, vy and yaw rate ω (holonomic)."""
+class MecanumPlant(_Planar):
+    """Mecanum wheels: independent body velocities vx, vy and yaw rate ω (holonomic)."""
 
     limits: PlanarLimits = field(default_factory=lambda: LIMO_MECANUM)
 
@@ -204,8 +215,8 @@ class _Spatial:
     v: np.ndarray = field(default_factory=lambda: np.zeros(3))
     yaw: float = 0.0
     w: float = 0.0
-    v_max: float = 2.0  # |velocity| (m/s), a norm bound
-    w_max: float = 2.5
+    v_max: float = POINT_MASS.max_speed  # |velocity| (m/s), a norm bound
+    w_max: float = POINT_MASS.max_yaw_rate
 
     def __post_init__(self) -> None:
         self.p = np.asarray(self.p, np.float64).copy()
@@ -234,8 +245,9 @@ def _clip_norm(x: np.ndarray, bound: float) -> np.ndarray:
 
 
 @dataclass
-class SingleIntegrator(_Spatial):
-    """ṗ = u with u the commanded velocity (rotated by the yaw), |u| ≤ ``v_max``."""
+class VelocityPointPlant(_Spatial):
+    """A velocity-controlled point (single integrator): ṗ = u with u the commanded velocity (rotated
+    by the yaw), |u| ≤ ``v_max``."""
 
     def step(self, linear: np.ndarray, angular: np.ndarray, dt: float) -> None:
         if dt <= 0:
@@ -248,15 +260,15 @@ class SingleIntegrator(_Spatial):
 
 
 @dataclass
-class DoubleIntegrator(_Spatial):
-    """The paper's benchmark robot: ṗ = v, v̇ = u, integrated exactly for u held over the step
-    (p += vΔt + ½uΔt², v += uΔt), |u| ≤ ``a_max``, then |v| ≤ ``v_max``.
+class PointMassPlant(_Spatial):
+    """The paper's benchmark robot, a point mass (double integrator): ṗ = v, v̇ = u, integrated
+    exactly for u held over the step (p += vΔt + ½uΔt², v += uΔt), |u| ≤ ``a_max``, then |v| ≤ ``v_max``.
 
     ``input = "acceleration"``: the command's ``linear`` *is* u (body frame, rotated by the yaw).
     ``input = "velocity"``: ``linear`` is a velocity set-point tracked by u = k_v·(v_cmd − v),
     so the same velocity commands that drive a LIMO drive it too."""
 
-    a_max: float = 3.0
+    a_max: float = POINT_MASS.max_accel  # type: ignore[assignment]  # the point mass has one
     input: str = "velocity"
     k_v: float = 4.0
 
@@ -278,26 +290,57 @@ class DoubleIntegrator(_Spatial):
         self._turn(float(angular[2]), dt)
 
 
-ROBOT_TYPES = ("limo", "ackermann", "mecanum", "single_integrator", "double_integrator")
+#: One kinematics function per way of moving, by the platforms' kinematics names.
+KINEMATICS: dict[str, type[_Planar] | type[_Spatial]] = {
+    "differential": DifferentialPlant, "ackermann": AckermannPlant, "mecanum": MecanumPlant,
+    "single_integrator": VelocityPointPlant, "double_integrator": PointMassPlant,
+}
+
+#: The robot types scenarios have always named, as ``(platform, kinematics)``.
+NAMED_TYPES: dict[str, tuple[str, str]] = {
+    "limo": ("limo", "differential"), "ackermann": ("limo", "ackermann"), "mecanum": ("limo", "mecanum"),
+    "single_integrator": ("point_mass", "single_integrator"), "double_integrator": ("point_mass", "double_integrator"),
+}
+ROBOT_TYPES = tuple(NAMED_TYPES)
+
+
+def resolve_robot_type(kind: str) -> tuple[PlanarPlatform | SpatialPlatform, str]:
+    """``kind`` (a name of ``ROBOT_TYPES``, ``PLATFORM`` or ``PLATFORM:KINEMATICS``) as its platform
+    description and kinematics; an unknown one is an error that lists what there is."""
+    name, _, kin = kind.partition(":")
+    if kind in NAMED_TYPES:
+        name, kin = NAMED_TYPES[kind]
+    elif name not in PLATFORMS:
+        raise ValueError(f"unknown robot type {kind!r}; use one of {', '.join(ROBOT_TYPES)}, or PLATFORM[:KINEMATICS] "
+                         f"with a platform of {', '.join(PLATFORMS)}")
+    p = platform(name)
+    kin = kin or p.kinematics[0]
+    if kin not in p.kinematics:
+        raise ValueError(f"robot type {kind!r}: {name} drives {', '.join(p.kinematics)}, not {kin}")
+    return p, kin
 
 
 def make_robot(kind: str, start: tuple[float, float, float] = (0.0, 0.0, 0.0), z: float = 0.0, **params: float | str
                ) -> Robot:
-    """A robot of ``kind`` (see ``ROBOT_TYPES``) at floor pose ``start = (x, y, yaw)``.
+    """A robot of ``kind`` (``resolve_robot_type``) at floor pose ``start = (x, y, yaw)``, built from
+    its platform's description.
 
-    ``params`` override limits: ``v_max, w_max, a_max, alpha_max, vy_max`` for the LIMO modes,
-    ``v_max, w_max, a_max, input, k_v`` for the integrators."""
+    ``params`` override limits: ``v_max, w_max, a_max, alpha_max, vy_max`` (and ``wheelbase,
+    max_steer`` for Ackermann, the central angle's limit) for a ground robot, ``v_max, w_max, a_max,
+    input, k_v`` for a point robot."""
     x, y, yaw = (float(c) for c in start)
-    if kind in ("limo", "ackermann", "mecanum"):
-        base = LIMO_MECANUM if kind == "mecanum" else LIMO
+    p, kin = resolve_robot_type(kind)
+    cls = KINEMATICS[kin]
+    if isinstance(p, PlanarPlatform):
+        base = PlanarLimits.of(p, lateral=kin == "mecanum")
         extra = {k: params.pop(k) for k in ("wheelbase", "max_steer") if k in params}
         limits = PlanarLimits(**{**base.__dict__, **params})  # type: ignore[arg-type]
-        cls = {"limo": Unicycle, "ackermann": Ackermann, "mecanum": Mecanum}[kind]
-        if extra and cls is not Ackermann:
-            raise ValueError(f"{sorted(extra)} only apply to the ackermann robot")
-        return cls(x=x, y=y, yaw=yaw, z=z, limits=limits, **extra)  # type: ignore[arg-type]
-    if kind == "single_integrator":
-        return SingleIntegrator(p=np.array([x, y, z]), yaw=yaw, **params)  # type: ignore[arg-type]
-    if kind == "double_integrator":
-        return DoubleIntegrator(p=np.array([x, y, z]), yaw=yaw, **params)  # type: ignore[arg-type]
-    raise ValueError(f"unknown robot type {kind!r}; use one of {', '.join(ROBOT_TYPES)}")
+        if extra and cls is not AckermannPlant:
+            raise ValueError(f"{sorted(extra)} only apply to an ackermann robot")
+        if cls is AckermannPlant:
+            extra = {"wheelbase": p.wheelbase, "max_steer": p.max_central_steering, **extra}
+        return cls(x=x, y=y, yaw=yaw, z=z, limits=limits, **extra)  # type: ignore[arg-type,call-arg]
+    defaults: dict[str, float | str] = {"v_max": p.max_speed, "w_max": p.max_yaw_rate}
+    if cls is PointMassPlant and p.max_accel is not None:
+        defaults["a_max"] = p.max_accel
+    return cls(p=np.array([x, y, z]), yaw=yaw, **{**defaults, **params})  # type: ignore[arg-type,call-arg]

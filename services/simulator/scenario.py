@@ -47,7 +47,7 @@ from ..geometry.transforms import pose_matrix
 from . import procedural
 from .camera import CameraMount
 from .mesh_io import load_labelled_ply
-from .robots import ROBOT_TYPES
+from .robots import resolve_robot_type
 from .scene import LIFT, Motion, Scene, SceneObject
 
 Finite = Field(allow_inf_nan=False)
@@ -169,8 +169,7 @@ class RobotSpec(_Model):
     @field_validator("type")
     @classmethod
     def _known(cls, v: str) -> str:
-        if v not in ROBOT_TYPES:
-            raise ValueError(f"robot type {v!r}: use one of {', '.join(ROBOT_TYPES)}")
+        resolve_robot_type(v)  # raises, naming the robot types there are
         return v
 
 

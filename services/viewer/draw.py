@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from riskfield.protocol import EsdfGrid, PerceptionFrame, RobotState
+from riskfield.protocol import EsdfGrid, PerceptionFrame, RobotState, TrackedObjects
 from riskfield.protocol.ade20k import CLASSES
 
 GROUP_TINT = {"high": (230, 40, 40), "mid": (245, 150, 30), "low": (150, 150, 150)}
@@ -79,7 +79,7 @@ def inside_voxels(grid: EsdfGrid) -> tuple[np.ndarray, np.ndarray]:
 def pointmap_world(frame: PerceptionFrame, stride: int = 4, min_confidence: float = 0.0
                    ) -> tuple[np.ndarray, np.ndarray]:
     """World-frame points (N, 3) and their ADE20K class ids (N,) from a camera-frame pointmap."""
-    p = np.asarray(frame.points[::stride, ::stride], dtype=float).reshape(-1, 3)
+    p = np.asarray(frame.pointmap()[::stride, ::stride], dtype=float).reshape(-1, 3)
     c = np.asarray(frame.confidence[::stride, ::stride]).reshape(-1)
     lab = np.asarray(frame.labels[::stride, ::stride]).reshape(-1)
     keep = (c > min_confidence) & (p[:, 2] > 0) & np.isfinite(p).all(axis=1)
@@ -151,3 +151,18 @@ class OnChange:
             return False
         self._last = value
         return True
+
+
+def tracked_objects(m: TrackedObjects, groups: tuple[str, ...] = ("high", "mid", "low")
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """The tracked people and animals as centres (N, 3), radii (N,), velocities (N, 3), risk-group
+    tints (N, 3) and labels ("person #3 1.20 m/s")."""
+    n = len(m.objects)
+    pos = np.array([o.position for o in m.objects], dtype=float).reshape(n, 3)
+    vel = np.array([o.velocity for o in m.objects], dtype=float).reshape(n, 3)
+    radii = np.array([o.radius for o in m.objects], dtype=float)
+    names = [groups[o.risk_group - 1] if 0 < o.risk_group <= len(groups) else "" for o in m.objects]
+    tint = np.array([GROUP_TINT.get(g, (120, 120, 220)) for g in names], np.uint8).reshape(n, 3)
+    labels = [f"{CLASSES[o.label] if o.label < len(CLASSES) else o.label} #{o.id} {np.linalg.norm(v):.2f} m/s"
+              for o, v in zip(m.objects, vel, strict=True)]
+    return pos, radii, vel, tint, labels

@@ -13,6 +13,9 @@ Entities (all spatial ones under ``world``, Z up):
   with a colormap; ``world/esdf/inside`` the voxels inside the inflated set, tinted by risk
   group; ``world/esdf/bounds`` the map's extent;
 - ``world/pointmap``: ``Points3D`` with ADE20K ``class_ids``, named by an ``AnnotationContext``;
+- ``world/objects``: the tracked people and animals (``map/objects``) as ``Points3D`` of their
+  radius, tinted by risk group and labelled; ``world/objects/velocity`` their velocities as
+  ``Arrows3D`` (the distance covered in one second);
 - ``cmd/*`` and ``safety/*`` scalars; ``safety/log`` a ``TextLog`` line when the filter's
   fallback reason changes (not one per status message).
 
@@ -35,7 +38,15 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from riskfield.protocol import EsdfGrid, Image, PerceptionFrame, RobotState, SafetyStatus, VelocityCommand
+from riskfield.protocol import (
+    EsdfGrid,
+    Image,
+    PerceptionFrame,
+    RobotState,
+    SafetyStatus,
+    TrackedObjects,
+    VelocityCommand,
+)
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
@@ -52,6 +63,7 @@ from .draw import (
     map_bounds,
     pointmap_world,
     robot_pose,
+    tracked_objects,
 )
 
 APPLICATION_ID = "riskfield"
@@ -159,10 +171,18 @@ class RerunView:
             self.T_RC = camera_in_robot(f.T_WC, self.T_WR)
             self._camera_pose(self.T_RC)
         if self.intrinsics is None:
-            k = intrinsics_from_pointmap(f.points)
+            k = f.intrinsics or intrinsics_from_pointmap(f.pointmap())
             if k is not None:
-                self.intrinsics = (*k, f.points.shape[1])
+                self.intrinsics = (*k, f.pixels[1])
                 self._pinhole()
+
+    def objects(self, m: TrackedObjects) -> None:
+        self.drawn["objects"] += 1
+        rr = self.rr
+        self._t(m.header.stamp_ns)
+        pos, radii, vel, tint, labels = tracked_objects(m)
+        self.stream.log("world/objects", rr.Points3D(pos, radii=radii, colors=tint, labels=labels))
+        self.stream.log("world/objects/velocity", rr.Arrows3D(origins=pos, vectors=vel, colors=tint))
 
     def image(self, im: Image) -> None:
         self.drawn["image"] += 1
@@ -217,6 +237,7 @@ def setup(node: Node, s: ViewerSettings) -> RerunView:
     k = node.keys
     node.subscribe(k.esdf, EsdfGrid, view.esdf)
     node.subscribe(k.perception_frame, PerceptionFrame, view.frame)
+    node.subscribe(k.objects, TrackedObjects, view.objects)
     node.subscribe(k.camera_image, Image, view.image)
     node.subscribe(k.state, RobotState, view.state)
     node.subscribe(k.cmd_ref, VelocityCommand, lambda c: view.command("ref", c))

@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 from camera.media import pillow_jpeg, strip_huffman_tables
 from PIL import Image as PILImage
+from pycdr2 import IdlStruct  # the dev extra's: a broken install fails here rather than skipping
+from pycdr2.types import array, float64, sequence, uint8, uint32
+from tools import ros_idl as idl
 
 from riskfield.protocol import Image
 from riskfield.services.ros2_bridge.messages import (
@@ -21,11 +24,6 @@ from riskfield.services.ros2_bridge.messages import (
     image_stamp,
 )
 from riskfield.testing import Collector, ServiceProcess, StatusWatch, client_session, wait_alive, wait_until
-
-idl = pytest.importorskip("tools.ros_idl")
-pycdr2 = pytest.importorskip("pycdr2")
-from pycdr2 import IdlStruct  # noqa: E402
-from pycdr2.types import array, float64, sequence, uint8, uint32  # noqa: E402
 
 Hdr, Time = idl.Hdr, idl.Time
 

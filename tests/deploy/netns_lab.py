@@ -3,7 +3,7 @@ inside them, and the analysis of what the robot side heard (deploy/faults/agents
 
     with Lab("rft1") as lab:
         lab.start_server(source="esdf")          # router + a mapping stand-in (or the real mapping)
-        lab.start_robot(filter=True)             # router dialling the server, safety filter, inputs, probe
+        lab.start_robot()                        # router dialling the server, safety filter, inputs, probe
         t = lab.cut(); ...; lab.heal()
         events = lab.events()
 
@@ -120,7 +120,8 @@ class Lab:
     def start_server(self, source: str = "esdf") -> None:
         """The server site: its router and the ESDF source, ``esdf`` (a free-space stand-in for
         mapping) or ``mapping`` (the real mapping service fed with a wall pointmap)."""
-        self.riskfield("server", "server-router", "router", "--listen", SERVER_EP)
+        # In the clear on the lab's own veth link, which only the two namespaces reach.
+        self.riskfield("server", "server-router", "router", "--listen", SERVER_EP, "--set", "insecure=true")
         self.start_source(source)
 
     def start_source(self, source: str) -> None:
@@ -130,17 +131,13 @@ class Lab:
             self.agent("server", "perception", "frame-source", SERVER_EP)
             self.riskfield("server", "mapping", "mapping", "--connect", SERVER_EP)
 
-    def start_robot(self, with_filter: bool) -> None:
-        """The robot site: its router (dialling the server's), the safety filter (or a relay
-        of the ESDF when ``with_filter`` is False), the robot's inputs and the probe."""
+    def start_robot(self) -> None:
+        """The robot site: its router (dialling the server's), the safety filter, the robot's
+        inputs and the probe."""
         self.riskfield("robot", "robot-router", "router", "--listen", ROBOT_EP, "--connect", SERVER_EP)
         self.agent("robot", "probe", "probe", ROBOT_EP, "--out", str(self.probe_file))
-        if with_filter:
-            self.agent("robot", "inputs", "robot-inputs", ROBOT_EP)
-            self.riskfield("robot", "safety-filter", "safety-filter", "--connect", ROBOT_EP)
-        else:
-            self.riskfield("robot", "relay", "relay", "--connect", ROBOT_EP, "--set", "in_key=map/esdf",
-                           "--set", "out_key=relay/esdf", "--set", "schema_name=EsdfGrid/1", "--set", "queue=latest")
+        self.agent("robot", "inputs", "robot-inputs", ROBOT_EP)
+        self.riskfield("robot", "safety-filter", "safety-filter", "--connect", ROBOT_EP)
 
     # -- faults --------------------------------------------------------------------------------------
     def cut(self) -> float:
@@ -153,15 +150,6 @@ class Lab:
 
     def loss(self, pct: float) -> float:
         self.sh("loss", str(pct))
-        return time.monotonic()
-
-    def delay(self, ms: float) -> float | None:
-        """Returns None when the kernel has no netem (netns.sh exits 4)."""
-        proc = self.sh("delay", str(ms), check=False)
-        if proc.returncode == 4:
-            return None
-        if proc.returncode != 0:
-            raise RuntimeError(proc.stderr)
         return time.monotonic()
 
     def clear(self) -> float:
@@ -179,19 +167,24 @@ class Lab:
         return self.tmp / "probe.jsonl"
 
     def events(self) -> list[dict]:
-        if not self.probe_file.exists():
-            return []
-        out = []
-        for line in self.probe_file.read_text().splitlines():
-            with contextlib.suppress(json.JSONDecodeError):  # a line being written
-                out.append(json.loads(line))
-        return out
+        return read_events(self.probe_file)
 
     def outputs(self) -> str:
         return "\n".join(f"--- {n} (alive={p.alive()})\n{p.output[-3000:]}" for n, p in self.procs.items())
 
 
 # -- analysis (pure) ---------------------------------------------------------------------------------
+
+
+def read_events(probe_file: Path) -> list[dict]:
+    """The probe's events so far (``deploy/faults/agents.py probe``), in the order heard."""
+    if not probe_file.exists():
+        return []
+    out = []
+    for line in probe_file.read_text().splitlines():
+        with contextlib.suppress(json.JSONDecodeError):  # a line being written
+            out.append(json.loads(line))
+    return out
 
 
 def is_brake(event: dict) -> bool:

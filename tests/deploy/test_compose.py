@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import re
+import runpy
 import shutil
 import subprocess
 import sys
@@ -24,7 +25,9 @@ import zenoh
 
 from riskfield import cli
 from riskfield.services.runtime import SERVICES
+from riskfield.services.runtime.acl import make_secrets, router_config
 from riskfield.services.runtime.service import EXTRAS, ServiceUnavailable, build_settings, load_service
+from riskfield.services.runtime.session import exposed, zenoh_config
 from riskfield.services.runtime.settings import parse_overrides
 
 # One xdist worker runs the whole module (``make check``: ``--dist loadgroup``):
@@ -40,7 +43,7 @@ PROFILES = {
     # The server of a two-site deployment: no safety filter, the robot's is the only one.
     "server": {"router", "simulator", "perception", "mapping", "operator"},
     "gpu": {"router", "perception-gpu", "mapping"},
-    "robot": {"robot-router", "robot-safety-filter", "limo", "joystick"},
+    "robot": {"robot-router", "robot-safety-filter", "limo", "joystick", "camera"},
     "mavlink": {"robot-router", "robot-safety-filter", "mavlink"},
 }
 ROUTERS = {"router", "robot-router"}
@@ -91,10 +94,7 @@ def secure_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed")
     root = tmp_path_factory.mktemp("secrets")
-    subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(root / "certs")], check=True,
-                   capture_output=True, timeout=60)
-    subprocess.run(["bash", str(REPO / "deploy" / "make-users.sh"), "-o", str(root)], check=True,
-                   capture_output=True, timeout=60)
+    make_secrets(root, [ENV["RISKFIELD_ROBOT"]])  # `riskfield secrets --robot limo7`
     return {**ENV, "RISKFIELD_SERVER": "tls/10.0.0.2:7447", "RISKFIELD_SECRETS": str(root)}
 
 
@@ -112,6 +112,15 @@ def test_compose_rejects_a_misplaced_key_and_reads_the_env_file(tmp_path: Path) 
     assert proc.returncode != 0 and "enviroment" in proc.stderr, proc.stderr
     services = load([COMPOSE], {**ENV, "RISKFIELD_ROBOT": "limo42"}, tmp_path)
     assert {s["environment"].get("RISKFIELD_ROBOT") for s in _riskfield_services(services).values()} == {"limo42"}
+
+
+def _port(p: str | dict) -> tuple[str, str, str]:
+    """(host address, published port, container port) of a normalised ``ports`` entry: compose
+    prints the long form, or ``HOST:PUBLISHED:TARGET/PROTO`` when a host address is given."""
+    if isinstance(p, dict):
+        return str(p.get("host_ip", "")), str(p.get("published", "")), str(p["target"])
+    host, published, target = ["", *p.split("/")[0].rsplit(":", 2)][-3:]
+    return host, published, target
 
 
 def _host_path(spec: str) -> Path:
@@ -166,13 +175,49 @@ def test_routers_are_the_project_router_with_the_project_config(stack: dict[str,
         host = mounts[config_in_container]
         assert host.parent == REPO / "deploy" / "zenoh" and host.is_file()
         zenoh.Config.from_file(str(host))  # zenoh itself accepts it
-        assert [str(p.get("target", p)) if isinstance(p, dict) else p.rsplit(":", 1)[1]
-                for p in svc["ports"]] == ["7447"]
+        assert [_port(p)[2] for p in svc["ports"]] == ["7447"]
     assert stack["router"]["image"].endswith("-cpu:latest")
     assert stack["robot-router"]["image"].endswith("-robot:latest")
     # The robot's router dials the server's router given at deploy time.
     cmd = stack["robot-router"]["command"]
     assert cmd[cmd.index("--connect") + 1] == ENV["RISKFIELD_SERVER"]
+
+
+def _exposed(svc: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """What a router container's own start-up check finds listening beyond loopback without TLS and
+    users (runtime/session.py ``exposed``, as ``open_session`` runs it): its real settings from its
+    command and environment, its config file the host file mounted there."""
+    args = svc["command"]
+    ctx = typer.main.get_command(cli.app).commands["run"].make_context("run", list(args[1:]))
+    spec = load_service(ctx.params["service"])
+    mounts = {v.split(":")[1]: _host_path(v) for v in svc["volumes"]}
+    overrides = parse_overrides(ctx.params["set_"] or [])
+    overrides["zenoh_config"] = str(mounts[overrides["zenoh_config"]])
+    overrides["listen"] = ctx.params["listen"]
+    for key in [k for k in os.environ if k.startswith("RISKFIELD_")]:
+        monkeypatch.delenv(key)
+    for key, value in svc["environment"].items():
+        monkeypatch.setenv(key, value)
+    settings = build_settings(spec, overrides)
+    return exposed(zenoh_config(settings), settings.published_on)
+
+
+def test_routers_are_published_on_loopback_and_refuse_the_network_in_the_clear(
+        stack: dict[str, Any], secure_env: dict[str, str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Secure by default: both routers are published on the host's loopback only, which their own
+    check accepts. Published on every interface in the clear, the same check refuses them (the node
+    does not start); with the secure overlay's TLS and users they start."""
+    for name in ROUTERS:
+        assert [_port(p)[0] for p in stack[name]["ports"]] == ["127.0.0.1"], name
+        assert _exposed(stack[name], monkeypatch) == [], name
+    wide = {"RISKFIELD_ROUTER_ADDRESS": "0.0.0.0", "RISKFIELD_ROBOT_ROUTER_ADDRESS": "0.0.0.0"}
+    plain = load([COMPOSE], {**ENV, **wide}, tmp_path)
+    secure = load([COMPOSE, SECURE], {**secure_env, **wide}, tmp_path)
+    for name in ROUTERS:
+        assert [_port(p)[0] for p in plain[name]["ports"]] == ["0.0.0.0"], name
+        assert _exposed(plain[name], monkeypatch) == ["tcp/[::]:7447"], name
+        assert [_port(p)[0] for p in secure[name]["ports"]] == ["0.0.0.0"], name
+        assert _exposed(secure[name], monkeypatch) == [], name
 
 
 def test_zenohd_overlay_swaps_in_the_eclipse_zenoh_image_with_the_same_config(tmp_path: Path) -> None:
@@ -244,16 +289,33 @@ def test_every_container_command_is_a_valid_riskfield_command(stack: dict[str, A
     assert all(c == "settings" for c in checked.values()), checked
 
 
-def test_robot_containers_use_the_robot_image_and_need_only_the_robot_extra(stack: dict[str, Any]) -> None:
+def test_robot_containers_use_the_robot_image_and_need_only_the_robot_sites_extras(stack: dict[str, Any]) -> None:
+    site = runpy.run_path(str(REPO / "deploy" / "requirements.py"))["SITES"]["robot-site"]
+    assert "camera" in site and "robot" in site
     for name in (PROFILES["robot"] | PROFILES["mavlink"]) - ROUTERS:
         svc = stack[name]
         assert svc["build"]["dockerfile"] == "deploy/Dockerfile.robot", name
         service = svc["command"][1]
-        assert EXTRAS.get(service, "robot") == "robot", f"{service} needs [{EXTRAS[service]}], not in the robot image"
+        assert EXTRAS.get(service, "robot") in site, f"{service} needs [{EXTRAS[service]}], not in the robot image"
         assert svc["environment"]["RISKFIELD_CONNECT"] == "tcp/robot-router:7447"
     for name in PROFILES["sim"] - ROUTERS:
         assert stack[name]["build"]["dockerfile"] == "deploy/Dockerfile.cpu", name
         assert stack[name]["environment"]["RISKFIELD_CONNECT"] == "tcp/router:7447"
+
+
+def test_the_robot_profile_is_the_same_nodes_in_compose_and_in_riskfield_up(stack: dict[str, Any]) -> None:
+    """The first bring-up: camera, LIMO bridge, joystick gateway and filter on the robot computer, with
+    perception and mapping on the server, whichever way the robot site is started."""
+    robot = {stack[n]["command"][1] for n in PROFILES["robot"] - ROUTERS}
+    assert robot == set(cli.UP_PROFILES["robot"]) == {"camera", "limo", "joystick", "safety-filter"}
+    assert {"perception", "mapping"} <= {stack[n]["command"][1] for n in PROFILES["server"]}
+    assert not robot & {"perception", "mapping"}
+    assert set(cli.UP_PROFILES["server"]) == {"perception", "mapping"}
+    dockerfile = (REPO / "deploy" / "Dockerfile.robot").read_text()
+    assert "requirements.py robot-site" in dockerfile
+    install = (REPO / "deploy" / "robot" / "install.sh").read_text()
+    assert 'requirements.py" --extras robot-site' in install
+    assert 'SERVICES="camera limo joystick safety-filter"' in install
 
 
 def test_images_build_from_dockerfiles_in_the_repository(stack: dict[str, Any]) -> None:
@@ -277,6 +339,9 @@ def test_hardware_bridges_get_their_devices(stack: dict[str, Any]) -> None:
     inside = limo["environment"]["RISKFIELD_LIMO_PORT"]
     assert any(d.split(":")[1] == inside for d in limo["devices"])
     assert "dialout" in limo["group_add"]
+    camera = stack["camera"]
+    assert any(d.split(":")[1] == camera["environment"]["RISKFIELD_CAMERA_SOURCE"] for d in camera["devices"])
+    assert "video" in camera["group_add"]
     joystick = stack["joystick"]
     assert any(v.split(":")[1] == "/dev/input" for v in joystick["volumes"])
     assert any(r.startswith("c 13:") for r in joystick["device_cgroup_rules"])
@@ -307,26 +372,29 @@ def test_secure_overlay_puts_every_node_on_mutual_tls_with_its_own_identity(secu
         assert cn.strip().endswith(f"CN = {user}") or cn.strip().endswith(f"CN={user}"), (name, cn)
         _check_riskfield_container(name, svc, monkeypatch)
     filters = [s for s in secure_stack.values() if s.get("command", [""])[-1] == "safety-filter"]
-    assert filters and all(s["environment"]["RISKFIELD_USER"] == "safety-filter" for s in filters)
+    assert filters and all(s["environment"]["RISKFIELD_USER"] == "limo7.safety-filter" for s in filters)
 
 
-def test_secure_routers_use_the_secure_config_and_its_files(secure_stack: dict[str, Any]) -> None:
+def test_secure_routers_use_the_secure_config_and_its_files(secure_stack: dict[str, Any],
+                                                           secure_env: dict[str, str]) -> None:
     server = secure_stack["router"]
     mounts = {v.split(":")[1]: _host_path(v) for v in server["volumes"]}
-    assert mounts["/etc/zenoh/router.json5"] == REPO / "deploy" / "zenoh" / "router-secure.json5"
+    # The deployment's own ACL, `riskfield secrets` made it for its robots (the shipped file is limo1's).
+    assert mounts["/etc/zenoh/router.json5"] == Path(secure_env["RISKFIELD_SECRETS"]) / "router-secure.json5"
     text = mounts["/etc/zenoh/router.json5"].read_text()
+    assert text == router_config([ENV["RISKFIELD_ROBOT"]])
     for path in re.findall(r'"(/etc/riskfield/[^"]+)"', text):
         assert mounts[path].is_file(), path
     robot = secure_stack["robot-router"]
     cmd = robot["command"]
     assert cmd[:2] == ["run", "router"] and cmd[cmd.index("--connect") + 1] == "tls/10.0.0.2:7447"
-    assert robot["environment"]["RISKFIELD_USER"] == "router"
+    assert robot["environment"]["RISKFIELD_USER"] == "limo7.router"
     mounts = {v.split(":")[1]: _host_path(v) for v in robot["volumes"]}
     for path in re.findall(r'"(/etc/riskfield/[^"]+)"', text):
         assert mounts[path].is_file(), path
     cn = subprocess.run(["openssl", "x509", "-noout", "-subject", "-in", str(mounts["/etc/riskfield/tls/router.pem"])],
                         capture_output=True, text=True, check=True).stdout
-    assert "router-robot" in cn
+    assert "limo7.router" in cn
 
 
 # -- Dockerfiles ------------------------------------------------------------------------------

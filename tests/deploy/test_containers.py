@@ -1,7 +1,8 @@
 """The images and the compose stacks for real, on a Docker engine.
 
 ``scripts/docker-engine.sh`` finds an engine or, as root on Debian (CI), installs and starts one;
-where it cannot, every test here skips with its one-line reason. ``scripts/images.sh`` (what
+where there is none to be had, every test here skips with its one-line reason, and where an engine
+is here but does not answer, every test fails. ``scripts/images.sh`` (what
 ``make images`` runs) builds the robot and CPU images without any image registry: a local Debian
 base when ``python:3.11-slim-bookworm`` cannot be pulled, the host's wheelhouse. The built images
 are kept (they are the build cache of the next run); every container, network and volume a test
@@ -30,10 +31,12 @@ import pytest
 import zenoh
 
 from riskfield.protocol import Keys, RobotState, SafetyStatus, VelocityCommand
+from riskfield.protocol.keys import ROLES, ROUTES
+from riskfield.services.runtime.acl import make_secrets
 from riskfield.services.runtime.processes import free_port
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
-from riskfield.testing import Collector, client_config, open_when_ready, wait_until
+from riskfield.testing import Collector, client_config, open_when_ready, wait_matched, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.docker]
 
@@ -49,6 +52,10 @@ KEYS = Keys(robot=ROBOT)
 SIM = ("router", "simulator", "perception", "mapping", "safety-filter", "navigator", "operator")
 SERVER = ("router", "simulator", "perception", "mapping", "operator")
 ROBOT_SIDE = ("robot-router", "robot-safety-filter", "limo")
+#: s from `docker run` to the filter up with its kernels loaded from the image's cache (cold: 20-60 s)
+WARM_START_S = 15.0
+#: scripts/docker-engine.sh's exit status when no engine is here and none can be had
+NO_ENGINE = 2
 
 
 def docker(*args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
@@ -60,15 +67,19 @@ def docker(*args: str, timeout: float = 120, check: bool = True) -> subprocess.C
 
 @pytest.fixture(scope="module")
 def images() -> str:
-    """The robot and CPU images (scripts/images.sh: an engine, a base, the wheelhouse, the builds)."""
+    """The robot and CPU images (scripts/images.sh: an engine, a base, the wheelhouse, the builds).
+
+    No engine here and none to be had skips, with the line why; an engine that is here but does not
+    answer (or an engine without docker-compose) fails."""
     if shutil.which("docker") is None and os.geteuid() != 0:
         pytest.skip("no docker CLI and not root: no Docker engine can be installed here")
-    if shutil.which("docker-compose") is None:
-        pytest.skip("no docker-compose (Debian's 1.29; scripts/setup.sh installs it)")
     engine = subprocess.run(["bash", str(REPO / "scripts" / "docker-engine.sh")], capture_output=True, text=True,
                             timeout=600)
-    if engine.returncode != 0:
-        pytest.skip((engine.stderr.strip().splitlines() or ["no Docker engine"])[-1])
+    why = (engine.stderr.strip().splitlines() or ["docker-engine.sh said nothing"])[-1]
+    if engine.returncode == NO_ENGINE:
+        pytest.skip(why)
+    assert engine.returncode == 0, f"a Docker engine is here but broken: {why}"
+    assert shutil.which("docker-compose"), "docker-compose is not installed (Debian's 1.29; scripts/setup.sh)"
     build = subprocess.run(["bash", str(REPO / "scripts" / "images.sh")], capture_output=True, text=True,
                            timeout=3000, cwd=REPO, env={**os.environ, "IMAGES": "robot cpu"})
     assert build.returncode == 0, build.stdout[-4000:] + build.stderr[-4000:]
@@ -167,8 +178,9 @@ def test_robot_image_is_light_and_its_filter_starts_warm(images: str) -> None:
         ready = re.search(r"numba step ready in ([\d.]+) s", log)
         assert ready and float(ready.group(1)) < 5.0, log  # loaded from the cache, not compiled
         print(f"robot image: safety filter up {total:.1f} s after docker run ({log.strip().splitlines()[0]})")
-        # The target (docs/deployment.md) holds on an idle machine; a loaded one stretches the imports.
-        assert total <= 5.0 or os.getloadavg()[0] > 2.0, f"{total:.1f} s on an idle machine:\n{log}"
+        # 5 s is the idle machine's figure (docs/deployment.md), 20-60 s a start that compiles: the bound
+        # sits between the two, so a lost kernel cache fails it at any load.
+        assert total <= WARM_START_S, f"{total:.1f} s from docker run to the filter up:\n{log}"
     finally:
         docker("rm", "-f", name, filt, check=False)
 
@@ -235,21 +247,25 @@ def _emulator_events(robot: Compose) -> list[tuple[float, str]]:
     return [(float(t), what) for t, what in re.findall(r"limo-emulator: ([\d.]+) (move|stop) ", out)]
 
 
+#: The deployment's second robot: its identities are valid at every router, for its own keys only.
+OTHER = "limo2"
+OTHER_KEYS = Keys(robot=OTHER)
+
+
 @pytest.fixture
 def deployment_secrets(tmp_path: Path) -> tuple[Path, dict[str, str]]:
-    """The deployment's secrets by its own scripts: the server's router answers to `router` (its
-    compose name, dialled by the robot's router) and to localhost (the host's test client)."""
+    """The deployment's secrets by its own generator (`riskfield secrets --robot limo1 --robot
+    limo2`), the routers' certificates re-issued for the names they are dialled by: the server's
+    as `router` (its compose name) and localhost (the host's test client), the robot's as
+    `robot-router` and localhost."""
     root = tmp_path / "secrets"
-    # The default set first: a re-run re-issues the names it is given (the CA is kept).
-    subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(root / "certs")], check=True,
-                   capture_output=True, timeout=120)
+    make_secrets(root, [ROBOT, OTHER])
     subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(root / "certs"),
                     "router-server=DNS:router,DNS:localhost,IP:127.0.0.1",
-                    "router-robot=DNS:robot-router,DNS:localhost,IP:127.0.0.1"], check=True, capture_output=True,
+                    f"{ROBOT}.router=DNS:robot-router,DNS:localhost,IP:127.0.0.1"], check=True, capture_output=True,
                    timeout=60)
-    subprocess.run(["bash", str(REPO / "deploy" / "make-users.sh"), "-o", str(root)], check=True,
-                   capture_output=True, timeout=60)
-    # The containers' user (uid 10001) reads the mounted keys and env files.
+    # The containers' user (uid 10001) is not this test's: it reads the mounted keys and env files
+    # (a deployment gives them to that user, mode 0600).
     for p in root.rglob("*"):
         p.chmod(0o755 if p.is_dir() else 0o644)
     root.chmod(0o755)
@@ -297,7 +313,8 @@ def test_two_sites_robot_filter_drives_the_emulated_limo_and_brakes_when_cut_off
     network = f"{server.name}_default"
     # The server composition has no filter: the robot's filter is the only source of cmd/safe.
     assert "safety-filter" not in server.containers()
-    session = open_when_ready(lambda: _secure_client(certs, passwords, endpoint, "operator", "operator"), 30)
+    operator = f"{ROBOT}.operator"
+    session = open_when_ready(lambda: _secure_client(certs, passwords, endpoint, operator, operator), 30)
     try:
         safe = Collector(session, KEYS.cmd_safe, VelocityCommand)
         esdf = Collector(session, KEYS.esdf)
@@ -331,6 +348,62 @@ def test_two_sites_robot_filter_drives_the_emulated_limo_and_brakes_when_cut_off
         session.close()
     # A client without a certificate is refused by the server's router (mutual TLS), and so is
     # one without credentials; the same client with both is served (above).
-    for user, cert in (("operator", None), (None, "operator")):
+    for user, cert in ((operator, None), (None, operator)):
         with pytest.raises(zenoh.ZError):
             _secure_client(certs, passwords, endpoint, user, cert).close()
+
+
+def _answered(session: zenoh.Session) -> bool:
+    return any(r.ok is not None for r in session.liveliness().get(KEYS.alive("operator"), timeout=2.0))
+
+
+@pytest.mark.timeout(3600)
+def test_another_robots_credentials_at_the_robot_site_put_nothing_on_this_robot(
+        two_sites: tuple[Compose, Compose, int], deployment_secrets: tuple[Path, dict[str, str]]) -> None:
+    """The robot site's containers as the deployment runs them (robot-router, robot-safety-filter,
+    limo on its emulator, linked to the server's): at the robot's router, each of limo2's robot-side
+    identities puts every key its role produces on limo1's keys, then on its own. limo1's side (an
+    operator there reads every key of limo1) receives none of the forged puts; limo2's own arrive."""
+    _, robot, _ = two_sites
+    secrets, passwords = deployment_secrets
+    certs = secrets / "certs"
+    published = docker("port", robot.containers()["robot-router"], "7447/tcp").stdout.split()[0]
+    assert published.startswith("127.0.0.1:"), published  # secure by default: the host's loopback only
+    endpoint = f"tls/localhost:{published.rsplit(':', 1)[1]}"
+
+    def open_as(robot_id: str, role: str) -> zenoh.Session:
+        who = f"{robot_id}.{role}"
+        return open_when_ready(lambda: _secure_client(certs, passwords, endpoint, who, who), 30)
+
+    victim, own = open_as(ROBOT, "operator"), open_as(OTHER, "operator")
+    token = victim.liveliness().declare_token(KEYS.alive("operator"))
+    try:
+        for role, spec in ROLES.items():
+            produced = [k for k, r in ROUTES.items() if role in r.producers and "*" not in k]
+            if spec.site != "robot" or spec.service is None or not produced:
+                continue
+            attacker = open_as(OTHER, role)
+            try:
+                forged = {k: Collector(victim, KEYS.key(k)) for k in produced}
+                real = {k: Collector(own, OTHER_KEYS.key(k)) for k in produced}
+                # The forged puts leave the attacker (it knows limo1's subscribers): the router refuses them.
+                assert all(wait_matched(attacker, KEYS.key(k)) for k in produced), role
+                assert all(wait_matched(attacker, OTHER_KEYS.key(k)) for k in produced), role
+                for k in produced:
+                    attacker.put(KEYS.key(k), b"forged")
+                    attacker.delete(KEYS.key(k))
+                for k in produced:
+                    attacker.put(OTHER_KEYS.key(k), b"real")
+                assert wait_until(lambda real=real: all(b"real" in c.items for c in real.values()), 30), role
+                # The router answers the attacker after judging its puts, then limo1's operator behind
+                # anything it forwarded to it.
+                assert wait_until(lambda a=attacker: _answered(a), 30) and wait_until(lambda: _answered(victim), 30)
+                assert {k: c.items.count(b"forged") for k, c in forged.items()} == dict.fromkeys(produced, 0), role
+                for c in (*forged.values(), *real.values()):
+                    c.close()
+            finally:
+                attacker.close()
+    finally:
+        token.undeclare()
+        victim.close()
+        own.close()

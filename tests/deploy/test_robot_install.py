@@ -22,6 +22,7 @@ import zenoh
 from riskfield import cli
 from riskfield.protocol import Keys, VelocityCommand
 from riskfield.services.runtime import SERVICES
+from riskfield.services.runtime.acl import make_secrets
 from riskfield.services.runtime.service import EXTRAS
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
@@ -145,7 +146,17 @@ def test_install_stages_units_and_settings(tmp_path: Path) -> None:
         assert f.stat().st_mode & 0o077 == 0, f  # settings may hold passwords
 
 
-@pytest.mark.parametrize("services", ["safety-filter limo joystick", "safety-filter mavlink"])
+def test_install_for_a_first_bring_up_runs_the_camera_and_a_dry_run_bridge(tmp_path: Path) -> None:
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--camera", "/dev/video2", "--dry-run")
+    env = Unit(tmp_path, "riskfield@.service", "limo").environment()
+    assert env["RISKFIELD_DRY_RUN"] == "true" and env["RISKFIELD_CAMERA_SOURCE"] == "/dev/video2"
+    node = unit_directives(tmp_path / "etc/systemd/system/riskfield@.service")
+    assert "video" in node["SupplementaryGroups"][0].split()
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447")
+    assert Unit(tmp_path, "riskfield@.service", "limo").environment()["RISKFIELD_DRY_RUN"] == "false"
+
+
+@pytest.mark.parametrize("services", ["camera limo joystick safety-filter", "safety-filter mavlink"])
 def test_unit_commands_parse_with_the_real_cli(tmp_path: Path, services: str) -> None:
     install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--services", services)
     run = typer.main.get_command(cli.app).commands["run"]
@@ -211,39 +222,35 @@ def test_installed_units_bring_the_robot_up_against_a_router_elsewhere(tmp_path:
 
 @pytest.mark.slow  # two TLS routers and a node as processes
 def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets: Secrets) -> None:
-    """--secrets: the robot's router dials the server's over mutual TLS as user `router`; its
-    node authenticates with its own certificate and user."""
+    """--secrets: the robot's router dials the server's over mutual TLS as its robot's router
+    identity; its node authenticates with its own certificate and user."""
     robot = "t_robot_install_tls"
     keys = Keys(robot=robot)
-    # The deployment's secrets as make-certs.sh / make-users.sh lay them out.
+    # The deployment's secrets as `riskfield secrets --robot ROBOT` lays them out.
     deploy = tmp_path / "secrets"
-    (deploy / "certs").mkdir(parents=True)
-    for name in ("ca", "router-robot", "relay"):
-        src = secrets.tls / f"{name}.pem"
-        if name == "relay":  # a node certificate for the stand-in, signed by the same CA
-            subprocess.run(["bash", str(REPO / "deploy" / "make-certs.sh"), "-o", str(secrets.tls), "relay"],
-                           check=True, capture_output=True, timeout=60)
-        shutil.copy(src, deploy / "certs" / f"{name}.pem")
-        if name != "ca":
-            shutil.copy(secrets.tls / f"{name}.key", deploy / "certs" / f"{name}.key")
-    # The node's user is its certificate's common name: the routers bind the two (one role).
-    users = {u: secrets.passwords[u] for u in ("router", "relay")}
-    (deploy / "users.txt").write_text("".join(f"{u}:{p}\n" for u, p in secrets.passwords.items()))
-    (deploy / "router.env").write_text(f"RISKFIELD_USER=router\nRISKFIELD_PASSWORD={users['router']}\n")
-    (deploy / "relay.env").write_text(f"RISKFIELD_USER=relay\nRISKFIELD_PASSWORD={users['relay']}\n")
-    server_cfg = secrets.router_config("server", tmp_path / "server")
+    make_secrets(deploy, [robot, "t_other_robot"])  # a fleet of two: the robot gets only its own passwords
+    passwords = dict(line.split(":", 1) for line in (deploy / "users.txt").read_text().split())
+    made = type(secrets)(root=deploy, foreign=secrets.foreign, passwords=passwords)  # conftest.Secrets
+    server_cfg = made.router_config("server", tmp_path / "server")
     server = f"tls/localhost:{free_port()}"
     with ServiceProcess("router", server, ["--set", f"zenoh_config={server_cfg}", "--robot", robot]) as srv:
         with staged_robot(tmp_path / "root", server, robot, "--secrets", str(deploy)) as root:
             staged_cfg = root / "etc/riskfield/router.json5"
+            users = root / "etc/riskfield/users.txt"
+            assert users.stat().st_mode & 0o777 == 0o600
+            assert {line.split(":")[0] for line in users.read_text().split()} == {
+                u for u in passwords if u.startswith(f"{robot}.")}
+            assert all((root / "etc/riskfield" / f).stat().st_mode & 0o777 == 0o600
+                       for f in ("router.env", "relay.env", "tls/relay.key", "tls/router.key"))
             staged_cfg.write_text(staged_cfg.read_text().replace("/etc/riskfield", str(root / "etc/riskfield")))
             env = Unit(root, "riskfield@.service", "relay").environment()
             assert env["RISKFIELD_TLS_MTLS"] == "true" and env["RISKFIELD_CONNECT"].startswith("tls/")
             with Unit(root, "riskfield-router.service") as r, Unit(root, "riskfield@.service", "relay") as relay:
                 # An external planner's view from the server site (a role-less user may subscribe).
-                watcher = NodeSettings(connect=[server], tls_root_ca=secrets.tls / "ca.pem",
-                                       tls_cert=secrets.tls / "planner.pem", tls_key=secrets.tls / "planner.key",
-                                       tls_mtls=True, user="planner", password=secrets.passwords["planner"])
+                planner = f"{robot}.planner"
+                watcher = NodeSettings(connect=[server], tls_root_ca=made.tls / "ca.pem",
+                                       tls_cert=made.tls / f"{planner}.pem", tls_key=made.tls / f"{planner}.key",
+                                       tls_mtls=True, user=planner, password=passwords[planner])
                 session = open_when_ready(lambda: zenoh.open(zenoh_config(watcher)), alive=srv)
                 try:
                     assert wait_alive(session, keys.alive("relay"), timeout_s=30), (r.output, relay.output)

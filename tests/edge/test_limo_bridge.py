@@ -129,3 +129,18 @@ def test_disconnect_counts_a_reconnect_and_resets_the_odometry_reference() -> No
     b.on_bytes(p.encode(p.Odometry(0.05, 0.05)), 2.02)
     s = b.state(2.02)
     assert s is not None and s.x == pytest.approx(0.15)
+
+
+@pytest.mark.parametrize("mode", list(MotionMode))
+def test_dry_run_writes_stops_for_every_mode_and_counts_only_what_would_have_moved(mode: MotionMode) -> None:
+    b = LimoBridge(BridgeConfig(dry_run=True, motion_mode=mode))
+    assert frames(b.on_connected(0.0))[-1] == p.MotionCommand()  # the enable frame goes out as usual
+    for i, (vx, vy, wz) in enumerate([(0.4, 0.1, 0.3), (-0.2, 0.0, 0.0), (0.0, 0.3, 0.0), (0.0, 0.0, 0.0)]):
+        assert frames(b.on_command(vx, vy, wz, 0.01 * i)) == [p.MotionCommand()]
+    moving = 2 + (mode == MotionMode.MECANUM)  # only mecanum moves sideways; zero is nothing to withhold
+    assert (b.diag.commands, b.diag.withheld_commands) == (4, moving)
+    assert b.stopped and b.withheld is not None and not b.withheld.is_stop
+    live = LimoBridge(BridgeConfig(motion_mode=mode))
+    live.on_connected(0.0)
+    assert not p.decode(p.FrameParser().feed(live.on_command(0.4, 0.1, 0.3, 0.0))[0]).is_stop
+    assert live.diag.withheld_commands == 0

@@ -34,12 +34,18 @@ def test_limits_hold_and_direction_is_kept(vx: float, vy: float, wz: float, mode
     assert abs(m.angular) <= L.max_angular + 1e-12
     assert abs(ackermann.inner_from_command_field(m.steering)) <= L.max_steering + 1e-12
     if mode == MotionMode.DIFFERENTIAL:
-        assert abs(m.linear) + abs(m.angular) * L.track / 2 <= L.max_wheel_speed + 1e-9
-        # Uniform scaling: (linear, angular) is λ·(vx, wz) with one λ in [0, 1].
-        lam = m.linear / vx if vx else (m.angular / wz if wz else 0.0)
-        assert -1e-12 <= lam <= 1 + 1e-12
-        assert m.linear == pytest.approx(lam * vx, abs=1e-12)
-        assert m.angular == pytest.approx(lam * wz, abs=1e-12)
+        wheel = abs(m.linear) + abs(m.angular) * L.track / 2
+        assert wheel <= L.max_wheel_speed + 1e-9
+        # Uniform scaling: (linear, angular) is λ·(vx, wz) with one λ in [0, 1], the largest the limits allow.
+        # Each clause below is checked against the command, not against a λ read back from the output.
+        assert m.linear * wz == pytest.approx(m.angular * vx, abs=1e-9)  # parallel to the command
+        assert m.linear * vx >= 0 and m.angular * wz >= 0  # the same way round: λ ≥ 0
+        assert abs(m.linear) <= abs(vx) + 1e-12 and abs(m.angular) <= abs(wz) + 1e-12  # λ ≤ 1
+        passed = m.linear == pytest.approx(vx, abs=1e-12) and m.angular == pytest.approx(wz, abs=1e-12)
+        bound = (abs(m.linear) == pytest.approx(L.max_linear, abs=1e-9)
+                 or abs(m.angular) == pytest.approx(L.max_angular, abs=1e-9)
+                 or wheel == pytest.approx(L.max_wheel_speed, abs=1e-9))
+        assert passed or bound, "scaled down further than any limit asks"
     if mode == MotionMode.MECANUM:
         r = (L.track + L.wheelbase) / 2
         assert abs(m.linear) + abs(m.lateral) + abs(m.angular) * r <= L.max_wheel_speed + 1e-9

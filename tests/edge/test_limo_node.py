@@ -206,3 +206,40 @@ def test_after_the_filter_is_sigkilled_the_watchdog_stops_the_chassis(router_end
             feeder.join(2)
             status.close()
         assert sf.proc.wait(5) == -signal.SIGKILL
+
+
+def test_dry_run_sends_only_stop_frames_on_the_real_port_and_counts_what_it_withheld(router_endpoint: str,
+                                                                                     tmp_path: Path) -> None:
+    """``dry_run=true`` (first bring-up): the port opens and command mode is enabled as usual, the
+    chassis's feedback comes back, but every motion frame on the line is zero while cmd/safe asks
+    to move, and the status counts each withheld command."""
+    robot = f"t_limo_{uuid.uuid4().hex[:6]}"
+    keys = Keys(robot)
+    with ChassisEmulator(link=str(tmp_path / "limo")) as emu, client_session(router_endpoint) as s:
+        diags = Collector(s, keys.key("limo/diagnostics"))
+        status = StatusWatch(s, keys.status("limo"))
+        with start(robot, router_endpoint, emu.port, "--set", "dry_run=true") as node:
+            assert wait_alive(s, keys.alive("limo")), node.output
+            assert wait_until(lambda: emu.model.control_mode == 1, 5.0), node.output
+            sent = 0
+
+            def ask() -> bool:
+                nonlocal sent
+                put(s, keys.cmd_safe, cmd(0.4, 0.3))
+                sent += 1
+                st = status.latest
+                return st is not None and st.extra.get("withheld_commands", 0) >= 5
+
+            assert wait_until(ask, 10.0, period_s=0.04), node.output
+            st = status.wait(lambda st: st.extra.get("withheld_commands", 0) >= 5)
+            assert st.extra["dry_run"] == 1.0
+            assert 5 <= st.extra["withheld_commands"] <= sent
+            assert st.extra["withheld_commands"] == st.extra["commands"]  # every one of them was nonzero
+            frames = motions(emu)
+            assert frames and all(m.is_stop for m in frames), frames
+            assert emu.model.v == 0.0 and emu.model.x == 0.0
+            assert wait_until(lambda: diags.items and diag(diags).frames_ok > 10, 5.0)  # the feedback is real
+            assert "dry run: withheld cmd/safe linear=0.400" in node.output
+            assert node.stop() == 0
+        diags.close()
+        status.close()

@@ -329,24 +329,6 @@ def test_bench_cli_authors_target_low_rows_identical(tmp_path):
         assert row["margin_m"] == (pytest.approx(0.05 + 0.025) if name.startswith("riskfield") else 0.0)
 
 
-def test_results_document_assembles_runs_and_keeps_unrun_sections(tmp_path):
-    from riskfield.experiments.results import KEPT, assemble
-
-    run = tmp_path / "safety_authors_gt"
-    run.mkdir()
-    (run / "tables.md").write_text("# title\n\n**Table II (authors' protocol).** numbers\n")
-    (run / "summary.json").write_text(json.dumps({"wall_time_s": 123.4}))
-    previous = ("# old\n\n## `riskfield bench teleop --perception gt` (462 s wall)\n\nteleop table\n\n"
-                "## `riskfield bench mapping` (issue 16)\n\nmapping table\n")
-    doc = assemble(tmp_path, previous, commit="abc1234")
-    assert "## `riskfield bench mapping` (issue 16)\n\nmapping table" in doc  # other benches' sections stay
-    assert "`abc1234`" in doc and "Two safety protocols" in doc
-    assert "## `riskfield bench safety --protocol authors --semantic both --perception gt` (123 s wall)" in doc
-    assert "**Table II (authors' protocol).** numbers" in doc and "# title" not in doc
-    assert "teleop table" in doc and doc.count(KEPT) == 1
-    assert assemble(tmp_path, doc, commit="x").count(KEPT) == 1  # re-assembling does not pile up notes
-
-
 def test_authors_run_on_a_hand_made_scannetpp_scene(tmp_path):
     from riskfield.experiments.benches.safety_authors import authors_run
 

@@ -9,6 +9,7 @@ import pytest
 
 from riskfield.experiments.safety_benchmark import (
     BenchConfig,
+    barriers_differ,
     build_pointcloud,
     camera_poses,
     filter_safe_control,
@@ -92,6 +93,17 @@ def test_zero_margins_keeps_groups_and_gains():
     assert RiskConfig().groups[0].margin == 0.15  # the original is untouched
 
 
+def test_the_other_barrier_row_runs_only_where_it_can_differ():
+    """The braking barrier is the HOCBF below its speed floor a_b/k₂ (1.05 / 1.5 = 0.7 m/s with the
+    bench's gains): at v_max 0.5 m/s a `hocbf` row would repeat the default's roll-outs exactly."""
+    assert not barriers_differ(BenchConfig())
+    assert [v.suffix for v in variants(BenchConfig())] == ["no extra margin",
+                                                           "paper's HOCBF (trilinear), no extra margin"]
+    fast = BenchConfig(v_max=1.0)
+    assert barriers_differ(fast) and "hocbf barrier, no extra margin" in [v.suffix for v in variants(fast)]
+    assert not barriers_differ(BenchConfig(v_max=0.69)) and barriers_differ(BenchConfig(v_max=0.71))
+
+
 @pytest.mark.slow
 def test_bench_cli_end_to_end(tmp_path):
     from typer.testing import CliRunner
@@ -101,16 +113,19 @@ def test_bench_cli_end_to_end(tmp_path):
     res = CliRunner().invoke(app, ["--trajectories", "6", "--scenes", "1", "--frames", "9", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     s = json.loads((tmp_path / "summary.json").read_text())
-    extra = [f"{m}, {v.suffix}" for m in ("Ours (ESDF)", "Ours (Semantic ESDF)") for v in variants()]
-    assert len(extra) == 6 and s["trajectories"] == 6 and len(s["per_trajectory"]) == 6 * (3 + 6)
+    extra = [f"{m}, {v.suffix}" for m in ("Ours (ESDF)", "Ours (Semantic ESDF)") for v in variants(BenchConfig())]
+    assert len(extra) == 4 and s["trajectories"] == 6 and len(s["per_trajectory"]) == 6 * (3 + 4)
     assert set(s["table2"]) == {"Point cloud", "Ours (ESDF)", "Ours (Semantic ESDF)"}
     # Margins in the open: every method with its extra margin beyond the robot radius.
     assert set(s["methods"]) == {*s["table2"], *extra} == {*s["table2"], *s["no_extra_margin"]}
     assert s["methods"]["Ours (ESDF)"]["margin_m"] == pytest.approx(0.025 + 0.5 * 0.05)  # δ = v_max T, ½ voxel
-    assert s["methods"]["Point cloud"]["margin_m"] == pytest.approx(0.025)  # no voxel: δ alone
+    # The same rule on the cloud: δ and half its downsampling cell (half the ESDF's voxel).
+    assert s["methods"]["Point cloud"]["margin_m"] == pytest.approx(0.025 + 0.5 * 0.025)
+    assert s["methods"]["Ours (ESDF)"]["backend"] == "numba"
     for name in extra:
         assert s["methods"][name]["margin_m"] == 0.0 == s["no_extra_margin"][name]["margin_m"]
-    assert {s["methods"][f"Ours (ESDF), {v.suffix}"]["barrier"] for v in variants()} == {"braking", "hocbf"}
+    assert {s["methods"][f"Ours (ESDF), {v.suffix}"]["barrier"] for v in variants(BenchConfig())} == {"braking",
+                                                                                                      "hocbf"}
     assert s["methods"]["Ours (ESDF), paper's HOCBF (trilinear), no extra margin"]["interpolation"] == "trilinear"
     for name, row in s["table2"].items():
         assert row["margin_m"] == s["methods"][name]["margin_m"]

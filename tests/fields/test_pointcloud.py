@@ -19,7 +19,7 @@ def sphere_points(n: int, c: np.ndarray, r: float, seed: int = 0) -> np.ndarray:
 @given(st.lists(st.floats(-3, 3), min_size=3, max_size=3))
 def test_pointcloud_distance_matches_brute_force_and_gradient_is_unit(q):
     pts = sphere_points(500, np.zeros(3), 0.5)
-    f = PointCloudField(voxel=1e-4)
+    f = PointCloudField(voxel_size=1e-4)
     f.integrate(pts)
     s = f.query(np.array([q]), hessian=True)
     brute = np.linalg.norm(pts - np.array(q), axis=1).min()
@@ -31,7 +31,7 @@ def test_pointcloud_distance_matches_brute_force_and_gradient_is_unit(q):
 
 
 def test_pointcloud_gradient_matches_finite_differences_away_from_switches():
-    f = PointCloudField(voxel=1e-4)
+    f = PointCloudField(voxel_size=1e-4)
     f.integrate(np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]))
     p, h = np.array([0.4, 0.3, 0.2]), 1e-6
     s = f.query(p[None], hessian=True)
@@ -41,7 +41,7 @@ def test_pointcloud_gradient_matches_finite_differences_away_from_switches():
 
 
 def test_pointcloud_voxel_downsampling_and_empty_field():
-    f = PointCloudField(voxel=0.1)
+    f = PointCloudField(voxel_size=0.1)
     assert f.query(np.zeros((2, 3))).distance.tolist() == [f.far, f.far]
     f.integrate(np.array([[0.01, 0.01, 0.01], [0.02, 0.02, 0.02], [0.5, 0.5, 0.5], [np.nan, 0, 0]]))
     assert f.size == 2  # two points share a voxel, NaN dropped

@@ -101,7 +101,8 @@ def risk_configs(draw):
                         alpha2=draw(st.floats(0.01, 10))) for i, n in enumerate(names)]
     free = draw(st.lists(st.integers(0, 65535), max_size=5))
     return RiskConfig(header=draw(headers), groups=groups, free_labels=free,
-                      default_group=draw(st.none() | st.sampled_from(names)))
+                      # no labels and no default group names no obstacle: refused (RiskConfig's floor)
+                      default_group=draw((st.none() if labels else st.nothing()) | st.sampled_from(names)))
 
 
 messages = st.one_of(

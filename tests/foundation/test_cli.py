@@ -261,3 +261,15 @@ def test_endpoint_check_and_zenoh_message_units():
     assert zenoh_message(raw) == "Endpoints must be of the form <protocol>/<address>: foo"
     assert zenoh_message("Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at /a/b/orchestrator.rs:447.") == (
         "Unable to connect to any of [Single(tcp/127.0.0.1:1)]")
+
+
+def test_up_profiles_name_their_services_and_refuse_what_they_cannot_start():
+    from riskfield.cli import UP_PROFILES
+
+    assert UP_PROFILES["robot"] == ("camera", "limo", "joystick", "safety-filter")
+    r = _run("up", "--profile", "moon", "--no-router", "--duration", "1")
+    assert r.returncode == 2 and "unknown profile 'moon'" in r.stderr and "robot" in r.stderr, r.stderr
+    r = _run("up", "relay", "--dry-run", "--no-router", "--duration", "1")
+    assert r.returncode == 2 and "--dry-run is the LIMO bridge's" in r.stderr, r.stderr
+    help_ = _run("up", "--help").stdout
+    assert "--profile" in help_ and "--dry-run" in help_ and "--server" in help_

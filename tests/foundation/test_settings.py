@@ -117,6 +117,7 @@ def test_core_parameters_are_composed_of_per_stage_structs():
     from riskfield.services.mapping.config import (
         DynamicParams,
         EsdfParams,
+        FloorParams,
         MapperConfig,
         ObjectParams,
         OccupancyParams,
@@ -135,7 +136,7 @@ def test_core_parameters_are_composed_of_per_stage_structs():
                              esdf=EsdfParams(output="3d"))
     assert (m.voxel_size, m.truncation, m.output, m.min_weight) == (0.1, 0.3, "3d", OccupancyParams().min_weight)
     assert m.tsdf == TsdfParams(truncation=0.3) and m.volume.shape == m.shape
-    parts = [VolumeParams, TsdfParams, OccupancyParams, EsdfParams, DynamicParams, ObjectParams]
+    parts = [VolumeParams, TsdfParams, OccupancyParams, EsdfParams, DynamicParams, ObjectParams, FloorParams]
     assert sum(len(p.model_fields) for p in parts) == len(MapperConfig.model_fields)  # no field left out
     f = FilterConfig.compose(barrier=BarrierParams(robot_radius=0.3), bounds=BoundsParams(v_max=0.5))
     assert (f.robot_radius, f.v_max, f.rate_hz) == (0.3, 0.5, QpParams().rate_hz)

@@ -35,9 +35,10 @@ def test_a_reloaded_config_moves_labels_between_groups() -> None:
     t, s = layers()
     g = semantic_occupancy(t, s, risk.label_to_group(), 0.5, 0.0375)
     assert g[:3, 0, 0].tolist() == [2, 1, 2]
-    # default_group None: labels listed nowhere are free
+    # default_group None: labels listed nowhere are left to the floor, the last (lowest) group, and
+    # only the free surfaces (the floor) are free: the person and the wall stay obstacles
     only_chairs = RiskConfig(groups=[{"name": "c", "labels": [ade20k.index("chair")]}], default_group=None)
-    assert semantic_occupancy(t, s, only_chairs.label_to_group(), 0.5, 0.0375)[:, 0, 0].tolist() == [0, 1] + [0] * 6
+    assert semantic_occupancy(t, s, only_chairs.label_to_group(), 0.5, 0.0375)[:, 0, 0].tolist() == [1, 1, 1] + [0] * 5
 
 
 def test_unknown_is_occupied_marks_never_observed_voxels() -> None:

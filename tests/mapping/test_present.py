@@ -73,18 +73,13 @@ def frames_until(feed: Feed, scene: list, done, limit: int = 30) -> int:
 @pytest.mark.parametrize(("q", "bound"), [(7.0, 2), (4.0, 3), (2.0, 5)])
 def test_a_person_in_long_seen_free_space_appears_within_a_few_frames(protocol: bool, q: float, bound: int) -> None:
     """At the ``sim`` backend's confidence of a fresh keyframe (≈ 7) within 2 frames, 0.2 s at
-    10 Hz; with free space weighted like surfaces (``max_free_weight`` = ``max_weight``, the
-    behaviour before) it takes many more."""
-    feed = Feed(protocol, 10.0)
+    10 Hz, and within a few at lower confidence: free space is capped at ``max_free_weight`` and a
+    surface voxel weighs the pixels it covers, so a surface is not drowned by the free space around it."""
+    feed = Feed(protocol, q)
     for _ in range(30):
         feed.frame(ROOM)
     assert not feed.shows_person()
     assert frames_until(feed, [*ROOM, person()], feed.shows_person) <= bound
-    if q == 7.0:
-        old = Feed(protocol, 10.0, MapperConfig(max_free_weight=50.0))
-        for _ in range(30):
-            old.frame(ROOM)
-        assert frames_until(old, [*ROOM, person()], old.shows_person) > 3 * bound
 
 
 @pytest.mark.parametrize("protocol", [False, True])
@@ -216,3 +211,39 @@ def test_the_compiled_overlay_equals_its_array_definition() -> None:
                            (cs.vote, m.semantic.vote, m.present_semantic.vote)):
         np.testing.assert_array_equal(out, np.where(use, top, base))
     np.testing.assert_array_equal(ct.view, np.where(use[..., None], m.present.view, m.tsdf.view))
+
+
+@pytest.mark.parametrize("integration", ["projective", "ray"])
+def test_a_person_crossing_in_simulator_truth_frames_stays_in_the_map(integration: str) -> None:
+    """The simulator's ``sim/truth`` (depth + intrinsics at ``truth_stride``, confidence 1, no
+    ``kind``: what a depth camera sends too) of a person cylinder crossing 2 m ahead at 1.5 m/s
+    through free space seen for 2 s: from the third frame on, every map has them where they are.
+    Weighting a voxel's surface observation by one pixel's confidence (not by the pixels it
+    covers, as the ray integrators' rays do) showed them in ~15 % of the maps projectively."""
+    pytest.importorskip("open3d")
+    from riskfield.services.geometry.transforms import pose_matrix
+    from riskfield.services.simulator import procedural, shapes
+    from riskfield.services.simulator.camera import CameraMount, Renderer
+    from riskfield.services.simulator.node import SimulatorSettings, truth_frame
+    from riskfield.services.simulator.scene import Scene, SceneObject
+
+    cam = PinholeCamera.from_fov(512, 384, 90.0)
+    renderer, stride = Renderer(cam), int(SimulatorSettings.model_fields["truth_stride"].default)
+    T_WC = CameraMount().T_body_camera()
+    room, body = procedural.room(8, 8), shapes.cylinder(0.25, 1.7)
+    m = Mapper(MapperConfig(integration=integration))
+    m.set_robot_position(np.zeros(3))
+
+    def frame(i: int, walker: list) -> None:
+        f = renderer.render(Scene([*room, *walker]).at(0.0), T_WC)
+        m.integrate_frame(truth_frame(f, cam, stride, Header(stamp_ns=1 + i * STEP), i))
+        m.update_esdf()
+
+    for i in range(20):
+        frame(i, [])
+    ys = np.arange(-1.2, 1.25, 0.15)  # 1.5 m/s at 10 Hz, in view (the half field of view is 2 m wide at 2 m)
+    for i, y in enumerate(ys):
+        frame(20 + i, [SceneObject("walker", PERSON, body, pose_matrix(2.0, y))])
+        if i >= 2:
+            s = m.query(np.array([[1.65, y, 0.3]]))  # 0.1 m in front of their face
+            assert s.distance[0] < 0.1 and s.risk_group[0] == 1, (i, y, float(s.distance[0]))

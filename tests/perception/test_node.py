@@ -7,6 +7,7 @@ import signal
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from riskfield.protocol import Image, NodeStatus, PerceptionFrame
 from riskfield.protocol.messages import Header
@@ -34,7 +35,8 @@ def test_perception_with_the_simulator_publishes_current_frames(router_endpoint)
         images = Collector(s, f"rf/{robot}/camera/image", Image)
         got = frames.wait(5, 30)
         f = got[-1]
-        assert f.points.shape == (96, 128, 3) and f.keyframe_id == 0
+        # compact: depth (float16) + intrinsics at the mapping's stride, from a truth at that stride
+        assert f.points is None and f.depth.dtype == np.float16 and f.pixels == (48, 64) and f.keyframe_id == 0
         assert f.confidence.max() > 2.0 and f.intrinsics is not None
         assert len({g.header.stamp_ns for g in got}) == len(got)  # one message per frame, each its own
         assert {i.header.stamp_ns for i in images.items} >= {g.header.stamp_ns for g in got}  # image stamps kept
@@ -77,9 +79,10 @@ def test_perception_pairs_by_stamp_and_survives_hostile_input(router_endpoint):
         assert wait_until(lambda: stat("received", "camera/image") >= 150 and stat("received", "sim/truth") >= 150
                           and stat("invalid", "camera/image") + stat("dropped", "camera/image") >= 150, 15), \
             status.items[-1:]
-        # Valid but inconsistent: a truth whose size differs from its image is rejected, not a crash.
+        # Valid but inconsistent: a truth whose size is neither its image's nor every n-th pixel of
+        # it is rejected, not a crash.
         img2, _ = _pair(2000)
-        _, truth2 = _pair(2000, 12, 16)
+        _, truth2 = _pair(2000, 10, 16)
         put(s, f"rf/{robot}/sim/truth", truth2)
         put(s, f"rf/{robot}/camera/image", img2)
         # camera/image is a latest-value queue: img2 is taken (and rejected) before the next one.
@@ -91,8 +94,10 @@ def test_perception_pairs_by_stamp_and_survives_hostile_input(router_endpoint):
         put(s, f"rf/{robot}/sim/truth", truth)
         put(s, f"rf/{robot}/camera/image", img)
         out = frames.wait(1, 15)
-        assert len(out) == 1 and out[0].header.stamp_ns == 1000 and out[0].points.shape == (24, 32, 3)
-        assert np.isfinite(out[0].points).all()
+        # a full-size truth: the frame goes out at the mapping's pixel stride (2), as depth
+        assert len(out) == 1 and out[0].header.stamp_ns == 1000 and out[0].pixels == (12, 16)
+        assert np.isfinite(out[0].pointmap()).all() and np.allclose(out[0].pointmap(), truth.points[::2, ::2],
+                                                                     atol=0.2)
         # Image first, then its truth.
         img4, truth4 = _pair(4000)
         images_in = stat("received", "camera/image")
@@ -122,3 +127,28 @@ def test_mast3r_backend_refuses_to_start_with_a_clear_message(router_endpoint):
         assert per.proc is not None and per.proc.returncode == 2
         out = per.output
         assert "perception backend unavailable" in out and "checkpoint" in out
+
+
+def test_perception_aligns_a_wrongly_scaled_slam_to_odometry(router_endpoint):
+    from riskfield.protocol import Alignment
+
+    robot = "t_per_align"
+    common = ["--robot", robot]
+    args = [*common, "--set", "align=true", "--set", "slam_scale=1.15", "--set", "status_period_s=0.3"]
+    with ServiceProcess("simulator", router_endpoint, [*common, "--set", f"scenario={SCENARIO}"]) as sim, \
+            ServiceProcess("perception", router_endpoint, args) as per, client_session(router_endpoint) as s:
+        assert wait_alive(s, f"rf/{robot}/alive/perception"), per.output
+        alignments = Collector(s, f"rf/{robot}/perception/alignment", Alignment)
+        frames = Collector(s, f"rf/{robot}/perception/frame", PerceptionFrame)
+        got = alignments.wait(5, 30)
+        a = got[-1]
+        # standing still: the floor plane and the camera's height undo SLAM's 1.15
+        assert a.source == "floor" and not a.converged and a.scale == pytest.approx(1 / 1.15, rel=0.03)
+        assert 0.01 < a.scale_sigma < 0.1  # the height's 2 mm at 0.1 m dominates
+        f = frames.wait(5, 30)[-1]
+        world = f.pointmap().reshape(-1, 3) @ f.T_WC[:3, :3].T + f.T_WC[:3, 3]
+        floor = (f.labels.reshape(-1) == 3) & (f.confidence.reshape(-1) > 0)
+        assert abs(float(np.median(world[floor, 2]))) < 0.01  # the floor back at z = 0 of odom
+        assert per.stop(signal.SIGTERM) == 0 and sim.stop() == 0
+        alignments.close()
+        frames.close()

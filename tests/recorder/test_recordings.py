@@ -485,3 +485,10 @@ def test_voxel_grid_layout_is_x_fastest_then_y_then_z():
     at = 2 * vox.slice_stride + 3 * vox.row_stride + 4 * vox.cell_stride  # z=2, y=3, x=4
     assert cells["d"][at // vox.cell_stride] == pytest.approx(0.125)
     assert vox.pose.position.z == pytest.approx(0.05) and vox.cell_size.z == pytest.approx(0.1)
+
+
+def test_a_recorded_lock_or_unlock_is_withheld_like_the_commands():
+    """A replayed unlock would release a live robot's lock on its cmd/ref arbitration."""
+    from riskfield.services.recorder.replay import is_command
+
+    assert is_command("rf/limo1/cmd/lock") and not is_command("rf/limo1/cmd/lockout")

@@ -101,7 +101,7 @@ def test_risk_hot_swap_changes_the_gains_used():
     filt = SafetyFilter(FilterConfig())
     s = FilterState.planar(0.0, 0.0, 0.0)
     before = filt.filter(s, np.array([1.0, 0.0]), field).u[0]
-    filt.set_risk(RiskConfig(groups=[RiskGroup(name="high", alpha=3.0)], default_group=None))
+    filt.set_risk(RiskConfig(groups=[RiskGroup(name="high", alpha=3.0)], default_group="high"))
     after = filt.filter(s, np.array([1.0, 0.0]), field).u[0]
     assert after > before + 0.1
 

@@ -36,8 +36,10 @@ from riskfield.services.safety_filter.supervisor import FilterSupervisor
 GROUPS = ["high", "mid", "low"]
 PERSON, MARGIN = 0.22, 0.15  # the simulator's person; the high group's inflation margin
 P = MotionParams()
-#: The tracker's stated accuracy of a walker's velocity (``mapping.objects``: within 0.15 m/s).
-TRACKER_SIGMA = 0.15
+#: The tracker's velocity error per axis, measured by ``riskfield bench crowd`` (its tracker line,
+#: ``people.tracker_errors``): 0.09 m/s from the median error, 0.29 m/s RMS with the lag at a
+#: walker's stops and turns; and the filter's own ``object_speed_sigma`` between them.
+TRACKER_SIGMAS = (0.09, 0.15, 0.29)
 BACKENDS = ("numba", "numpy") if compiled.HAVE_NUMBA else ("numpy",)
 
 
@@ -385,9 +387,10 @@ def sign_flips(v: np.ndarray, tol: float = 1e-6) -> int:
     return int((s[1:] != s[:-1]).sum())
 
 
+@pytest.mark.parametrize("sigma", TRACKER_SIGMAS)
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_the_trackers_noise_near_the_barrier_makes_no_chatter_and_no_self_motion(backend):
-    """The robot within 0.3 m of a person's barrier, the tracker's noise σ = 0.15 m/s on every map:
+def test_the_trackers_noise_near_the_barrier_makes_no_chatter_and_no_self_motion(backend, sigma):
+    """The robot within 0.3 m of a person's barrier, the tracker's measured noise on every map:
     a standing person, one edging in, one walking into the robot. The operator drives forward
     slowly, or holds the stick centred: the commanded speed never changes sign, and at a zero
     reference the robot never moves."""
@@ -396,9 +399,9 @@ def test_the_trackers_noise_near_the_barrier_makes_no_chatter_and_no_self_motion
         for walk in ((0.0, 0.0), (-0.3, 0.0), (-1.0, 0.0)):
             # The person's inflated cylinder 0.3 m from the front disc's barrier at the start.
             start = (0.16 + 0.3 + PERSON + MARGIN + 0.15, 0.0)
-            fwd = drive(filt, np.array([0.3, 0.0]), start, walk, TRACKER_SIGMA, seed)
+            fwd = drive(filt, np.array([0.3, 0.0]), start, walk, sigma, seed)
             assert sign_flips(fwd["v"]) == 0 and fwd["v"].min() >= -1e-6, (walk, seed)
-            idle = drive(filt, np.zeros(2), start, walk, TRACKER_SIGMA, seed, steps=60)
+            idle = drive(filt, np.zeros(2), start, walk, sigma, seed, steps=60)
             assert not idle["v"].any() and np.abs(idle["x"]).max() == 0.0
 
 

@@ -83,7 +83,10 @@ def test_object_motion_is_a_setting_of_the_node():
 def test_a_person_walking_at_the_robot_makes_the_node_stop_it_earlier(router_endpoint):
     robot = "t_sf_motion"
     args = ["--robot", robot, "--set", "map_timeout_s=60", "--set", "state_timeout_s=60", "--set", "ref_timeout_s=60",
-            "--set", "map_margin_voxels=0", "--set", "status_period_s=0.2"]
+            "--set", "map_margin_voxels=0", "--set", "status_period_s=0.2",
+            # each step's reference is its own cmd/ref source (its name marks the step's command):
+            # one that expires at once never holds the next step's off in the arbitration
+            "--set", "ref_default_timeout_s=0.001"]
     root = f"rf/{robot}"
     with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
         assert wait_alive(session, f"{root}/alive/safety-filter"), proc.output

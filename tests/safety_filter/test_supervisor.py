@@ -128,7 +128,7 @@ def test_supervisor_hot_swaps_risk():
     sup.on_state(state(x=0.2), 0.0)
     sup.on_ref(ref(1.0), 0.0)
     before = sup.tick(0.0)[0].linear[0]
-    sup.set_risk(RiskConfig(groups=[RiskGroup(name="high", alpha=5.0)], default_group=None))
+    sup.set_risk(RiskConfig(groups=[RiskGroup(name="high", alpha=5.0)], default_group="high"))
     after = sup.tick(0.0)[0].linear[0]
     assert after > before + 0.05
 

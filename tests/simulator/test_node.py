@@ -43,8 +43,11 @@ def test_simulator_publishes_state_image_truth_and_obeys_commands(router_endpoin
         # JPEG by default: what crosses the link; perception decodes it to the same size.
         assert img.width == 128 and img.height == 96 and img.encoding == "jpeg"
         assert decode_image(img).data.shape == (96, 128, 3)
-        assert truth.points.shape == (96, 128, 3) and np.all(truth.confidence == 1.0)
-        assert np.all(truth.points[..., 2] > 0) and set(np.unique(truth.labels)) <= set(range(ade20k.NUM_CLASSES))
+        # every 2nd pixel (truth_stride), as float32 depth + the strided camera's intrinsics
+        assert truth.points is None and truth.pixels == (48, 64) and np.all(truth.confidence == 1.0)
+        cx, cy = truth.intrinsics[2:]
+        assert truth.depth.dtype == np.float32 and np.allclose((cx, cy), (127 / 2 / 2, 95 / 2 / 2))
+        assert np.all(truth.depth > 0) and set(np.unique(truth.labels)) <= set(range(ade20k.NUM_CLASSES))
         start = states.wait(1, 10)[-1].position
         forward = VelocityCommand(linear=(0.4, 0, 0), angular=(0, 0, 0), source="test")
         # A command stream at ~20 Hz (the period is the scenario: one command would expire in the
@@ -119,11 +122,12 @@ def test_simulator_publishes_depth_stamped_like_the_image(router_endpoint):
         d = next(d for d in reversed(depths.items) if d.header.stamp_ns in truth_stamps)
         truth = truth_stamps[d.header.stamp_ns]
         assert d.depth.shape == (96, 128) and d.header.frame_id == "camera"
-        np.testing.assert_allclose(d.depth, truth.points[..., 2])  # depth = the pointmap's z
-        # the intrinsics back-project the depth onto the true pointmap
+        np.testing.assert_allclose(d.depth[::2, ::2], truth.depth)  # the truth: every 2nd pixel's z
+        # the intrinsics back-project the depth onto the true pointmap, that of the truth's strided camera too
         u, v = np.meshgrid(np.arange(128), np.arange(96))
-        np.testing.assert_allclose((u - d.cx) / d.fx * d.depth, truth.points[..., 0], atol=1e-5)
-        np.testing.assert_allclose((v - d.cy) / d.fy * d.depth, truth.points[..., 1], atol=1e-5)
+        points = truth.pointmap()
+        np.testing.assert_allclose(((u - d.cx) / d.fx * d.depth)[::2, ::2], points[..., 0], atol=1e-5)
+        np.testing.assert_allclose(((v - d.cy) / d.fy * d.depth)[::2, ::2], points[..., 1], atol=1e-5)
         assert sim.stop(signal.SIGTERM) == 0, sim.output
         depths.close()
         truths.close()

@@ -9,14 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from riskfield.protocol.platforms import LIMO as LIMO_PLATFORM
 from riskfield.services.simulator.robots import (
     LIMO,
-    Ackermann,
-    DoubleIntegrator,
-    Mecanum,
+    AckermannPlant,
+    DifferentialPlant,
+    MecanumPlant,
     PlanarLimits,
-    SingleIntegrator,
-    Unicycle,
+    PointMassPlant,
+    VelocityPointPlant,
     make_robot,
     se2_step,
 )
@@ -44,18 +45,18 @@ def test_se2_step_matches_fine_euler_integration(vx, vy, w, yaw, dt):
 
 
 def test_unicycle_drives_a_circle_of_radius_v_over_w():
-    r = Unicycle(limits=FREE)
+    r = DifferentialPlant(limits=FREE)
     for _ in range(1000):  # one full turn: ω = 0.5π rad/s for 4 s
         r.step(*cmd(0.5, 0.5 * math.pi), 0.004)
     assert r.x == pytest.approx(0.0, abs=1e-9) and r.y == pytest.approx(0.0, abs=1e-9)
-    r2 = Unicycle(limits=FREE)
+    r2 = DifferentialPlant(limits=FREE)
     for _ in range(500):  # half a turn: at the far side of the circle, 2·v/ω away
         r2.step(*cmd(0.5, 0.5 * math.pi), 0.004)
     assert math.hypot(r2.x, r2.y) == pytest.approx(2 * 0.5 / (0.5 * math.pi), abs=1e-9)
 
 
 def test_limo_clamps_speed_and_yaw_rate_and_limits_acceleration():
-    r = Unicycle()
+    r = DifferentialPlant()
     r.step(*cmd(5.0, 10.0), 0.1)
     assert r.vx == pytest.approx(LIMO.a_max * 0.1) and r.w == pytest.approx(LIMO.alpha_max * 0.1)
     for _ in range(200):
@@ -73,7 +74,7 @@ def test_limo_clamps_speed_and_yaw_rate_and_limits_acceleration():
 
 
 def test_unicycle_ignores_lateral_commands_and_brakes_on_nan():
-    r = Unicycle(limits=FREE)
+    r = DifferentialPlant(limits=FREE)
     r.step(np.array([0.0, 1.0, 0.0]), np.zeros(3), 0.1)
     assert r.y == 0.0 and r.x == 0.0
     r.step(*cmd(0.5), 0.1)
@@ -82,23 +83,26 @@ def test_unicycle_ignores_lateral_commands_and_brakes_on_nan():
 
 
 def test_ackermann_respects_minimum_turning_radius_and_cannot_turn_in_place():
-    r = Ackermann(limits=FREE)
-    assert r.min_turning_radius == pytest.approx(0.2 / math.tan(0.488))
-    assert 0.37 < r.min_turning_radius < 0.41
+    """The kinematic bicycle's limit is the central angle at the inner wheel's limit (the LIMO's
+    0.488 rad inner angle is ~0.408 rad central): the radius is the chassis's, ~0.46 m."""
+    r = AckermannPlant(limits=FREE)
+    assert r.max_steer == pytest.approx(LIMO_PLATFORM.max_central_steering) and 0.40 < r.max_steer < 0.41
+    assert r.min_turning_radius == pytest.approx(LIMO_PLATFORM.min_turning_radius)
+    assert 0.45 < r.min_turning_radius < 0.47
     for _ in range(100):
         r.step(*cmd(0.5, 10.0), 0.01)  # asks for a much tighter turn than possible
-    assert r.steer == pytest.approx(0.488)
+    assert r.steer == pytest.approx(r.max_steer)
     assert 0.5 / r.w == pytest.approx(r.min_turning_radius)
-    r2 = Ackermann(limits=FREE)
+    r2 = AckermannPlant(limits=FREE)
     r2.step(*cmd(0.0, 1.0), 0.5)
     assert r2.yaw == 0.0 and r2.w == 0.0
-    r3 = Ackermann(limits=FREE)
+    r3 = AckermannPlant(limits=FREE)
     r3.step(*cmd(0.5, 0.3), 0.01)  # feasible: turns at the commanded rate
     assert r3.w == pytest.approx(0.3)
 
 
 def test_mecanum_moves_sideways():
-    r = Mecanum()
+    r = MecanumPlant()
     for _ in range(300):
         r.step(*cmd(0.0, 0.0, vy=0.5), 0.01)
     assert r.x == pytest.approx(0.0, abs=1e-12) and r.y > 1.0 and r.yaw == 0.0
@@ -106,29 +110,29 @@ def test_mecanum_moves_sideways():
 
 
 def test_single_integrator_norm_limit_and_yaw_rotation():
-    r = SingleIntegrator(v_max=1.0, yaw=math.pi / 2)
+    r = VelocityPointPlant(v_max=1.0, yaw=math.pi / 2)
     r.step(np.array([3.0, 0.0, 4.0]), np.zeros(3), 1.0)  # body x is world y
     np.testing.assert_allclose(r.p, [0.0, 0.6, 0.8], atol=1e-12)
 
 
 def test_double_integrator_exact_under_constant_acceleration():
-    r = DoubleIntegrator(input="acceleration", a_max=10.0, v_max=100.0)
+    r = PointMassPlant(input="acceleration", a_max=10.0, v_max=100.0)
     for _ in range(100):
         r.step(np.array([1.0, 0.0, 2.0]), np.zeros(3), 0.01)
     np.testing.assert_allclose(r.p, [0.5, 0.0, 1.0], atol=1e-12)  # ½at², t = 1
     np.testing.assert_allclose(r.v, [1.0, 0.0, 2.0], atol=1e-12)
-    r2 = DoubleIntegrator(input="acceleration", a_max=1.0)
+    r2 = PointMassPlant(input="acceleration", a_max=1.0)
     r2.step(np.array([3.0, 4.0, 0.0]), np.zeros(3), 1.0)
     assert np.linalg.norm(r2.v) == pytest.approx(1.0)
 
 
 def test_double_integrator_tracks_velocity_setpoint():
-    r = DoubleIntegrator(input="velocity", a_max=3.0, v_max=2.0)
+    r = PointMassPlant(input="velocity", a_max=3.0, v_max=2.0)
     for _ in range(300):
         r.step(np.array([0.5, 0.0, 0.0]), np.zeros(3), 0.01)
     np.testing.assert_allclose(r.v, [0.5, 0.0, 0.0], atol=1e-4)
     with pytest.raises(ValueError):
-        DoubleIntegrator(input="jerk")
+        PointMassPlant(input="jerk")
 
 
 @pytest.mark.parametrize("kind", ["limo", "ackermann", "mecanum", "single_integrator", "double_integrator"])

@@ -1,5 +1,5 @@
 """The planner example says why it cannot plan: an end outside the map (naming the map's
-bounds) or too close to an obstacle, instead of a generic "no path"."""
+bounds, the filter's in-map rule) or too close to an obstacle, instead of a generic "no path"."""
 
 from __future__ import annotations
 
@@ -40,13 +40,13 @@ def test_bounds_and_reasons():
     mod = _load()
     g = _open_grid()
     (x0, x1), (y0, y1) = mod.bounds(g)
-    np.testing.assert_allclose([x0, x1, y0, y1], [-0.55, 1.55, -0.05, 1.05])
+    np.testing.assert_allclose([x0, x1, y0, y1], [-0.5, 1.5, 0.0, 1.0])  # the outer voxel centres
     why = mod.unplannable(g, (0.0, 0.2), (3.0, 1.0), clearance=0.2)
-    assert why is not None and "goal (3, 1) is outside the map" in why and "-0.55..1.55" in why and "-0.05..1.05" in why
+    assert why is not None and "goal (3, 1) is outside the map" in why and "-0.50..1.50" in why and "0.00..1.00" in why
     why = mod.unplannable(g, (0.0, -0.5), (1.0, 0.2), clearance=0.2)
     assert why is not None and why.startswith("the start (0, -0.5) is outside the map")
     why = mod.unplannable(g, (0.5, 0.5), (1.2, 0.2), clearance=0.2)
-    assert why is not None and "start (0.5, 0.5) is 0.00 m from an obstacle" in why
+    assert why is not None and "start (0.5, 0.5) is 0.01 m from an obstacle" in why  # as the filter reads it
     assert mod.unplannable(g, (-0.3, 0.2), (1.3, 0.8), clearance=0.2) is None
     assert mod.plan(g, (-0.3, 0.2), (1.3, 0.8), clearance=0.2) is not None
 
@@ -69,5 +69,5 @@ def test_script_names_the_map_bounds_for_a_goal_outside_them(router_endpoint):
             stop.set()
             t.join()
     assert r.returncode == 1
-    assert "goal (3, 1) is outside the map, which covers x -0.55..1.55 m and y -0.05..1.05 m" in r.stderr, r.stderr
+    assert "goal (3, 1) is outside the map, which covers x -0.50..1.50 m and y 0.00..1.00 m" in r.stderr, r.stderr
     assert "clearance" not in r.stderr

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
+from tools import ros_idl as idl  # pycdr2: the dev extra's, a broken install fails here rather than skipping
 
 from riskfield.protocol import EsdfGrid, Header, NodeStatus, RobotState, SafetyStatus, VelocityCommand
 from riskfield.services.ros2_bridge.messages import (
@@ -19,17 +20,14 @@ from riskfield.services.ros2_bridge.messages import (
     Odometry,
     RosCodec,
     Transform,
-    TwistMux,
-    VelocityInput,
     costmap,
     nav2_cost,
     odometry_to_state,
     state_to_tf,
 )
 from riskfield.services.ros2_bridge.node import Ros2Bridge, Ros2BridgeSettings, ros_key
+from riskfield.services.runtime.arbiter import CommandMux, MuxInput
 from riskfield.testing import Collector, ServiceProcess, client_session, put, wait_alive, wait_until
-
-idl = pytest.importorskip("tools.ros_idl")
 
 f = st.floats(allow_nan=False, allow_infinity=False, width=64)
 vec = st.tuples(f, f, f)
@@ -234,18 +232,19 @@ def test_state_to_tf_follows_rep105():
 
 # -- twist_mux arbitration ----------------------------------------------------------------------------
 def test_twist_mux_priorities_and_timeouts():
-    mux = TwistMux([VelocityInput("nav", 10, 0.5), VelocityInput("teleop", 100, 0.5)])
-    assert mux.offer("nav", 0.0)                  # alone: forwarded
-    assert mux.offer("teleop", 0.1)               # higher priority takes over at once
-    assert not mux.offer("nav", 0.2)              # held while teleop is fresh
-    assert not mux.offer("nav", 0.6)              # teleop age 0.5: not yet expired (strictly greater)
-    assert mux.offer("nav", 0.61)                 # teleop expired: nav again
-    assert mux.offer("teleop", 0.7)
-    same = TwistMux([VelocityInput("a", 5, 0.5), VelocityInput("b", 5, 0.5)])
-    assert same.offer("b", 0.0) and same.offer("a", 0.1) and not same.offer("b", 0.2)  # tie: first declared
-    forever = TwistMux([VelocityInput("nav", 10, 0.5), VelocityInput("teleop", 100, 0.0)])
-    forever.offer("teleop", 0.0)
-    assert not forever.offer("nav", 1e6)          # a timeout of 0 never expires
+    mux = CommandMux([MuxInput("nav", 10, 0.5), MuxInput("teleop", 100, 0.5)])
+    offer = lambda m, name, now: m.admit(name, now) is None  # noqa: E731
+    assert offer(mux, "nav", 0.0)                  # alone: forwarded
+    assert offer(mux, "teleop", 0.1)               # higher priority takes over at once
+    assert not offer(mux, "nav", 0.2)              # held while teleop is fresh
+    assert not offer(mux, "nav", 0.6)              # teleop age 0.5: not yet expired (strictly greater)
+    assert offer(mux, "nav", 0.61)                 # teleop expired: nav again
+    assert offer(mux, "teleop", 0.7)
+    same = CommandMux([MuxInput("a", 5, 0.5), MuxInput("b", 5, 0.5)])
+    assert offer(same, "b", 0.0) and offer(same, "a", 0.1) and not offer(same, "b", 0.2)  # tie: first declared
+    forever = CommandMux([MuxInput("nav", 10, 0.5), MuxInput("teleop", 100, 0.0)])
+    offer(forever, "teleop", 0.0)
+    assert not offer(forever, "nav", 1e6)          # a timeout of 0 never expires
 
 
 def test_settings_are_strict():

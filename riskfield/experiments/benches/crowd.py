@@ -51,7 +51,17 @@ from riskfield.experiments.scenarios import (
 )
 from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, publish, recording
 from riskfield.experiments.tables import write_json
-from riskfield.protocol import EsdfGrid, RiskConfig, RobotState, SafetyStatus, SimActors, VelocityCommand, ade20k
+from riskfield.protocol import (
+    EsdfGrid,
+    RiskConfig,
+    RobotState,
+    SafetyStatus,
+    SimActors,
+    TrackedObjects,
+    VelocityCommand,
+    ade20k,
+)
+from riskfield.services.safety_filter.config import MotionParams
 
 app = typer.Typer(add_completion=False)
 
@@ -74,7 +84,8 @@ def variant_args(available: bool) -> dict[str, list[str]]:
     if not available:
         return {"static": list(FAST_FILTER)}
     return {"motion": [*FAST_FILTER, "--set", "object_motion=true"],
-            "static": [*FAST_FILTER, "--set", "object_motion=false"]}
+            "static": [*FAST_FILTER, "--set", "object_motion=false"],
+            "evade": [*FAST_FILTER, "--set", "object_motion=true", "--set", "evade=true"]}
 
 
 # -- one case --------------------------------------------------------------------------------------
@@ -89,10 +100,11 @@ def _esdf_cells(grid: EsdfGrid, group: int) -> np.ndarray:
 
 def case_metrics(case: dict[str, Any], states: list[RobotState], refs: list[VelocityCommand],
                  safes: list[VelocityCommand], actors: list[SimActors], esdfs: list[tuple[float, EsdfGrid]],
-                 t0: float, status: list[SafetyStatus] = ()) -> dict[str, Any]:
+                 t0: float, status: list[SafetyStatus] = (), objects: list[TrackedObjects] = ()) -> dict[str, Any]:
     """The metrics of one case from what was recorded (stamps in wall-clock seconds; ``esdfs`` with
     their wall-clock receive times; ``t0`` the drive's start; ``status`` the filter's, for its
-    fail-safe brakes). Pure: the unit tests call it."""
+    fail-safe brakes; ``objects`` the mapper's tracks, for the tracker's accuracy). Pure: the unit
+    tests call it."""
     if not states:
         return {"name": case["name"], "error": "no robot state recorded"}
     t = np.array([s.header.stamp_ns for s in states]) / 1e9
@@ -143,6 +155,10 @@ def case_metrics(case: dict[str, Any], states: list[RobotState], refs: list[Velo
     driven = float((xy[-1] - xy[0]) @ heading)
     nominal = case["v_ref"] * max(float(t[-1] - t0), 1e-9)
     lag = map_lag(t, xy, yaw, tracks, esdfs)
+    person = ade20k.index("person")
+    observed = [(m.header.stamp_ns / 1e9 - o.age_ms / 1e3, o.tracked_ms, np.array(o.position[:2]),
+                 np.array(o.velocity[:2])) for m in objects for o in m.objects if o.label == person]
+    tracker = P.tracker_errors(observed, list(tracks.values()), MotionParams().object_young_ms)
     min_clear = min((p["min_clearance_m"] for p in per_person.values()), default=math.inf)
     return {"name": case["name"], "kind": case["kind"], "speed": case["speed"], "seed": case["seed"],
             "walkers": len(tracks), "at_fault_contacts": total.at_fault_samples,
@@ -151,7 +167,8 @@ def case_metrics(case: dict[str, Any], states: list[RobotState], refs: list[Velo
             "min_clearance_m": min_clear, "progress": driven / nominal, "ghost_time_s": ghost.time_s,
             "ghost_censored": ghost.censored, "ghost_holds_s": ghost.holds, **lag, "people": per_person,
             "path": xy.tolist(), "tracks": {n: tr.xy.tolist() for n, tr in tracks.items()},
-            "contacts_xy": _contact_points(xy, gaps, centres)}
+            "contacts_xy": _contact_points(xy, gaps, centres), "tracker": tracker.summary(),
+            "tracker_errors": tracker.__dict__}
 
 
 def _contact_points(xy: np.ndarray, gaps: list[np.ndarray], centres: list[np.ndarray]) -> list[list[float]]:
@@ -273,7 +290,7 @@ def run_case(stack: Stack, case: dict[str, Any], pipeline: list[tuple[str, str, 
         time.sleep(max(0.0, next_t - time.monotonic()))
     row = case_metrics(case, [m for _, m in rec.snapshot("state")], sent,
                        [m for _, m in rec.snapshot("safe")], [m for _, m in rec.snapshot("actors")], esdfs.take(),
-                       t0, [m for _, m in rec.snapshot("status")])
+                       t0, [m for _, m in rec.snapshot("status")], [m for _, m in rec.snapshot("objects")])
     reasons: dict[str, int] = {}
     for _, st in rec.snapshot("status"):
         if st.fallback is not None:
@@ -299,7 +316,8 @@ def run_bench(cases: list[dict[str, Any]], perception: str, variants: dict[str, 
         k = stack.keys
         stack.start("sim", "simulator", ["--set", f"scenario={room}", "--set", "camera_hz=10"])
         keys = {"state": (k.state, RobotState), "safe": (k.cmd_safe, VelocityCommand),
-                "status": (k.safety_status, SafetyStatus), "actors": (k.sim_actors, SimActors)}
+                "status": (k.safety_status, SafetyStatus), "actors": (k.sim_actors, SimActors),
+                "objects": (k.objects, TrackedObjects)}
         esdfs = _Esdfs(stack.session, k.esdf)
         try:
             with recording(stack.session, keys) as rec:
@@ -344,6 +362,8 @@ def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "fail_safe_brake_steps": sum(sum(r.get("brakes", {}).values()) for r in ok),
         "stale_map_brake_steps": sum(r.get("brakes", {}).get("stale_map", 0) for r in ok),
         "esdf_age_ms_p50_median": P.percentile([r["esdf_age_ms_p50"] for r in ok if r.get("esdf_age_ms_p50")], 50),
+        "tracker": sum((P.TrackerErrors(**r["tracker_errors"]) for r in ok if "tracker_errors" in r),
+                       P.TrackerErrors()).summary(),
         "case_wall_median_s": float(np.median([r["case_wall_s"] for r in rows if "case_wall_s" in r]))
         if any("case_wall_s" in r for r in rows) else None,
     }
@@ -372,6 +392,16 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{_f(tot['map_lag_median_s'])} / {_f(tot['map_lag_p95_s'])} | "
                      f"{_f(tot['map_shows_person_mean'])} | {tot['fail_safe_brake_steps']} "
                      f"({tot['stale_map_brake_steps']}) | {_f(tot['esdf_age_ms_p50_median'], 0)} |")
+    for v, tot in summary["totals"].items():
+        tk = tot.get("tracker") or {}
+        if tk.get("matched"):
+            lines += ["", f"Tracker accuracy ({v}): velocity error σ per axis {_f(tk['velocity_sigma_settled_m_s'])} "
+                      f"m/s RMS, {_f(tk.get('velocity_sigma_robust_m_s'))} m/s from the median, over {tk['settled']} "
+                      f"settled tracks ({_f(tk['velocity_sigma_all_m_s'])} RMS over all "
+                      f"{tk['matched']}), |Δv| p50 / p95 {_f(tk['velocity_error_p50_m_s'])} / "
+                      f"{_f(tk['velocity_error_p95_m_s'])} m/s, position error p50 / p95 "
+                      f"{_f(tk['position_error_p50_m'])} / {_f(tk['position_error_p95_m'])} m, "
+                      f"{tk['false_tracks']} false tracks."]
     for v, rows in summary["cases"].items():
         lines += ["", f"## {v}", "", "| Case | Walkers | At-fault (samples / max m/s) | Person's | Min clearance (m) "
                   "| Progress | Ghost (s) | Map lag p50 (s) | Maps showing | Brake steps | ESDF age p50 (ms) "
@@ -437,8 +467,8 @@ def crowd(
     kinds: Annotated[str, typer.Option(help=f"Comma-separated: {','.join(CROWD_KINDS)}.")] = ",".join(CROWD_KINDS),
     speeds: Annotated[str, typer.Option(help="Walking speeds (m/s, ≤ 1.5), comma-separated.")] = ",".join(
         f"{v:g}" for v in CROWD_SPEEDS),
-    variants: Annotated[str, typer.Option(help="motion,static (static: the static-barrier baseline).")] =
-    "motion,static",
+    variants: Annotated[str, typer.Option(help="motion,static,evade (static: the static-barrier baseline; evade: "
+                                          "motion with the opt-in retreat).")] = "motion,static",
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/crowd"),
     mode: Annotated[str, typer.Option(help="stack: the full service stack (the cases above); core: the filter "
                                       "core in closed loop over the CrowdNav-style families.")] = "stack",
@@ -447,12 +477,14 @@ def crowd(
     seed: Annotated[int, typer.Option(help="core: the first episode's seed (seeds seed … seed+episodes-1).")] = 0,
     results: Annotated[Path | None, typer.Option(help="core: rewrite this RESULTS.md's 'Crowd families (core)' "
                                                  "section with the run's table.")] = None,
+    evade: Annotated[bool, typer.Option(help="core: the filter's opt-in evade (retreat into floor seen free).")]
+    = False,
 ) -> None:
     """People crossing, coming head-on, overtaking, stopping and turning in a robot's way."""
     console = Console()
     if mode == "core":
         core(families, episodes, seed, out if out != Path("bench_out/crowd") else Path("bench_out/crowd_core"),
-             results, console)
+             results, console, evade)
         return
     if mode != "stack":
         raise typer.BadParameter("mode must be stack or core")
@@ -499,7 +531,8 @@ def crowd(
                   f"{wall / max(1, len(cases) * len(chosen)):.1f} s per case)")
 
 
-def core(families: str, episodes: int, seed: int, out: Path, results: Path | None, console: Console) -> None:
+def core(families: str, episodes: int, seed: int, out: Path, results: Path | None, console: Console,
+         evade: bool = False) -> None:
     """``--mode core``: every family's episodes through the filter core (``crowd_core``)."""
     from riskfield.experiments import crowd_core as C
     from riskfield.services.safety_filter.config import FilterConfig
@@ -510,7 +543,7 @@ def core(families: str, episodes: int, seed: int, out: Path, results: Path | Non
     if unknown:
         raise typer.BadParameter(f"unknown families {unknown}: use {', '.join(C.FAMILIES)}")
     out.mkdir(parents=True, exist_ok=True)
-    filt = SafetyFilter(FilterConfig())
+    filt = SafetyFilter(FilterConfig(evade=evade))
     t0 = time.perf_counter()
     rows: dict[str, list[dict[str, Any]]] = {}
     fams: dict[str, Any] = {}
@@ -522,8 +555,10 @@ def core(families: str, episodes: int, seed: int, out: Path, results: Path | Non
                       f"{s['static_contacts']}, idle {s['idle_displacement_max_m']:.2f} m, reverse "
                       f"{s['blind_reverse_max_m']:.2f} m, success {_f(s['success_rate'])}")
     command = f"riskfield bench crowd --mode core --episodes {episodes}" + (
-        f" --families {','.join(chosen)}" if chosen != list(C.FAMILIES) else "") + (f" --seed {seed}" if seed else "")
-    summary = {"benchmark": "crowd", "mode": "core", "command": command, "episodes_per_family": episodes,
+        f" --families {','.join(chosen)}" if chosen != list(C.FAMILIES) else "") + (
+        f" --seed {seed}" if seed else "") + (" --evade" if evade else "")
+    summary = {"benchmark": "crowd", "mode": "core", "command": command, "evade": evade,
+               "episodes_per_family": episodes,
                "first_seed": seed, "backend": filt.backend, "wall_time_s": time.perf_counter() - t0,
                "sim_time_s": sum(s["sim_s"] for s in fams.values()), "families": fams, "episodes": rows}
     (out / "tables.md").write_text(C.markdown(summary))

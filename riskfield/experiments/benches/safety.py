@@ -4,8 +4,8 @@ Six procedural scenes by default (``--scannetpp DIR`` adds ScanNet++ scenes), ob
 start/goal pairs split evenly over the scenes, three methods on identical pairs, and the
 paper's metrics. Every method is stated with its extra margin beyond the robot radius
 (``margin_m`` in ``summary.json``), and each ESDF variant is also driven with no extra margin
-(the default filter, the other barrier, the paper's HOCBF on the trilinear field:
-``safety_benchmark.variants``). Writes ``tables.md``, ``summary.json`` (every number, every
+(the default filter, the other barrier where it can differ, the paper's HOCBF on the trilinear
+field: ``safety_benchmark.variants``). Writes ``tables.md``, ``summary.json`` (every number, every
 trajectory) and plots into ``--out``. See ``safety_benchmark`` for the protocol.
 """
 
@@ -104,11 +104,12 @@ def safety(
     perceive = gt_perception(renderer) if perception == "gt" else sim_perception(renderer, seed)
     clf = DoubleIntegratorCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
     safe = filter_safe_control(cfg)
-    extra = variants()
+    extra = variants(cfg)
     extra_safe = {v.suffix: filter_safe_control(cfg, overrides=v.overrides) for v in extra}
     extra_methods = [f"{m}, {v.suffix}" for m in (ESDF, SEMANTIC) for v in extra]
     per_pair = len(METHODS) + len(extra_methods)
     margins: dict[str, float] = {}
+    backends: dict[str, str] = {}
 
     rollouts: list[Rollout] = []
     maps_info: list[dict] = []
@@ -134,6 +135,7 @@ def safety(
             progress.update(task, description=f"{case.name}: roll-outs")
             for b in built:
                 margins[b.method] = safe.margin_m(b.field)
+                backends[b.method] = safe.backend_on(b.field)
                 if b.method in (ESDF, SEMANTIC):
                     margins.update({f"{b.method}, {k}": c.margin_m(b.field) for k, c in extra_safe.items()})
             for pair in pairs:
@@ -160,7 +162,8 @@ def safety(
     methods_info = {m: dict(margin_m=margins[m],
                             barrier=(extra_safe[m.split(", ", 1)[1]] if m in counterpart else safe).barrier,
                             interpolation=(extra_safe[m.split(", ", 1)[1]] if m in counterpart else safe).interpolation,
-                            field=counterpart.get(m, m)) for m in (*METHODS, *extra_methods)}
+                            field=counterpart.get(m, m), backend=backends[counterpart.get(m, m)])
+                    for m in (*METHODS, *extra_methods)}
     groups = [g.name for g in risk.groups]
     t3 = {g: {"esdf": summarise(rollouts, mp_esdf, ESDF, g).as_dict(),
               "semantic": summarise(rollouts, mp_esdf, SEMANTIC, g).as_dict()} for g in groups}
@@ -173,7 +176,9 @@ def safety(
           f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), "",
           safety_table({**t2, **t_extra, **{f"{m} – {g}": {**t3[g][k], "margin_m": margins[m]} for g in groups
                                             for m, k in ((ESDF, "esdf"), (SEMANTIC, "semantic"))}}, n_pairs,
-                       barrier=safe.barrier), ""]
+                       barrier=safe.barrier), "",
+          "Filter backend per method (the computation time depends on it): "
+          + ", ".join(f"{m} `{backends[m]}`" for m in METHODS) + ".", ""]
     (out / "tables.md").write_text("\n".join(md))
     per_traj = [dict(pair=r.pair, scene=r.scene, method=r.method, group=r.group, progress=r.progress,
                      reached=r.reached,
