@@ -3,8 +3,9 @@
 #
 #   deploy/make-users.sh [-o DIR] [USER ...]
 #
-# DIR (default deploy/secrets) receives users.txt, the routers' dictionary (`user:password`
-# lines, transport/auth/usrpwd/dictionary_file), and USER.env per user with RISKFIELD_USER and
+# DIR (default deploy/secrets) receives users.txt, the server router's dictionary (`user:password`
+# lines, transport/auth/usrpwd/dictionary_file), ROBOT.users.txt, a robot router's (its own
+# identities' lines only), and USER.env per user with RISKFIELD_USER and
 # RISKFIELD_PASSWORD for that node's environment (compose env_file, systemd EnvironmentFile).
 # Existing users keep their password; new ones get 24 random URL-safe characters. Every file is
 # mode 0600: Zenoh's usrpwd needs the passwords themselves (it checks an HMAC of the stored one, so
@@ -45,4 +46,11 @@ for user in "${USERS[@]}"; do
   password=$(grep "^$user:" "$OUT/users.txt" | head -1 | cut -d: -f2-)
   printf 'RISKFIELD_USER=%s\nRISKFIELD_PASSWORD=%s\n' "$user" "$password" >"$OUT/$user.env"
   echo "make-users: $user ($OUT/$user.env)"
+done
+
+# A robot's router checks only that robot's identities (ROBOT.ROLE): ROBOT.users.txt holds just their
+# lines, so the fleet's other passwords never reach a robot (compose.secure.yml, robot/install.sh).
+for robot in $(printf '%s\n' "${USERS[@]}" | grep -F . | cut -d. -f1 | sort -u); do
+  awk -F: -v p="$robot." 'index($1, p) == 1' "$OUT/users.txt" >"$OUT/$robot.users.txt"
+  echo "make-users: $robot's router dictionary ($OUT/$robot.users.txt)"
 done

@@ -124,8 +124,11 @@ if [ -n "$SECRETS" ]; then
   install -m 644 "$SECRETS/certs/$ROBOT.router.pem" "$ETC/tls/router.pem"
   install -m 600 "$SECRETS/certs/$ROBOT.router.key" "$ETC/tls/router.key"
   # This robot's router checks only this robot's nodes: the fleet's other passwords stay off it.
-  (umask 077; awk -F: -v p="$ROBOT." 'index($1, p) == 1' "$SECRETS/users.txt" >"$ETC/users.txt")
-  chmod 600 "$ETC/users.txt"
+  [ -f "$SECRETS/$ROBOT.users.txt" ] || {
+    echo "install: $SECRETS/$ROBOT.users.txt is missing: run riskfield secrets --robot $ROBOT (keeps the passwords)" >&2
+    exit 2
+  }
+  install -m 600 "$SECRETS/$ROBOT.users.txt" "$ETC/users.txt"
   install -m 644 "$SECRETS/router-secure.json5" "$ETC/router.json5"
   {
     echo "RISKFIELD_ZENOH_CONFIG=$SYS_ETC/router.json5"

@@ -287,7 +287,8 @@ def deploy_dir() -> Path:
 
 
 def make_secrets(out: Path, robots: Sequence[str], prefix: str = "rf", certs: bool = True) -> list[Path]:
-    """Per-robot credentials in ``out``: ``users.txt`` (the routers' dictionary) and one
+    """Per-robot credentials in ``out``: ``users.txt`` (the server router's dictionary),
+    ``ROBOT.users.txt`` (a robot router's: that robot's identities only), one
     ``IDENTITY.env`` per identity (deploy/make-users.sh; both mode 0600, for the one service user
     that reads each), certificates in ``out/certs`` (deploy/make-certs.sh; keys 0600), and the
     routers' ``router-secure.json5`` for these robots. Existing passwords and the CA are kept."""
@@ -296,7 +297,7 @@ def make_secrets(out: Path, robots: Sequence[str], prefix: str = "rf", certs: bo
     out.mkdir(parents=True, exist_ok=True)
     subprocess.run(["bash", str(scripts / "make-users.sh"), "-o", str(out), *names], check=True,
                    capture_output=True, text=True, timeout=120)
-    made = [out / "users.txt", *(out / f"{n}.env" for n in names)]
+    made = [out / "users.txt", *(out / f"{r}.users.txt" for r in robots), *(out / f"{n}.env" for n in names)]
     for path in made:  # whatever umask the caller had: readable by the owner only
         path.chmod(0o600)
     if certs:

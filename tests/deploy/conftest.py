@@ -44,7 +44,8 @@ class Secrets:
         shutil.copy(self.tls / "ca.pem", site_dir / "tls" / "ca.pem")
         shutil.copy(self.tls / f"{name}.pem", site_dir / "tls" / "router.pem")
         shutil.copy(self.tls / f"{name}.key", site_dir / "tls" / "router.key")
-        shutil.copy(self.root / "users.txt", site_dir / "users.txt")
+        users = "users.txt" if site == "server" else f"{site}.users.txt"  # a robot's: its identities only
+        shutil.copy(self.root / users, site_dir / "users.txt")
         text = (self.root / "router-secure.json5").read_text()
         cfg = site_dir / "router.json5"
         cfg.write_text(text.replace("/etc/riskfield/", f"{site_dir}/"))

@@ -31,12 +31,12 @@ import pytest
 import zenoh
 
 from riskfield.protocol import Keys, RobotState, SafetyStatus, VelocityCommand
-from riskfield.protocol.keys import ROLES, ROUTES
+from riskfield.protocol.keys import ROLES
 from riskfield.services.runtime.acl import make_secrets
 from riskfield.services.runtime.processes import free_port
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
-from riskfield.testing import Collector, client_config, open_when_ready, wait_matched, wait_until
+from riskfield.testing import Collector, client_config, open_when_ready, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.docker]
 
@@ -353,17 +353,13 @@ def test_two_sites_robot_filter_drives_the_emulated_limo_and_brakes_when_cut_off
             _secure_client(certs, passwords, endpoint, user, cert).close()
 
 
-def _answered(session: zenoh.Session) -> bool:
-    return any(r.ok is not None for r in session.liveliness().get(KEYS.alive("operator"), timeout=2.0))
-
-
 @pytest.mark.timeout(3600)
 def test_another_robots_credentials_at_the_robot_site_put_nothing_on_this_robot(
         two_sites: tuple[Compose, Compose, int], deployment_secrets: tuple[Path, dict[str, str]]) -> None:
     """The robot site's containers as the deployment runs them (robot-router, robot-safety-filter,
-    limo on its emulator, linked to the server's): at the robot's router, each of limo2's robot-side
-    identities puts every key its role produces on limo1's keys, then on its own. limo1's side (an
-    operator there reads every key of limo1) receives none of the forged puts; limo2's own arrive."""
+    limo on its emulator, linked to the server's). The robot's router holds only limo1's passwords
+    (``limo1.users.txt``), so each of limo2's robot-side identities, with its valid certificate and
+    password, gets no session there and puts nothing; limo1's own identities do get one."""
     _, robot, _ = two_sites
     secrets, passwords = deployment_secrets
     certs = secrets / "certs"
@@ -373,37 +369,18 @@ def test_another_robots_credentials_at_the_robot_site_put_nothing_on_this_robot(
 
     def open_as(robot_id: str, role: str) -> zenoh.Session:
         who = f"{robot_id}.{role}"
-        return open_when_ready(lambda: _secure_client(certs, passwords, endpoint, who, who), 30)
+        return _secure_client(certs, passwords, endpoint, who, who)
 
-    victim, own = open_as(ROBOT, "operator"), open_as(OTHER, "operator")
-    token = victim.liveliness().declare_token(KEYS.alive("operator"))
+    victim = open_when_ready(lambda: open_as(ROBOT, "operator"), 30)  # the router is up and admits limo1
     try:
+        tried = 0
         for role, spec in ROLES.items():
-            produced = [k for k, r in ROUTES.items() if role in r.producers and "*" not in k]
-            if spec.site != "robot" or spec.service is None or not produced:
+            if spec.site != "robot" or spec.service is None:
                 continue
-            attacker = open_as(OTHER, role)
-            try:
-                forged = {k: Collector(victim, KEYS.key(k)) for k in produced}
-                real = {k: Collector(own, OTHER_KEYS.key(k)) for k in produced}
-                # The forged puts leave the attacker (it knows limo1's subscribers): the router refuses them.
-                assert all(wait_matched(attacker, KEYS.key(k)) for k in produced), role
-                assert all(wait_matched(attacker, OTHER_KEYS.key(k)) for k in produced), role
-                for k in produced:
-                    attacker.put(KEYS.key(k), b"forged")
-                    attacker.delete(KEYS.key(k))
-                for k in produced:
-                    attacker.put(OTHER_KEYS.key(k), b"real")
-                assert wait_until(lambda real=real: all(b"real" in c.items for c in real.values()), 30), role
-                # The router answers the attacker after judging its puts, then limo1's operator behind
-                # anything it forwarded to it.
-                assert wait_until(lambda a=attacker: _answered(a), 30) and wait_until(lambda: _answered(victim), 30)
-                assert {k: c.items.count(b"forged") for k, c in forged.items()} == dict.fromkeys(produced, 0), role
-                for c in (*forged.values(), *real.values()):
-                    c.close()
-            finally:
-                attacker.close()
+            with pytest.raises(zenoh.ZError):
+                open_as(OTHER, role).close()
+            open_as(ROBOT, role).close()
+            tried += 1
+        assert tried >= 3  # the limo bridge, the filter, the camera, the joystick ...
     finally:
-        token.undeclare()
         victim.close()
-        own.close()

@@ -499,6 +499,15 @@ def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
                 c.close()
 
 
+def test_a_robots_router_admits_only_its_own_robots_identities(secrets: Secrets, tmp_path: Path) -> None:
+    """A robot's router holds its own robot's passwords only (``ROBOT.users.txt``): another robot's
+    identity, with its valid certificate and password, gets no session there at all."""
+    with secure_router(secrets, tmp_path, ROBOT) as robot_site:
+        for role in ("safety-filter", "limo", "operator"):
+            assert not refused(secrets, robot_site, me(role), me(role)), role
+            assert refused(secrets, robot_site, me(role, OTHER), me(role, OTHER)), role
+
+
 @pytest.mark.slow  # a second router process and a 3 s absence window
 def test_robot_router_with_a_foreign_certificate_cannot_join(secrets: Secrets, server: str, tmp_path: Path) -> None:
     """A router whose certificate another CA signed is refused by the server's router."""
@@ -690,8 +699,11 @@ def test_riskfield_secrets_and_acl_commands(tmp_path: Path) -> None:
     assert runner.invoke(cli.app, args).exit_code == 0
     users = dict(line.split(":", 1) for line in (out / "users.txt").read_text().split())
     assert set(users) == set(identities(["r1", "r2"])) and len(set(users.values())) == len(users)
-    for path in (out / "users.txt", *out.glob("*.env")):
+    for path in (out / "users.txt", *out.glob("*.env"), *out.glob("*.users.txt")):
         assert path.stat().st_mode & 0o777 == 0o600, path
+    for robot in ("r1", "r2"):  # a robot router's dictionary: its own identities, none of the fleet's others
+        mine = dict(line.split(":", 1) for line in (out / f"{robot}.users.txt").read_text().split())
+        assert mine == {u: p for u, p in users.items() if u in identities([robot])}
     assert (out / "r2.limo.env").read_text() == f"RISKFIELD_USER=r2.limo\nRISKFIELD_PASSWORD={users['r2.limo']}\n"
     assert runner.invoke(cli.app, args).exit_code == 0  # again: the same passwords
     assert dict(line.split(":", 1) for line in (out / "users.txt").read_text().split()) == users

@@ -9,7 +9,7 @@ The vendor's int16 cast truncates towards zero (``int16_t steering_cmd = steerin
 the examples are chosen where that and rounding agree, except the steering field, which the bridge
 truncates as the vendor does.
 
-Each docstring says what the bridge sent before (``git show HEAD:edge/limo/kinematics.py``:
+Each docstring says what the bridge sent before (``git show 74fc933^:edge/limo/kinematics.py``:
 the central angle itself as the steering field, clamped to 0.488; ``bridge.py``: the 0x221
 angular field as the yaw rate, one enable frame for every mode) where that differs.
 """

@@ -21,21 +21,18 @@ import time
 
 import numpy as np
 import pytest
+import websockets.sync.client  # the dev extra has it (as foxglove): missing is a broken environment, not a skip
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.Grid_pb2 import Grid
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from hypothesis import given
 from hypothesis import strategies as st
 
-pytest.importorskip("foxglove")
-websockets = pytest.importorskip("websockets.sync.client")
-
-from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage  # noqa: E402
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform  # noqa: E402
-from foxglove_schemas_protobuf.Grid_pb2 import Grid  # noqa: E402
-from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud  # noqa: E402
-from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame  # noqa: E402
-from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion  # noqa: E402
-from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate  # noqa: E402
-
-from riskfield.protocol import (  # noqa: E402
+from riskfield.protocol import (
     EsdfGrid,
     Header,
     Image,
@@ -48,9 +45,9 @@ from riskfield.protocol import (  # noqa: E402
     VelocityCommand,
     ade20k,
 )
-from riskfield.services.recorder.live import LAYOUT, layout  # noqa: E402
-from riskfield.services.recorder.views import objects_view, robot_view  # noqa: E402
-from riskfield.testing import ServiceProcess, StatusWatch, client_session, put, wait_alive  # noqa: E402
+from riskfield.services.recorder.live import LAYOUT, layout
+from riskfield.services.recorder.views import objects_view, robot_view
+from riskfield.testing import ServiceProcess, StatusWatch, client_session, put, wait_alive
 
 PROTO = {c.DESCRIPTOR.full_name: c for c in (CompressedImage, FrameTransform, Grid, PointCloud, PoseInFrame,
                                               SceneUpdate)}
@@ -121,6 +118,29 @@ def test_the_shipped_layout_is_the_generated_one_and_names_the_live_topics():
     text = json.dumps(shipped)
     for topic in ("map/esdf", "perception/frame", "robot", "map/objects", "camera/image", "safety/status"):
         assert f"rf/limo1/{topic}" in text
+
+
+def test_the_demo_serves_foxglove_for_its_own_robot_and_says_where(tmp_path):
+    """``riskfield demo --foxglove``: the demo's router is on a free port and its robot is not limo1, so
+    the demo runs the foxglove service on its own router and writes the layout of its own robot."""
+    import io
+
+    from rich.console import Console
+
+    from riskfield.experiments.demo.run import Demo, DemoConfig
+
+    said = io.StringIO()
+    demo = Demo(DemoConfig(out=tmp_path, foxglove=True), console=Console(file=said, width=400))
+    runner = demo._runner()
+    try:
+        argv = runner.children["foxglove"].argv
+        assert argv[argv.index("--connect") + 1] == demo.endpoint and argv[argv.index("--robot") + 1] == "demo1"
+        assert "foxglove" not in Demo(DemoConfig(out=tmp_path), console=Console(file=io.StringIO()))._runner().children
+    finally:
+        runner.close()
+    demo._how_to_watch()
+    assert json.loads((tmp_path / "foxglove-layout.json").read_text()) == layout("rf/demo1")
+    assert f"riskfield view --connect {demo.endpoint} --robot demo1" in said.getvalue()
 
 
 def test_view_writes_the_layout_of_another_robot(tmp_path):
@@ -198,7 +218,7 @@ def test_node_serves_every_channel_to_a_websocket_client(router_endpoint: str):
             return {SceneUpdate.FromString(data).entities[0].texts[0].text
                     for _, data, _ in got.get(f"{keys.root}/robot", [])}
         try:
-            with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"],
+            with websockets.sync.client.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"],
                                     open_timeout=10) as ws:
                 assert ws.subprotocol == "foxglove.sdk.v1"
                 info = json.loads(ws.recv(timeout=10))

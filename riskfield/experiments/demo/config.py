@@ -10,6 +10,7 @@ from pathlib import Path
 class DemoConfig:
     out: Path = Path("out/demo")
     live: bool = False
+    foxglove: bool = False  # serve the stack live to Foxglove (the `foxglove` service) while it runs
     robot: str = "demo1"
     seed: int = 0
     teleop_push_s: float = 6.0

@@ -69,7 +69,21 @@ class Demo:
         runner.add("operator", "operator", [*common, *operator_args(TELEOP_TARGETS, c.seed, c.teleop_push_s)])
         if c.live:
             runner.add("viewer", "viewer", [*common, "--set", "live=true", "--set", f"out={out}"])
+        if c.foxglove:
+            runner.add("foxglove", "foxglove", common)
         return runner
+
+    def _how_to_watch(self) -> None:
+        """Where the running demo can be watched from: its router is on a free port, not 7447."""
+        c = self.cfg
+        self.console.print(f"router {self.endpoint}: watch with `riskfield view --connect {self.endpoint} "
+                           f"--robot {c.robot}` (add --foxglove for Foxglove)")
+        if c.foxglove:
+            from riskfield.services.recorder.live import layout
+
+            path = c.out / "foxglove-layout.json"
+            path.write_text(json.dumps(layout(self.keys.root), indent=2) + "\n")
+            self.console.print(f"Foxglove: open ws://127.0.0.1:8765 and import the layout {path} (robot {c.robot})")
 
     def run(self) -> int:
         c = self.cfg
@@ -83,6 +97,7 @@ class Demo:
         try:
             runner.start()
             self._mark("stack_started")
+            self._how_to_watch()
             with client_session(self.endpoint, timeout_s=30) as s:
                 ok = self._experiments(s, runner)
         finally:
