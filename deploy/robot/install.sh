@@ -147,6 +147,12 @@ if [ -n "$SECRETS" ]; then
     } >"$ETC/$s.env"
   done
 fi
+# The filter keeps the risk configuration in force (set over the wire) with its version across restarts,
+# in the unit's StateDirectory (/var/lib/riskfield, owned by the service user). Only the filter has
+# the setting: robot.env, which every node reads, must not name it.
+case " $SERVICES " in
+  *" safety-filter "*) echo "RISKFIELD_STATE_DIR=/var/lib/riskfield" >>"$ETC/safety-filter.env" ;;
+esac
 chmod 600 "$ETC"/*.env
 
 # -- units ----------------------------------------------------------------------------------

@@ -318,6 +318,19 @@ def test_the_robot_profile_is_the_same_nodes_in_compose_and_in_riskfield_up(stac
     assert 'SERVICES="camera limo joystick safety-filter"' in install
 
 
+def test_the_nodes_that_take_a_risk_configuration_keep_it_across_a_restart(stack: dict[str, Any]) -> None:
+    """Mapping and every safety filter keep the risk configuration in force (set over the wire) and
+    its version in a state_dir the container user owns (/opt/riskfield in the images): a restarted
+    container does not fall back to the defaults at version 0."""
+    takers = {n: s["command"] for n, s in _riskfield_services(stack).items() if s["command"][1] in
+              ("mapping", "safety-filter")}
+    assert set(takers) == {"mapping", "safety-filter", "robot-safety-filter"}
+    for name, command in takers.items():
+        assert "state_dir=/opt/riskfield/state" in command, name
+    for role in ("cpu", "robot"):
+        assert "install -d -o 10001 -g 10001 /opt/riskfield" in (REPO / "deploy" / f"Dockerfile.{role}").read_text()
+
+
 def test_images_build_from_dockerfiles_in_the_repository(stack: dict[str, Any]) -> None:
     for name, svc in _riskfield_services(stack).items():
         assert (REPO / svc["build"]["dockerfile"]).is_file(), name
@@ -371,7 +384,7 @@ def test_secure_overlay_puts_every_node_on_mutual_tls_with_its_own_identity(secu
                             capture_output=True, text=True, check=True).stdout
         assert cn.strip().endswith(f"CN = {user}") or cn.strip().endswith(f"CN={user}"), (name, cn)
         _check_riskfield_container(name, svc, monkeypatch)
-    filters = [s for s in secure_stack.values() if s.get("command", [""])[-1] == "safety-filter"]
+    filters = [s for s in secure_stack.values() if s.get("command", [])[:2] == ["run", "safety-filter"]]
     assert filters and all(s["environment"]["RISKFIELD_USER"] == "limo7.safety-filter" for s in filters)
 
 

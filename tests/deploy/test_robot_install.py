@@ -139,6 +139,9 @@ def test_install_stages_units_and_settings(tmp_path: Path) -> None:
     assert "dialout" in node["SupplementaryGroups"][0] and "input" in node["SupplementaryGroups"][0]
     env = Unit(tmp_path, "riskfield@.service", "safety-filter").environment()
     assert env["RISKFIELD_CONNECT"] == "tcp/127.0.0.1:7447" and env["RISKFIELD_ROBOT"] == "limo9"
+    # the filter keeps its risk configuration in the unit's state directory; no other node has the setting
+    assert env["RISKFIELD_STATE_DIR"] == "/var/lib/riskfield" and node["StateDirectory"] == ["riskfield"]
+    assert "RISKFIELD_STATE_DIR" not in Unit(tmp_path, "riskfield@.service", "limo").environment()
     renv = Unit(tmp_path, "riskfield-router.service").environment()
     assert renv["RISKFIELD_MODE"] == "router" and renv["RISKFIELD_CONNECT"] == "tcp/10.0.0.2:7447"
     assert renv["RISKFIELD_LISTEN"] == env["RISKFIELD_CONNECT"]
