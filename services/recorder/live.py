@@ -36,7 +36,7 @@ import json
 from pathlib import Path
 from typing import Any, ClassVar
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from riskfield.protocol import (
     EsdfGrid,
@@ -49,6 +49,7 @@ from riskfield.protocol import (
     VelocityCommand,
     to_map,
 )
+from riskfield.protocol.platforms import PlanarPlatform, platform
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
@@ -66,8 +67,23 @@ class FoxgloveSettings(NodeSettings):
     has no authentication, so only on a trusted network)."""
     port: int = Field(8765, ge=0, le=65535)
     """TCP port of the Foxglove WebSocket server (0: any free port, shown in the node's status as foxglove_port)."""
+    platform: str = "limo"
+    """The robot's description (protocol/platforms.py PLATFORMS): a wheeled platform's body rectangle is the
+    footprint drawn on {root}/robot, as the filter protects it."""
     robot_radius: float = Field(0.15, gt=0)
-    """Radius of the robot's footprint drawn on {root}/robot (m)."""
+    """Radius of the disc drawn on {root}/robot for a platform described as a point (point_mass, multicopter) (m)."""
+
+    @field_validator("platform")
+    @classmethod
+    def _known_platform(cls, name: str) -> str:
+        platform(name)  # an unknown name is a ValueError listing the known ones
+        return name
+
+    @property
+    def body(self) -> float | tuple[float, float]:
+        """What ``robot_view`` draws: the body rectangle (length, width) or the disc's radius."""
+        p = platform(self.platform)
+        return (p.length, p.width) if isinstance(p, PlanarPlatform) else self.robot_radius
     cloud_stride: int = Field(8, ge=1)
     """Pointmap decimation of the point cloud: every n-th pixel both ways."""
     jpeg_quality: int = Field(75, ge=1, le=95)
@@ -126,7 +142,7 @@ class FoxgloveLive:
 
     def on_state(self, m: RobotState) -> None:
         views = state_views(self.node.keys.state, f"{self.root}/tf", m)
-        views += robot_view(f"{self.root}/robot", m, self.s.robot_radius, self.status)
+        views += robot_view(f"{self.root}/robot", m, self.s.body, self.status)
         self.log(views, m.header.stamp_ns)
 
     def on_objects(self, m: TrackedObjects) -> None:

@@ -289,10 +289,26 @@ def objects_view(topic: str, m: TrackedObjects, groups: tuple[str, ...] = ("high
     return [_proto(topic, up)]
 
 
-def robot_view(topic: str, m: RobotState, radius: float, status: SafetyStatus | None = None) -> list[View]:
-    """The robot's footprint (a disc of ``radius`` at its pose) coloured by what the filter does:
-    green while it passes the command, amber while it intervenes, red while it brakes
-    (``fallback``), with the reason as text."""
+def _reason(status: SafetyStatus) -> str:
+    """Why the filter changes the command, beside h: what the status says of people and the map."""
+    why = [f"h = {status.h:.2f} m"]
+    if status.yielding:
+        why.append("yielding to someone moving")
+    if status.evading:
+        why.append("evading")
+    if status.speed_cap is not None:
+        why.append(f"speed cap {status.speed_cap:.2f} m/s")
+    if status.scale_uncertain:
+        why.append("map scale uncertain")
+    return ", ".join(why)
+
+
+def robot_view(topic: str, m: RobotState, body: float | tuple[float, float],
+               status: SafetyStatus | None = None) -> list[View]:
+    """The robot's footprint at its pose, coloured by what the filter does: green while it passes
+    the command, amber while it intervenes, red while it brakes (``fallback``), with the reason as
+    text. ``body``: the platform's (length, width) rectangle, or the radius of a disc for a robot
+    described as a point (``protocol.platforms``)."""
     up = SceneUpdate()
     e = up.entities.add(frame_id=m.header.frame_id or PARENT_FRAME, id="robot")
     _stamp(e.timestamp, m)
@@ -301,18 +317,24 @@ def robot_view(topic: str, m: RobotState, radius: float, status: SafetyStatus | 
     elif status.fallback:
         rgba, text = (0.9, 0.1, 0.1, 0.8), f"braking: {status.fallback}"
     elif status.intervening:
-        rgba, text = (0.95, 0.6, 0.1, 0.8), f"intervening (h = {status.h:.2f} m)"
+        rgba, text = (0.95, 0.6, 0.1, 0.8), f"intervening ({_reason(status)})"
     else:
-        rgba, text = (0.1, 0.8, 0.3, 0.7), f"passing (h = {status.h:.2f} m)"
+        rgba, text = (0.1, 0.8, 0.3, 0.7), f"passing ({_reason(status)})"
     e.metadata.add(key="safety", value=text)
-    c = e.cylinders.add()
+    if isinstance(body, tuple):
+        c = e.cubes.add()
+        c.size.x, c.size.y = body
+        reach = body[0] / 2
+    else:
+        c = e.cylinders.add()
+        c.size.x = c.size.y = 2 * body
+        c.bottom_scale = c.top_scale = 1.0
+        reach = body
     c.pose.position.x, c.pose.position.y, c.pose.position.z = m.position
     c.pose.orientation.x, c.pose.orientation.y, c.pose.orientation.z, c.pose.orientation.w = m.orientation
-    c.size.x = c.size.y = 2 * radius
     c.size.z = 0.05
-    c.bottom_scale = c.top_scale = 1.0
     _colour(c.color, rgba)
-    heading = e.arrows.add(shaft_length=radius, shaft_diameter=0.03, head_length=0.06, head_diameter=0.07)
+    heading = e.arrows.add(shaft_length=reach, shaft_diameter=0.03, head_length=0.06, head_diameter=0.07)
     heading.pose.position.x, heading.pose.position.y, heading.pose.position.z = m.position
     q = heading.pose.orientation
     q.x, q.y, q.z, q.w = m.orientation

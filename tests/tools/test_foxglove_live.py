@@ -93,23 +93,39 @@ def test_objects_view_replaces_every_entity_and_labels_each_object():
     assert not gone.entities and len(gone.deletions) == 1  # the last person left: the old ones go
 
 
-def test_robot_view_says_what_the_filter_does():
+def test_robot_view_says_what_the_filter_does_and_why():
     state = RobotState(position=(1, 2, 0), orientation=(0, 0, 0, 1), linear_velocity=(0, 0, 0),
                        angular_velocity=(0, 0, 0))
 
-    def text(status):
-        (view,) = robot_view("t/robot", state, 0.2, status)
+    def text(status, body=(0.322, 0.22)):
+        (view,) = robot_view("t/robot", state, body, status)
         e = SceneUpdate.FromString(view.data).entities[0]
-        assert e.cylinders[0].size.x == pytest.approx(0.4) and e.cylinders[0].pose.position.y == 2
-        return e.texts[0].text, (e.cylinders[0].color.r, e.cylinders[0].color.g)
+        shape = e.cubes[0] if isinstance(body, tuple) else e.cylinders[0]
+        assert shape.pose.position.y == 2
+        return e.texts[0].text, (shape.color.r, shape.color.g), (shape.size.x, shape.size.y)
 
     base = dict(h=0.3, risk_group=1, solve_us=1.0, esdf_age_ms=5.0)
     assert text(None)[0] == "no safety status"
-    passing, green = text(SafetyStatus(intervening=False, fallback=None, **base))
+    passing, green, size = text(SafetyStatus(intervening=False, fallback=None, **base))
     assert passing == "passing (h = 0.30 m)" and green[1] > green[0]
+    assert size == pytest.approx((0.322, 0.22))  # the LIMO's body, as the filter protects it
+    assert text(SafetyStatus(intervening=True, fallback=None, **base), 0.2)[2] == pytest.approx((0.4, 0.4))
     assert text(SafetyStatus(intervening=True, fallback=None, **base))[0] == "intervening (h = 0.30 m)"
-    braking, red = text(SafetyStatus(intervening=True, fallback="stale_map", **base))
+    why = SafetyStatus(intervening=True, fallback=None, yielding=True, speed_cap=0.25, scale_uncertain=True, **base)
+    assert text(why)[0] == ("intervening (h = 0.30 m, yielding to someone moving, speed cap 0.25 m/s, "
+                            "map scale uncertain)")
+    braking, red, _ = text(SafetyStatus(intervening=True, fallback="stale_map", **base))
     assert braking == "braking: stale_map" and red[0] > red[1]
+
+
+def test_the_live_view_draws_the_platforms_body():
+    from riskfield.protocol.platforms import LIMO
+    from riskfield.services.recorder.live import FoxgloveSettings
+
+    assert FoxgloveSettings().body == (LIMO.length, LIMO.width)
+    assert FoxgloveSettings(platform="multicopter", robot_radius=0.3).body == 0.3
+    with pytest.raises(ValueError, match="unknown platform 'limp'"):
+        FoxgloveSettings(platform="limp")
 
 
 def test_the_shipped_layout_is_the_generated_one_and_names_the_live_topics():
@@ -259,7 +275,7 @@ def test_node_serves_every_channel_to_a_websocket_client(router_endpoint: str):
     person = proto(keys.objects).entities[0]
     assert person.id == "object/3" and len(person.arrows) == 1
     robot = proto(f"{keys.root}/robot").entities[0]
-    assert robot.cylinders[0].pose.position.x == 0.5
+    assert robot.cubes[0].pose.position.x == 0.5 and robot.cubes[0].size.x == pytest.approx(0.322)  # the LIMO
     # the footprint says the newest status's reason (the first state may come before any status)
     assert robot_texts() <= {"no safety status", "braking: stale_map"}
     assert proto(f"{keys.root}/tf").child_frame_id == "base_link"
