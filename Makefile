@@ -4,6 +4,9 @@
 # compose tooling, iproute2, openssl and the dev extra too).
 .PHONY: setup setup-demo demo test check lint bench images
 
+# pytest-xdist workers for the tests not marked `slow` (each its own session router on a free port).
+CHECK_JOBS ?= 2
+
 setup:
 	@bash scripts/setup.sh test
 
@@ -14,17 +17,19 @@ setup-demo:
 demo: setup-demo
 	.venv/bin/riskfield demo --out out/demo
 
-# The test suite (what CI runs): everything, `slow` full-stack tests included.
-# pytest exits non-zero (5) when it collects nothing, so an empty run fails too.
+# The test suite (what CI runs): everything, in two runs. The tests not marked `slow` on CHECK_JOBS
+# pytest-xdist workers, then the `slow` full-stack tests one at a time (their wall-clock bounds are
+# for one test at a time). pytest exits non-zero (5) when a run collects nothing, so an empty run fails
+# too. --durations names the slowest tests, so a CI run that grows says where.
 test: setup
 	.venv/bin/ruff check .
-	.venv/bin/python -m pytest -q -p no:cacheprovider
+	.venv/bin/python -m pytest -q -p no:cacheprovider -m "not slow" -n $(CHECK_JOBS) --dist loadgroup
+	.venv/bin/python -m pytest -q -p no:cacheprovider -m slow --durations=15
 
 # The development loop: lint plus every test not marked `slow` (under 3 minutes here), on CHECK_JOBS
 # pytest-xdist workers (each its own session router on a free port; a module whose fixtures are costly
 # stays on one worker, pytest.mark.xdist_group). Not `make test`: the slow tests' wall-clock bounds are
 # for one test at a time.
-CHECK_JOBS ?= 2
 check: setup
 	.venv/bin/ruff check .
 	.venv/bin/python -m pytest -q -p no:cacheprovider -m "not slow" -n $(CHECK_JOBS) --dist loadgroup

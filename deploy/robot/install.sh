@@ -13,6 +13,8 @@
 #                       certs/ (ID.router and ID.SERVICE), ID.*.env, users.txt, router-secure.json5
 #   --limo-port DEV     LIMO serial port (default /dev/ttyTHS1)
 #   --camera DEV        camera source (default /dev/video0; a video file or image folder works too)
+#   --mavlink-url URL   the autopilot link (default udpin:127.0.0.1:14550: mavlink-router or a
+#                       companion link on this computer; a serial port works too, e.g. /dev/ttyACM0)
 #   --dry-run           bring-up: the LIMO bridge sends stop frames only and counts what it withheld
 #   --prefix DIR        installation folder (default /opt/riskfield)
 #   --root DIR          install below DIR instead of / (packaging, tests); implies --no-start
@@ -36,6 +38,7 @@ SECRETS=""
 LIMO_PORT=/dev/ttyTHS1
 CAMERA=/dev/video0
 DRY_RUN=false
+MAVLINK_URL=udpin:127.0.0.1:14550
 PREFIX=/opt/riskfield
 ROOT=""
 PIP=1
@@ -51,12 +54,13 @@ while [ $# -gt 0 ]; do
     --secrets) SECRETS="$(cd "${2:?}" && pwd)"; shift 2 ;;
     --limo-port) LIMO_PORT=${2:?}; shift 2 ;;
     --camera) CAMERA=${2:?}; shift 2 ;;
+    --mavlink-url) MAVLINK_URL=${2:?}; shift 2 ;;
     --dry-run) DRY_RUN=true; shift ;;
     --prefix) PREFIX=${2:?}; shift 2 ;;
     --root) ROOT="$(mkdir -p "${2:?}" && cd "$2" && pwd)"; START=0; shift 2 ;;
     --no-pip) PIP=0; shift ;;
     --no-start) START=0; shift ;;
-    -h|--help) sed -n '2,26p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,28p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) die "unknown option $1 (see --help)" ;;
   esac
 done
@@ -107,7 +111,7 @@ fi
   echo "RISKFIELD_LIMO_PORT=$LIMO_PORT"
   echo "RISKFIELD_CAMERA_SOURCE=$CAMERA"
   echo "RISKFIELD_DRY_RUN=$DRY_RUN"
-  echo "RISKFIELD_MAVLINK_URL=udpin:0.0.0.0:14550"
+  echo "RISKFIELD_MAVLINK_URL=$MAVLINK_URL"
 } >"$ETC/robot.env"
 # The router: serves the nodes here and dials the server's router.
 {

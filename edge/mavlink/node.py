@@ -1,7 +1,11 @@
 """``riskfield run mavlink``: ``cmd/safe`` → PX4/ArduPilot velocity setpoints; vehicle → ``state``.
 
-``url`` (env ``RISKFIELD_MAVLINK_URL``, default ``udpin:0.0.0.0:14550``) is a pymavlink
-connection string. The node polls the link every ``poll_s``, publishes ``RobotState`` in the
+``url`` (env ``RISKFIELD_MAVLINK_URL``, default ``udpin:127.0.0.1:14550``) is a pymavlink
+connection string. MAVLink 1/2 without signing authenticates nobody, and the vehicle state read here
+is what the safety filter trusts, so the default listens on loopback only (an autopilot on a serial
+port, or mavlink-router forwarding to it); a listener beyond loopback is announced at start.
+
+The node polls the link every ``poll_s``, publishes ``RobotState`` in the
 ENU map frame (see ``convert``) whenever a LOCAL_POSITION_NED or ATTITUDE arrives and both
 are fresh, and sends what the core's schedule asks for. It never arms or switches modes.
 """
@@ -18,10 +22,12 @@ from pymavlink import mavutil
 
 from riskfield.protocol import RobotState, VelocityCommand
 from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
+from riskfield.services.runtime.session import loopback
 
 from .bridge import Heartbeat, MavlinkBridge, MavlinkConfig, RequestInterval, SetpointOut
 
 MAV = mavutil.mavlink
+log = logging.getLogger(__name__)
 
 
 class MavlinkSettings(NodeSettings, MavlinkConfig):
@@ -30,7 +36,7 @@ class MavlinkSettings(NodeSettings, MavlinkConfig):
     model_config = SettingsConfigDict(populate_by_name=True)
     SERVICE: ClassVar[str] = "mavlink"
 
-    url: str = Field(default="udpin:0.0.0.0:14550", validation_alias="riskfield_mavlink_url",
+    url: str = Field(default="udpin:127.0.0.1:14550", validation_alias="riskfield_mavlink_url",
                      description="pymavlink connection string (env RISKFIELD_MAVLINK_URL)")
     baudrate: int = Field(default=115200, gt=0, description="for serial links")
     poll_s: float = Field(default=0.005, gt=0)
@@ -41,9 +47,27 @@ class MavlinkSettings(NodeSettings, MavlinkConfig):
     """MAVLink component id this bridge sends as."""
 
 
+def exposed_listener(url: str, published_on: str | None = None) -> str | None:
+    """The host:port a pymavlink ``udpin:``/``tcpin:`` listener (``udp:`` is udpin in pymavlink's
+    mavutil.mavlink_connection) accepts datagrams on from other hosts, or None (loopback, a serial
+    port, an outgoing link). In a container, ``published_on`` is the host address its port is
+    published on, as for the Zenoh listeners (runtime.session.exposed)."""
+    proto, _, rest = url.partition(":")
+    if proto not in ("udpin", "udp", "tcpin") or ":" not in rest:
+        return None
+    host = rest.rsplit(":", 1)[0]
+    if loopback(host) or (published_on is not None and loopback(published_on)):
+        return None
+    return rest
+
+
 class MavlinkNode:
     def __init__(self, node: Node, s: MavlinkSettings):
         self.node, self.s = node, s
+        if (where := exposed_listener(s.url, s.published_on)) is not None:
+            log.warning("MAVLink listener on %s beyond loopback: any host that reaches it can send the "
+                        "vehicle state the safety filter trusts (MAVLink is unauthenticated here); "
+                        "prefer udpin:127.0.0.1:PORT behind mavlink-router or a serial link", where)
         self.core = MavlinkBridge(s, t0=time.monotonic())  # the settings are a MavlinkConfig
         try:
             # autoreconnect: a USB/serial autopilot link is reopened after it drops (UDP needs nothing).

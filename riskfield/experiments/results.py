@@ -59,6 +59,7 @@ SECTIONS = (
     Section("crowd_core", "crowd --mode core", marker="crowd-core"),
     Section("scale", "scale", marker="scale"),
     Section("latency_camera", "latency --path camera"),
+    Section("latency_replay", "latency --path replay"),
     Section("mapping", "mapping"),
     Section("filter", "filter"),
     Section("link", "link"),

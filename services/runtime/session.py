@@ -133,7 +133,8 @@ class InsecureListen(ValueError):
 _ENCRYPTED = frozenset({"tls", "quic"})
 
 
-def _loopback(host: str) -> bool:
+def loopback(host: str) -> bool:
+    """Only this host reaches ``host`` (a loopback address or localhost; not a name or 0.0.0.0)."""
     host = host.strip("[]").split("%")[0]
     if host == "localhost":
         return True
@@ -160,7 +161,7 @@ def exposed(cfg: zenoh.Config, published_on: str | None = None) -> list[str]:
         if m is None or m["proto"] not in _HOST_PORT:
             continue  # unix sockets, serial lines: not on a network
         a = _HOST_PORT_ADDR.match(m["address"])
-        if a is not None and (_loopback(a["host"]) or (published_on is not None and _loopback(published_on))):
+        if a is not None and (loopback(a["host"]) or (published_on is not None and loopback(published_on))):
             continue
         if m["proto"] in _ENCRYPTED and users:
             continue

@@ -24,6 +24,7 @@ import yaml
 import zenoh
 
 from riskfield import cli
+from riskfield.edge.mavlink.node import exposed_listener
 from riskfield.services.runtime import SERVICES
 from riskfield.services.runtime.acl import make_secrets, router_config
 from riskfield.services.runtime.service import EXTRAS, ServiceUnavailable, build_settings, load_service
@@ -360,8 +361,10 @@ def test_hardware_bridges_get_their_devices(stack: dict[str, Any]) -> None:
     assert any(r.startswith("c 13:") for r in joystick["device_cgroup_rules"])
     mav = stack["mavlink"]
     port = mav["environment"]["RISKFIELD_MAVLINK_URL"].rsplit(":", 1)[1]
-    assert any(str(p).endswith(f"{port}/udp") or str(p) == f"{port}:{port}/udp" for p in mav["ports"]) or any(
-        isinstance(p, dict) and str(p.get("target")) == port and p.get("protocol") == "udp" for p in mav["ports"])
+    # Published on the host's loopback only (unauthenticated vehicle state), and the node knows it.
+    assert [str(p) for p in mav["ports"]] == [f"127.0.0.1:{port}:{port}/udp"], mav["ports"]
+    assert exposed_listener(mav["environment"]["RISKFIELD_MAVLINK_URL"],
+                            mav["environment"]["RISKFIELD_PUBLISHED_ON"]) is None
 
 
 # -- security overlay -----------------------------------------------------------------------------

@@ -159,6 +159,16 @@ def test_install_for_a_first_bring_up_runs_the_camera_and_a_dry_run_bridge(tmp_p
     assert Unit(tmp_path, "riskfield@.service", "limo").environment()["RISKFIELD_DRY_RUN"] == "false"
 
 
+def test_the_autopilot_link_listens_on_loopback_unless_told(tmp_path: Path) -> None:
+    """The vehicle state the filter trusts comes over unauthenticated MAVLink: by default only this
+    computer (mavlink-router, a companion link) can send it."""
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--services", "safety-filter mavlink")
+    assert Unit(tmp_path, "riskfield@.service", "mavlink").environment()[
+        "RISKFIELD_MAVLINK_URL"] == "udpin:127.0.0.1:14550"
+    install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--services", "mavlink", "--mavlink-url", "/dev/ttyACM0")
+    assert Unit(tmp_path, "riskfield@.service", "mavlink").environment()["RISKFIELD_MAVLINK_URL"] == "/dev/ttyACM0"
+
+
 @pytest.mark.parametrize("services", ["camera limo joystick safety-filter", "safety-filter mavlink"])
 def test_unit_commands_parse_with_the_real_cli(tmp_path: Path, services: str) -> None:
     install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--services", services)

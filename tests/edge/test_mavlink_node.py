@@ -89,3 +89,19 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
             assert wait_until(lambda: veh.setpoints()[-1][1].vx == 0 and veh.setpoints()[-1][1].yaw_rate == 0, 2.0)
         states.close()
         status.close()
+
+
+@pytest.mark.parametrize(("url", "published_on", "exposed"), [
+    ("udpin:127.0.0.1:14550", None, None),  # the default: mavlink-router on this computer
+    ("udpin:localhost:14550", None, None),
+    ("udpin:0.0.0.0:14550", None, "0.0.0.0:14550"),
+    ("udp:192.168.1.5:14550", None, "192.168.1.5:14550"),  # pymavlink's udp: listens too
+    ("tcpin:[::]:5760", None, "[::]:5760"),
+    ("udpin:0.0.0.0:14550", "127.0.0.1", None),  # a container published on the host's loopback
+    ("udpin:0.0.0.0:14550", "0.0.0.0", "0.0.0.0:14550"),
+    ("udpout:10.0.0.9:14550", None, None),  # dials out: accepts nothing unasked
+    ("/dev/ttyACM0", None, None),
+])
+def test_a_listener_beyond_loopback_is_named(url: str, published_on: str | None, exposed: str | None) -> None:
+    from riskfield.edge.mavlink.node import exposed_listener
+    assert exposed_listener(url, published_on) == exposed
