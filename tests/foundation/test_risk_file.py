@@ -74,6 +74,8 @@ def test_a_valid_file_may_omit_optional_keys(tmp_path):
     ("groups: [{name: high, labels: [person], marign: 0.3}]",
      "unknown key 'marign' in risk group 0; did you mean 'margin'"),
     ("grups: [{name: high}]", "unknown key 'grups' in the risk configuration; did you mean 'groups'"),
+    # a gain no platform can honour near contact (protocol.risk.MAX_GAIN)
+    ("groups: [{name: high, labels: [person], alpha: 1000}]", r"alpha(.|\n)*less than or equal to 20"),
 ])
 def test_bad_risk_files_raise_one_clear_error(tmp_path, text, words):
     path = tmp_path / "risk.yaml"
