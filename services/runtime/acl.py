@@ -113,6 +113,24 @@ def _rule(rid: str, flow: str, messages: list[str], key_exprs: list[str]) -> dic
     return {"id": rid, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": key_exprs}
 
 
+def _link_rules(rid: str, taken: tuple[list[str], list[str]], given: tuple[list[str], list[str]],
+                declare: list[str], own: list[str]) -> list[dict | None]:
+    """The rules of one link between the sites, for the subject ``rid``: ``taken`` (keys put, keys
+    queried) flows in, ``given`` flows out, and queries on either are answered the other way. The
+    robot's router and the server's router (per robot) are this with the two swapped."""
+    (puts_in, queries_in), (puts_out, queries_out) = taken, given
+    return [
+        _rule(f"{rid}/in", "ingress", PUT, puts_in),
+        _rule(f"{rid}/out", "egress", PUT, puts_out),
+        _rule(f"{rid}/serve-in", "ingress", ["declare_queryable", "reply"], queries_in),
+        _rule(f"{rid}/ask-in", "ingress", ["query"], queries_out),
+        _rule(f"{rid}/ask-out", "egress", ["query"], queries_in),
+        _rule(f"{rid}/answer-out", "egress", ["reply"], queries_out),
+        _rule(f"{rid}/declare-in", "ingress", declare, own),
+        _rule(f"{rid}/declare-out", "egress", declare, own),
+    ]
+
+
 def access_control(robots: Sequence[str], prefix: str = "rf") -> dict:
     """Zenoh's ``access_control`` section for ``robots`` under ``prefix``."""
     if not robots:
@@ -152,28 +170,11 @@ def access_control(robots: Sequence[str], prefix: str = "rf") -> dict:
         down, down_queries = _site_keys(keys, "server")
         router = identity(robot, "router")
         declare = [*DECLARATIONS, *DISCOVER]
-        robot_router_rules = add(
-            _rule(f"{router}/in", "ingress", PUT, up),
-            _rule(f"{router}/out", "egress", PUT, down),
-            _rule(f"{router}/serve-in", "ingress", ["declare_queryable", "reply"], up_queries),
-            _rule(f"{router}/ask-in", "ingress", ["query"], down_queries),
-            _rule(f"{router}/ask-out", "egress", ["query"], up_queries),
-            _rule(f"{router}/answer-out", "egress", ["reply"], down_queries),
-            _rule(f"{router}/declare-in", "ingress", declare, own),
-            _rule(f"{router}/declare-out", "egress", declare, own),
-        )
+        robot_router_rules = add(*_link_rules(router, (up, up_queries), (down, down_queries), declare, own))
         subjects.append({"id": router, "usernames": [router], "cert_common_names": [router]})
         policies.append({"id": router, "subjects": [router], "rules": robot_router_rules})
-        server_rules += add(
-            _rule(f"{SERVER_ROUTER}/{robot}/in", "ingress", PUT, down),
-            _rule(f"{SERVER_ROUTER}/{robot}/out", "egress", PUT, up),
-            _rule(f"{SERVER_ROUTER}/{robot}/serve-in", "ingress", ["declare_queryable", "reply"], down_queries),
-            _rule(f"{SERVER_ROUTER}/{robot}/ask-in", "ingress", ["query"], up_queries),
-            _rule(f"{SERVER_ROUTER}/{robot}/ask-out", "egress", ["query"], down_queries),
-            _rule(f"{SERVER_ROUTER}/{robot}/answer-out", "egress", ["reply"], up_queries),
-            _rule(f"{SERVER_ROUTER}/{robot}/declare-in", "ingress", declare, own),
-            _rule(f"{SERVER_ROUTER}/{robot}/declare-out", "egress", declare, own),
-        )
+        server_rules += add(*_link_rules(f"{SERVER_ROUTER}/{robot}", (down, down_queries), (up, up_queries),
+                                         declare, own))
     # Declarations and presence only, no data: any authenticated session is told who subscribes,
     # serves and is alive (DECLARATIONS), and may ask which robot services are alive. A session
     # without a role is answered that, in order after its refused messages, so that a refusal can
