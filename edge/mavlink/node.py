@@ -22,7 +22,7 @@ from pymavlink import mavutil
 
 from riskfield.protocol import RobotState, VelocityCommand
 from riskfield.services.runtime import Node, NodeSettings, ServiceSpec
-from riskfield.services.runtime.session import loopback
+from riskfield.services.runtime.session import only_this_host
 
 from .bridge import Heartbeat, MavlinkBridge, MavlinkConfig, RequestInterval, SetpointOut
 
@@ -55,10 +55,7 @@ def exposed_listener(url: str, published_on: str | None = None) -> str | None:
     proto, _, rest = url.partition(":")
     if proto not in ("udpin", "udp", "tcpin") or ":" not in rest:
         return None
-    host = rest.rsplit(":", 1)[0]
-    if loopback(host) or (published_on is not None and loopback(published_on)):
-        return None
-    return rest
+    return None if only_this_host(rest.rsplit(":", 1)[0], published_on) else rest
 
 
 class MavlinkNode:

@@ -144,6 +144,12 @@ def loopback(host: str) -> bool:
         return False  # a host name or an interface: reachable from elsewhere
 
 
+def only_this_host(host: str, published_on: str | None = None) -> bool:
+    """A listener on ``host`` is reached from this host only: ``host`` is loopback, or (in a
+    container) the host address its port is published on is."""
+    return loopback(host) or (published_on is not None and loopback(published_on))
+
+
 def exposed(cfg: zenoh.Config, published_on: str | None = None) -> list[str]:
     """The listen endpoints of ``cfg`` that others than this host reach without TLS and users: any
     host:port listener off loopback (``[::]`` and ``0.0.0.0`` included) unless it is a TLS/QUIC link
@@ -161,7 +167,7 @@ def exposed(cfg: zenoh.Config, published_on: str | None = None) -> list[str]:
         if m is None or m["proto"] not in _HOST_PORT:
             continue  # unix sockets, serial lines: not on a network
         a = _HOST_PORT_ADDR.match(m["address"])
-        if a is not None and (loopback(a["host"]) or (published_on is not None and loopback(published_on))):
+        if a is not None and only_this_host(a["host"], published_on):
             continue
         if m["proto"] in _ENCRYPTED and users:
             continue

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from riskfield.edge.mavlink.fake_vehicle import FakeVehicle, VehicleModel
+from riskfield.edge.mavlink.node import exposed_listener
 from riskfield.protocol import Keys, RobotState, VelocityCommand
 from riskfield.testing import (
     Collector,
@@ -103,5 +104,4 @@ def test_mavlink_node_with_a_fake_vehicle(router_endpoint: str, autopilot: str, 
     ("/dev/ttyACM0", None, None),
 ])
 def test_a_listener_beyond_loopback_is_named(url: str, published_on: str | None, exposed: str | None) -> None:
-    from riskfield.edge.mavlink.node import exposed_listener
     assert exposed_listener(url, published_on) == exposed
