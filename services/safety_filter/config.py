@@ -227,8 +227,8 @@ class MotionParams(BaseModel):
     object on a collision course is its own barrier row, with its own velocity, predicted from its
     observation to the instant the command takes effect; the rows of moving objects and of the
     groups that yield may slow and stop the robot, never push it. A track's velocity counts only
-    once it is fast, old and fresh enough (``motion``), so a noisy estimate of a standing person
-    adds nothing.
+    once it is fast, old and fresh enough and its recent observations agree (``motion``), so a
+    noisy estimate of a standing person adds nothing.
 
     The collision course (``model.object_course``): within ``collision_horizon_s`` the object,
     moving on with its velocity and uncertain by ``object_speed_sigma`` · t, comes inside its
@@ -250,6 +250,10 @@ class MotionParams(BaseModel):
     object_speed_cap: Pos = Field(default=2.5, description=(
         "m/s: tracked speeds are capped here (a person runs at most ~2.5 m/s indoors; a larger "
         "estimate is noise that would brake for nothing)"))
+    object_evidence: Annotated[int, Field(ge=1, le=10)] = Field(default=3, description=(
+        "observations of a track whose velocities must agree: a speed counts only as far as each of "
+        "them shows it along the newest direction (motion.TrackEvidence; 1: the newest alone). At the "
+        "map's 10 Hz, 3 costs a walker who turns 0.2 s before the new direction counts fully"))
     object_young_ms: NonNeg = Field(default=300.0, description=(
         "ms: a track younger than this counts with the fraction tracked_ms / object_young_ms of its velocity"))
     object_stale_ms: Pos = Field(default=500.0, description=(

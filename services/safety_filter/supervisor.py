@@ -55,7 +55,7 @@ from ..fields import DistanceField, EsdfField
 from .evade import Evader, FreeFloor
 from .filter import FilterResult, SafetyFilter
 from .freshness import MapFreshness
-from .motion import object_table
+from .motion import TrackEvidence, object_table
 from .scale_guard import ScaleGuard, ScaleGuardConfig
 from .state import FilterState
 
@@ -87,6 +87,7 @@ class FilterSupervisor:
         self.last: FilterResult | None = None
         self.counts: dict[str, int] = {}
         self._objects: tuple[TrackedObjects, float] | None = None
+        self._evidence = TrackEvidence(filt.config.object_evidence)
         #: the opt-in retreat (``evade``), and the floor the newest map says was seen free
         self.evader = Evader(filt.model, filt.config, filt.delta)
         self._floor: FreeFloor | None = None
@@ -122,6 +123,8 @@ class FilterSupervisor:
     def on_objects(self, msg: TrackedObjects | None, now: float) -> None:
         """The newest tracked objects (None: the last message was unusable; the static barrier)."""
         self._objects = None if msg is None else (msg, now)
+        if msg is not None:
+            self._evidence.observe(msg.objects, msg.header.stamp_ns)
 
     def objects(self, state: FilterState, now: float) -> np.ndarray | None:
         """The moving-object table for this step (predicted to the step's wall clock, or without one
@@ -144,7 +147,7 @@ class FilterSupervisor:
             return None
         self.motion = "ok"
         wall = self._wall_ns if self._wall_ns is not None else esdf
-        return object_table(msg.objects, self.filter.config, wall, stamp, state.position)
+        return object_table(msg.objects, self.filter.config, wall, stamp, state.position, evidence=self._evidence)
 
     def on_ref(self, msg: VelocityCommand, now: float) -> None:
         self._set("ref", msg, now)
