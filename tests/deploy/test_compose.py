@@ -28,7 +28,7 @@ from riskfield.edge.mavlink.node import exposed_listener
 from riskfield.services.runtime import SERVICES
 from riskfield.services.runtime.acl import make_secrets, router_config
 from riskfield.services.runtime.service import EXTRAS, ServiceUnavailable, build_settings, load_service
-from riskfield.services.runtime.session import exposed, zenoh_config
+from riskfield.services.runtime.session import exposed, only_this_host, zenoh_config
 from riskfield.services.runtime.settings import parse_overrides
 
 # One xdist worker runs the whole module (``make check``: ``--dist loadgroup``):
@@ -234,6 +234,43 @@ def test_zenohd_overlay_swaps_in_the_eclipse_zenoh_image_with_the_same_config(tm
         assert services[name]["ports"][0] == base[name]["ports"][0]
     cmd = services["robot-router"]["command"]
     assert cmd[cmd.index("-e") + 1] == ENV["RISKFIELD_SERVER"]
+
+
+def _zenohd_entrypoint(svc: dict[str, Any], env: dict[str, str], stand_in: Path) -> subprocess.CompletedProcess:
+    """The zenohd container's entrypoint as Compose hands it to the image's shell (``$$`` is a literal
+    ``$``), with ``stand_in`` for the image's /entrypoint.sh."""
+    argv = [a.replace("$$", "$") for a in svc["entrypoint"]]
+    assert argv[:2] == ["/bin/sh", "-c"] and argv[2].rstrip().endswith('exec /entrypoint.sh "$@"')
+    argv[2] = argv[2].replace("/entrypoint.sh", str(stand_in))
+    return subprocess.run(["sh", "-c", *argv[2:], *svc["command"]], capture_output=True, text=True, timeout=10,
+                          env={"PATH": os.environ["PATH"], **env})
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1", "127.3.0.1", "::1", "[::1]", "0.0.0.0", "::", "192.168.1.20",
+                                     "10.0.0.2"])  # a port's host address is an IP (Compose refuses a name)
+def test_zenohd_refuses_to_be_published_beyond_loopback_in_the_clear(address: str, tmp_path: Path) -> None:
+    """zenohd has no exposure check, so the overlay's entrypoint makes the one riskfield's router
+    makes (``only_this_host`` with ``RISKFIELD_PUBLISHED_ON``, the same address as the port's): it
+    refuses exactly where that check refuses, and starts anyway, loudly, with ``RISKFIELD_INSECURE``."""
+    wide = {"RISKFIELD_ROUTER_ADDRESS": address, "RISKFIELD_ROBOT_ROUTER_ADDRESS": address}
+    stand_in = tmp_path / "entrypoint.sh"
+    stand_in.write_text('#!/bin/sh\necho "zenohd $*"\n')
+    stand_in.chmod(0o755)
+    for insecure in ("false", "true"):
+        services = load([COMPOSE, REPO / "deploy" / "compose.zenohd.yml"],
+                        {**ENV, **wide, "RISKFIELD_INSECURE": insecure}, tmp_path)
+        for name in ROUTERS:
+            svc = services[name]
+            assert svc["environment"]["RISKFIELD_PUBLISHED_ON"] == address
+            proc = _zenohd_entrypoint(svc, svc["environment"], stand_in)
+            if only_this_host("[::]", svc["environment"]["RISKFIELD_PUBLISHED_ON"]):
+                assert proc.returncode == 0 and proc.stdout.startswith("zenohd -c "), (name, proc.stderr)
+                assert "INSECURE" not in proc.stderr
+            elif insecure == "false":
+                assert proc.returncode == 78 and "refused" in proc.stderr and not proc.stdout, (name, proc)
+            else:
+                assert proc.returncode == 0 and proc.stdout.startswith("zenohd -c "), (name, proc.stderr)
+                assert "INSECURE" in proc.stderr and address in proc.stderr
 
 
 def test_every_service_has_a_healthcheck_and_nodes_wait_for_a_healthy_router(stack: dict[str, Any]) -> None:
