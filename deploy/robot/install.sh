@@ -122,8 +122,11 @@ fi
   echo "RISKFIELD_ROBOT=$ROBOT"
 } >"$ETC/router.env"
 
+# A node's identity drop-in is this install's alone (a later install without --secrets has none).
+rm -f "$UNITS"/riskfield@*.service.d/identity.conf
 if [ -n "$SECRETS" ]; then
-  install -d -m 750 "$ETC/tls"
+  # Readable by every node's user: the certificates are public; the keys are 0600 inside.
+  install -d -m 755 "$ETC/tls"
   install -m 644 "$SECRETS/certs/ca.pem" "$ETC/tls/ca.pem"
   install -m 644 "$SECRETS/certs/$ROBOT.router.pem" "$ETC/tls/router.pem"
   install -m 600 "$SECRETS/certs/$ROBOT.router.key" "$ETC/tls/router.key"
@@ -145,17 +148,25 @@ if [ -n "$SECRETS" ]; then
       echo "# $s's identity $ROBOT.$s: its certificate and its user (protocol/keys.py ROUTES say what it may do)."
       echo "RISKFIELD_TLS_ROOT_CA=$SYS_ETC/tls/ca.pem"
       echo "RISKFIELD_TLS_CERT=$SYS_ETC/tls/$s.pem"
-      echo "RISKFIELD_TLS_KEY=$SYS_ETC/tls/$s.key"
       echo "RISKFIELD_TLS_MTLS=true"
       cat "$SECRETS/$ROBOT.$s.env"
     } >"$ETC/$s.env"
+    # The key stays root's; systemd hands this node alone a copy (riskfield@.service says why). Not in
+    # $s.env: an EnvironmentFile= would override the unit's Environment=.
+    install -d "$UNITS/riskfield@$s.service.d"
+    {
+      echo "# $s's TLS key, for this node only (deploy/robot/install.sh)."
+      echo "[Service]"
+      echo "LoadCredential=tls.key:$SYS_ETC/tls/$s.key"
+      echo "Environment=RISKFIELD_TLS_KEY=%d/tls.key"
+    } >"$UNITS/riskfield@$s.service.d/identity.conf"
   done
 fi
 # The filter keeps the risk configuration in force (set over the wire) with its version across restarts,
-# in the unit's StateDirectory (/var/lib/riskfield, owned by the service user). Only the filter has
+# in its unit's StateDirectory (/var/lib/riskfield/safety-filter, its user's alone). Only the filter has
 # the setting: robot.env, which every node reads, must not name it.
 case " $SERVICES " in
-  *" safety-filter "*) echo "RISKFIELD_STATE_DIR=/var/lib/riskfield" >>"$ETC/safety-filter.env" ;;
+  *" safety-filter "*) echo "RISKFIELD_STATE_DIR=/var/lib/riskfield/safety-filter" >>"$ETC/safety-filter.env" ;;
 esac
 chmod 600 "$ETC"/*.env
 
@@ -166,9 +177,11 @@ done
 
 echo "install: units in $UNITS, settings in $ETC (robot $ROBOT, server $SERVER, nodes: $SERVICES)"
 if [ "$START" = 1 ]; then
+  # The router's user; the nodes are users of their own (riskfield@.service: DynamicUser). Settings and
+  # node keys stay root's (systemd reads them); the router reads its own key and users itself.
   id riskfield >/dev/null 2>&1 || useradd --system --home-dir "$PREFIX" --shell /usr/sbin/nologin riskfield
   for g in dialout input video; do getent group "$g" >/dev/null || groupadd --system "$g"; done
-  chown -R riskfield "$ETC"
+  if [ -n "$SECRETS" ]; then chown riskfield "$ETC/users.txt" "$ETC/tls/router.key"; fi
   systemctl daemon-reload
   units=(riskfield-router.service)
   for s in $SERVICES; do units+=("riskfield@$s.service"); done

@@ -62,20 +62,39 @@ def unit_directives(path: Path) -> dict[str, list[str]]:
 
 
 class Unit:
-    """A staged unit run as systemd runs it; /etc/riskfield in file contents maps to the stage."""
+    """A staged unit run as systemd runs it; /etc/riskfield in file contents maps to the stage. Its
+    drop-ins (``UNIT.d/*.conf``, the template's and the instance's) add directives; ``LoadCredential=``
+    copies into the unit's credentials folder, which ``%d`` names (systemd.exec, "Credentials")."""
 
     def __init__(self, root: Path, unit: str, instance: str = ""):
         self.root = root
-        self.directives = unit_directives(root / "etc/systemd/system" / unit)
+        units = root / "etc/systemd/system"
+        self.directives = unit_directives(units / unit)
+        named = unit.replace("@.", f"@{instance}.") if instance else unit
+        for conf in sorted({*units.glob(f"{unit}.d/*.conf"), *units.glob(f"{named}.d/*.conf")}):
+            for key, values in unit_directives(conf).items():
+                self.directives.setdefault(key, []).extend(values)
         self.instance = instance
         self.proc: subprocess.Popen | None = None
-        self.log = tempfile.NamedTemporaryFile(prefix="rf-unit-", suffix=".log", delete=False)
+        self.log: tempfile._TemporaryFileWrapper | None = None  # made when it runs (__enter__)
+        # systemd's /run/credentials/UNIT, inside the stage (the test's tmp_path, removed with it)
+        self.credentials = root / "run/credentials" / named
+        self.credentials.mkdir(parents=True, exist_ok=True)
 
     def _staged(self, text: str) -> str:
-        return text.replace("/etc/riskfield", str(self.root / "etc/riskfield")).replace("%i", self.instance)
+        return (text.replace("/etc/riskfield", str(self.root / "etc/riskfield")).replace("%i", self.instance)
+                .replace("%d", str(self.credentials)))
 
     def environment(self) -> dict[str, str]:
+        """Environment= first, then each EnvironmentFile= over it (systemd's order); credentials loaded."""
+        for spec in self.directives.get("LoadCredential", []):
+            name, source = spec.split(":", 1)
+            shutil.copyfile(self._staged(source), self.credentials / name)
+            (self.credentials / name).chmod(0o400)
         env: dict[str, str] = {}
+        for spec in self.directives.get("Environment", []):
+            key, value = spec.split("=", 1)
+            env[key] = self._staged(value)
         for spec in self.directives["EnvironmentFile"]:
             optional = spec.startswith("-")
             path = Path(self._staged(spec.lstrip("-")))
@@ -95,13 +114,14 @@ class Unit:
 
     def __enter__(self) -> Unit:
         base = {k: v for k, v in os.environ.items() if not k.startswith("RISKFIELD_")}
+        self.log = tempfile.NamedTemporaryFile(prefix="rf-unit-", suffix=".log", delete=False)
         self.proc = subprocess.Popen(self.argv(), env={**base, "PYTHONUNBUFFERED": "1", **self.environment()},
                                      stdout=self.log, stderr=subprocess.STDOUT)
         return self
 
     @property
     def output(self) -> str:
-        return Path(self.log.name).read_text(errors="replace")
+        return "" if self.log is None else Path(self.log.name).read_text(errors="replace")
 
     def stop(self) -> int:
         """What `systemctl stop` does: SIGTERM, then wait (the node exits 0)."""
@@ -117,9 +137,10 @@ class Unit:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-        self.log.close()
-        with contextlib.suppress(OSError):
-            os.unlink(self.log.name)
+        if self.log is not None:
+            self.log.close()
+            with contextlib.suppress(OSError):
+                os.unlink(self.log.name)
 
 
 # -- the staged files ---------------------------------------------------------------------------
@@ -140,7 +161,10 @@ def test_install_stages_units_and_settings(tmp_path: Path) -> None:
     env = Unit(tmp_path, "riskfield@.service", "safety-filter").environment()
     assert env["RISKFIELD_CONNECT"] == "tcp/127.0.0.1:7447" and env["RISKFIELD_ROBOT"] == "limo9"
     # the filter keeps its risk configuration in the unit's state directory; no other node has the setting
-    assert env["RISKFIELD_STATE_DIR"] == "/var/lib/riskfield" and node["StateDirectory"] == ["riskfield"]
+    assert env["RISKFIELD_STATE_DIR"] == "/var/lib/riskfield/safety-filter"
+    assert node["StateDirectory"] == ["riskfield/%i"]
+    # every node a user of its own: no node reads another's password (environ) or key (credential)
+    assert node["DynamicUser"] == ["yes"] and node["User"] == ["riskfield-%i"] and router["User"] == ["riskfield"]
     assert "RISKFIELD_STATE_DIR" not in Unit(tmp_path, "riskfield@.service", "limo").environment()
     renv = Unit(tmp_path, "riskfield-router.service").environment()
     assert renv["RISKFIELD_MODE"] == "router" and renv["RISKFIELD_CONNECT"] == "tcp/10.0.0.2:7447"
@@ -169,6 +193,32 @@ def test_the_autopilot_link_listens_on_loopback_unless_told(tmp_path: Path) -> N
     assert Unit(tmp_path, "riskfield@.service", "mavlink").environment()["RISKFIELD_MAVLINK_URL"] == "/dev/ttyACM0"
 
 
+def test_each_node_gets_its_own_key_and_password_only(tmp_path: Path) -> None:
+    """--secrets: a node's settings name no key; its drop-in loads its own key alone as a credential
+    (systemd's copy for that unit), and its own password; the router's files are the router's.
+    Installed again without secrets, no node loads a key."""
+    deploy = tmp_path / "secrets"
+    make_secrets(deploy, ["limo3"])
+    services = ["limo", "joystick", "safety-filter"]
+    install(tmp_path / "root", "--server", "tls/10.0.0.2:7447", "--robot", "limo3", "--services",
+            " ".join(services), "--secrets", str(deploy))
+    root, etc = tmp_path / "root", tmp_path / "root/etc/riskfield"
+    assert not [f for f in etc.glob("*.env") if "TLS_KEY" in f.read_text()]
+    seen = {}
+    for s in services:
+        unit = Unit(root, "riskfield@.service", s)
+        assert unit.directives["LoadCredential"] == [f"tls.key:/etc/riskfield/tls/{s}.key"], s
+        env = unit.environment()
+        assert Path(env["RISKFIELD_TLS_KEY"]).read_bytes() == (etc / f"tls/{s}.key").read_bytes()
+        assert env["RISKFIELD_USER"] == f"limo3.{s}" and (etc / f"tls/{s}.key").stat().st_mode & 0o077 == 0
+        seen[s] = env["RISKFIELD_PASSWORD"]
+    assert len(set(seen.values())) == len(services)
+    assert (etc / "tls").stat().st_mode & 0o777 == 0o755  # the certificates are public, each key 0600
+    install(tmp_path / "root", "--server", "tcp/10.0.0.2:7447", "--robot", "limo3", "--services", " ".join(services))
+    assert not list((root / "etc/systemd/system").glob("riskfield@*.service.d/identity.conf"))
+    assert "LoadCredential" not in Unit(root, "riskfield@.service", "limo").directives
+
+
 @pytest.mark.parametrize("services", ["camera limo joystick safety-filter", "safety-filter mavlink"])
 def test_unit_commands_parse_with_the_real_cli(tmp_path: Path, services: str) -> None:
     install(tmp_path, "--server", "tcp/10.0.0.2:7447", "--services", services)
@@ -183,11 +233,16 @@ def test_unit_commands_parse_with_the_real_cli(tmp_path: Path, services: str) ->
 def test_systemd_accepts_the_units(tmp_path: Path) -> None:
     if shutil.which("systemd-analyze") is None:
         pytest.skip("systemd-analyze is not installed")
-    install(tmp_path, "--server", "tcp/10.0.0.2:7447")
-    proc = subprocess.run(["systemd-analyze", "verify", "--root", str(tmp_path),
+    make_secrets(tmp_path / "secrets", ["limo9"])  # the identity drop-ins too
+    install(tmp_path / "root", "--server", "tls/10.0.0.2:7447", "--robot", "limo9", "--secrets",
+            str(tmp_path / "secrets"))
+    proc = subprocess.run(["systemd-analyze", "verify", "--root", str(tmp_path / "root"),
                            "riskfield-router.service", "riskfield@safety-filter.service"],
                           capture_output=True, text=True, timeout=60)
     assert "Unknown" not in proc.stderr and "Invalid" not in proc.stderr, proc.stderr
+    assert "riskfield@safety-filter.service.d" in subprocess.run(
+        ["systemd-analyze", "cat-config", "--root", str(tmp_path / "root"),
+         "systemd/system/riskfield@safety-filter.service"], capture_output=True, text=True, timeout=60).stdout
 
 
 def test_install_refuses_bad_arguments(tmp_path: Path) -> None:
@@ -258,6 +313,10 @@ def test_installed_secure_units_link_to_a_secure_server(tmp_path: Path, secrets:
             staged_cfg.write_text(staged_cfg.read_text().replace("/etc/riskfield", str(root / "etc/riskfield")))
             env = Unit(root, "riskfield@.service", "relay").environment()
             assert env["RISKFIELD_TLS_MTLS"] == "true" and env["RISKFIELD_CONNECT"].startswith("tls/")
+            # its key reaches it as its own credential (the copy the relay node below reads)
+            key = Path(env["RISKFIELD_TLS_KEY"])
+            assert key.parent == root / "run/credentials/riskfield@relay.service"
+            assert key.read_bytes() == (root / "etc/riskfield/tls/relay.key").read_bytes()
             with Unit(root, "riskfield-router.service") as r, Unit(root, "riskfield@.service", "relay") as relay:
                 # An external planner's view from the server site (a role-less user may subscribe).
                 planner = f"{robot}.planner"
