@@ -24,7 +24,7 @@ Sources, and which value won where the copies disagreed:
   differential ω could reach 2·1.0/0.172 ≈ 11.6 rad/s). The bridge's 2.0 wins over the
   simulator's 2.5: it is what the real robot obeys, and the filter plans with 2.0 too.
 * camera mount 0.15 m forward, 0.1 m up, looking ahead (``CameraMount``): the simulator's LIMO
-  camera (``services/simulator/camera.py``); no datasheet gives the real unit's, so a bring-up
+  camera (scenarios default to this one); no datasheet gives the real unit's, so a bring-up
   measures it (docs/deployment.md) and sets ``camera`` in the platform description.
 * acceleration 1.5 m/s², yaw acceleration 6 rad/s²: no datasheet figure either; the simulator's
   gentle first-order actuator for a 4.2 kg robot. A real unit should be measured. The filter's
@@ -81,8 +81,9 @@ def min_turning_radius(wheelbase: float, track: float, max_inner: float) -> floa
 class CameraMount(BaseModel):
     """Where the camera sits on the robot (REP 105's ``base_link``: x forward, y left, z up): the
     optical centre's position and the optical axis's roll, pitch (> 0 looks down) and yaw. Perception
-    poses the camera in the odometry frame as ``T_odom_base · T_base_camera`` with it, and its height
-    above the floor scales SLAM's world before the robot has moved."""
+    poses the camera in the odometry frame as ``T_odom_base · T_base_camera`` with it (the simulator
+    renders from the same pose; ``services/geometry/camera.T_base_camera``), and its height above the
+    floor scales SLAM's world before the robot has moved."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from riskfield.protocol.platforms import LIMO
 from riskfield.services.safety_filter.config import LIMO_LENGTH, LIMO_WIDTH
 
 #: m/s: the nearest body point must move towards the person faster than this for an at-fault contact
@@ -184,7 +185,7 @@ def ghost_time(t: np.ndarray, ratio: np.ndarray, valid: np.ndarray, relevant_mas
 
 
 def in_view(robot_xy: np.ndarray, yaw: np.ndarray, centres: np.ndarray, radius: float = 0.0,
-            hfov_deg: float = 90.0, camera_x: float = 0.15, max_range: float = 8.0) -> np.ndarray:
+            hfov_deg: float = 90.0, camera_x: float = LIMO.camera.position[0], max_range: float = 8.0) -> np.ndarray:
     """Per sample: the person's centre is inside the camera's horizontal field of view (shrunk by
     the angle the person's ``radius`` subtends, so the whole width is seen) and within range."""
     q = body_frame(robot_xy, yaw, centres) - (camera_x, 0.0)

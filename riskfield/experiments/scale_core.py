@@ -48,11 +48,11 @@ from riskfield.protocol import RobotState, VelocityCommand, ade20k
 from riskfield.protocol.messages import Header
 from riskfield.protocol.platforms import LIMO
 from riskfield.services.fields import AnalyticField
+from riskfield.services.geometry.camera import T_base_camera
 from riskfield.services.geometry.shapes import Plane
 from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.perception.alignment import AlignerConfig, FrameAligner, Similarity, align_frame
 from riskfield.services.perception.degrade import DegradationConfig, Degrader, OdometrySlip, SlamErrorConfig, SlamWorld
-from riskfield.services.perception.rgbd_backend import T_base_camera
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.scale_guard import ScaleGuardConfig
@@ -119,7 +119,7 @@ def run(scale: float, distance: float, mode: str = "aligned", seed: int = 0, dri
     """One closed-loop run (module doc); its metrics."""
     wall0 = time.perf_counter()
     dt = 1.0 / RATE_HZ
-    T_BC = T_base_camera(LIMO.camera.position, LIMO.camera.rpy_deg)
+    T_BC = T_base_camera(LIMO.camera)
     wall_x = float(T_BC[0, 3] + distance)
     cam = Camera.default()
     errors = SlamErrorConfig.bench(scale) if drift else SlamErrorConfig(scale)

@@ -199,8 +199,9 @@ CROWD_START = (-4.5, 0.0, 0.0)
 CROWD_V_REF = 0.5
 CROWD_KINDS = ("crossing", "head_on", "overtaking", "stop_and_turn")
 CROWD_SPEEDS = (0.8, 1.5)
-#: the camera's horizontal field of view (deg) and its position ahead of the body centre (m)
-CROWD_HFOV_DEG, CROWD_CAMERA_X = 90.0, 0.15
+#: the camera's horizontal field of view (deg) and its position ahead of the body centre (m): ``CROWD_ROOM``
+#: leaves the mount to the scenario's default, the LIMO's
+CROWD_HFOV_DEG, CROWD_CAMERA_X = 90.0, LIMO.camera.position[0]
 #: how far off the camera's axis (deg) a walker is placed while it must be seen: inside the view
 #: with room for the person's width and the robot's swerves
 _IN_VIEW_BEARING_DEG = 35.0

@@ -11,6 +11,10 @@ direction makes a hit distance equal to the **depth** z, and the pointmap is ``d
 :meth:`PinholeCamera.unit_rays` gives the normalised directions for casts that want metric ranges.
 
 The default image is 512×384 — what MASt3R-SLAM works at (a 640×480 frame resized and cropped).
+
+Where the camera sits on the robot is the platform description's ``CameraMount``
+(``protocol.platforms``; the LIMO's is ``LIMO.camera``); :func:`T_base_camera` turns one into the
+optical frame's pose in ``base_link``, for the simulator's renders and perception's odometry alike.
 """
 
 from __future__ import annotations
@@ -19,6 +23,24 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from riskfield.protocol.platforms import CameraMount
+
+from .transforms import euler_zyx_matrix
+
+#: Base (x forward, y left, z up) ← optical (x right, y down, z forward), looking straight ahead.
+R_BASE_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def T_base_camera(mount: CameraMount) -> np.ndarray:
+    """4x4 optical → base_link: ``[R_z(yaw)·R_y(pitch)·R_x(roll)·R_BASE_OPTICAL | position]``.
+
+    The angles turn the optical axis in base_link, so pitch > 0 (about base y, which points left)
+    tilts it towards the floor."""
+    T = np.eye(4)
+    T[:3, :3] = euler_zyx_matrix(*(math.radians(a) for a in mount.rpy_deg)) @ R_BASE_OPTICAL
+    T[:3, 3] = mount.position
+    return T
 
 
 @dataclass(frozen=True)

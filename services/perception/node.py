@@ -22,8 +22,9 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
 
 from riskfield.protocol import DepthImage, Image, Keys, PerceptionFrame, RobotState, ade20k
-from riskfield.protocol.platforms import LIMO
+from riskfield.protocol.platforms import LIMO, CameraMount
 
+from ..geometry.camera import T_base_camera
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec, ServiceUnavailable
 from ..runtime.settings import NodeSettings
@@ -153,6 +154,12 @@ class PerceptionSettings(NodeSettings):
             raise ValueError(exc.args[0]) from None
         return v
 
+    def camera_mount(self) -> CameraMount:
+        """The calibrated extrinsic (``camera_position``, ``camera_rpy_deg``), measured as well as the
+        platform's (``LIMO.camera.height_sigma``)."""
+        return CameraMount(position=self.camera_position, rpy_deg=self.camera_rpy_deg,
+                           height_sigma=LIMO.camera.height_sigma)
+
 
 def decode_image(image: Image) -> Image:
     """An ``rgb8`` image; JPEG is decoded with Pillow (a matplotlib dependency). The header and the
@@ -184,10 +191,10 @@ def build_backend(s: PerceptionSettings) -> PerceptionBackend:
 
         if labeller is None:
             raise MissingBackend("geometry=mast3r needs labels=efficientvit (a real camera has no ground truth)")
-        from .rgbd_backend import Odometry, T_base_camera
+        from .rgbd_backend import Odometry
 
         c_conf = C_CONF if s.confidence_threshold is None else s.confidence_threshold
-        odometry, T_BC = Odometry(), T_base_camera(s.camera_position, s.camera_rpy_deg)
+        odometry, T_BC = Odometry(), T_base_camera(s.camera_mount())
 
         def anchor(stamp_ns: int) -> np.ndarray:
             # SLAM's world is its first camera: put it where odometry says the camera was (the
@@ -205,8 +212,8 @@ def build_backend(s: PerceptionSettings) -> PerceptionBackend:
     if s.geometry == "rgbd":
         from .rgbd_backend import RgbdBackend, RgbdConfig
 
-        return RgbdBackend(RgbdConfig(s.camera_position, s.camera_rpy_deg, ade20k.index(s.rgbd_label),
-                                      max_depth=s.rgbd_max_depth), labeller)
+        return RgbdBackend(RgbdConfig(s.camera_mount(), ade20k.index(s.rgbd_label), max_depth=s.rgbd_max_depth),
+                           labeller)
     deg = DegradationConfig(s.noise_a, s.noise_b, s.c_gain, s.z_scale, s.boundary_px, s.p_boundary, s.p_confuse,
                             s.p_salt, s.drift_t, s.drift_yaw)
     return SimBackend(SimBackendConfig(deg, s.publish, s.kf_min_overlap, s.kf_max_translation, s.kf_max_rotation_deg,
@@ -221,10 +228,9 @@ def build_aligner(s: PerceptionSettings) -> FrameAligner | None:
     """The SLAM → odometry aligner the settings ask for (``align``), or None."""
     if not (s.align if s.align is not None else s.geometry == "mast3r"):
         return None
-    from .rgbd_backend import T_base_camera
-
     slip = OdometrySlip(s.odom_slip) if s.geometry == "sim" and s.odom_slip > 0 else None
-    return FrameAligner(T_base_camera(s.camera_position, s.camera_rpy_deg), LIMO.camera.height_sigma,
+    mount = s.camera_mount()
+    return FrameAligner(T_base_camera(mount), mount.height_sigma,
                         AlignerConfig(window_m=s.align_window_m, converged_sigma=s.align_converged_sigma),
                         odometry_view=slip)
 

@@ -7,10 +7,11 @@ pointmap by back-projection through its pinhole intrinsics,
     X(u, v) = z(u, v) · ((u − c_x)/f_x, (v − c_y)/f_y, 1),
 
 posed by odometry: ``T_WC = T_WB(t) · T_BC``, with ``T_WB`` the ``state`` nearest in time to the
-image and ``T_BC`` the camera extrinsic (settings: position in the base frame, roll / pitch / yaw
-of the optical axis; pitch > 0 looks down). Labels come from a ``Labeller`` (EfficientViT) when one
-is installed, otherwise every pixel gets one configurable class, so the geometry still protects
-at that class's margin. Confidence is ``confidence`` where the depth is in (0, ``max_depth``], else 0.
+image and ``T_BC`` the camera extrinsic (``geometry.camera.T_base_camera`` of a ``CameraMount``, from
+the node's settings: position in the base frame, roll / pitch / yaw of the optical axis; pitch > 0
+looks down). Labels come from a ``Labeller`` (EfficientViT) when one is installed, otherwise every
+pixel gets one configurable class, so the geometry still protects at that class's margin. Confidence
+is ``confidence`` where the depth is in (0, ``max_depth``], else 0.
 
 Every frame is an independent measurement: messages carry no ``kind`` and the mapper integrates
 each one as it comes (there are no keyframes to correct).
@@ -18,7 +19,6 @@ each one as it comes (there are no keyframes to correct).
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -26,22 +26,11 @@ import numpy as np
 
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState
 from riskfield.protocol.messages import Header
+from riskfield.protocol.platforms import LIMO, CameraMount
 
-from ..geometry.camera import PinholeCamera
-from ..geometry.transforms import euler_zyx_matrix, quat_to_matrix
+from ..geometry.camera import PinholeCamera, T_base_camera
+from ..geometry.transforms import quat_to_matrix
 from .backend import Labeller, image_rgb
-
-#: Base (x forward, y left, z up) ← optical (x right, y down, z forward), looking straight ahead.
-R_BASE_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-def T_base_camera(position: tuple[float, float, float] = (0.15, 0.0, 0.1),
-                  rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
-    """Camera (optical) → base: ``[R_z(yaw)·R_y(pitch)·R_x(roll)·R_base_optical | position]``."""
-    T = np.eye(4)
-    T[:3, :3] = euler_zyx_matrix(*(math.radians(a) for a in rpy_deg)) @ R_BASE_OPTICAL
-    T[:3, 3] = position
-    return T
 
 
 def state_pose(state: RobotState) -> np.ndarray:
@@ -60,8 +49,7 @@ def back_project(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) 
 
 @dataclass(frozen=True)
 class RgbdConfig:
-    camera_position: tuple[float, float, float] = (0.15, 0.0, 0.1)
-    camera_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera: CameraMount = LIMO.camera  # the node passes its calibration (camera_position, camera_rpy_deg)
     label: int = 0  # ADE20K index for every pixel when there is no labeller ("wall")
     confidence: float = 1.0
     max_depth: float = 6.0
@@ -96,7 +84,7 @@ class RgbdBackend:
     def __init__(self, config: RgbdConfig | None = None, labeller: Labeller | None = None):
         self.config = config or RgbdConfig()
         self.labeller = labeller
-        self.T_BC = T_base_camera(self.config.camera_position, self.config.camera_rpy_deg)
+        self.T_BC = T_base_camera(self.config.camera)
         self.odometry = Odometry(self.config.max_state_age_s)
         self.frames = 0
 

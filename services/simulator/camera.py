@@ -1,12 +1,13 @@
-"""The simulated forward RGB camera: its mounting on the robot, and a renderer that ray-casts the
-scene into RGB, depth, a camera-frame pointmap and ground-truth labels.
+"""The simulated forward RGB camera: a renderer that ray-casts the scene into RGB, depth, a
+camera-frame pointmap and ground-truth labels.
 
 The pinhole model and its conventions (OpenCV; the pointmap is ``depth · ray``) are
-``riskfield.services.geometry.camera.PinholeCamera``.
+``riskfield.services.geometry.camera.PinholeCamera``; where the camera sits on the robot is the
+scenario's mount (``scenario.CameraSpec.camera_mount``, the LIMO's ``protocol.platforms.LIMO.camera``
+unless the scenario says otherwise), posed by ``geometry.camera.T_base_camera``.
 
 The default image is 512×384 — what MASt3R-SLAM works at (a 640×480 frame resized and cropped)
-— with a 90° horizontal field of view, mounted 0.15 m forward of and 0.1 m above the robot's base
-frame, looking along the robot's heading.
+— with a 90° horizontal field of view.
 
 RGB is the class colour times Lambert shading by the surface normal (a head-light term, so every
 visible surface is lit, plus a sky-light term from above): enough texture for a segmentation
@@ -16,38 +17,15 @@ network to separate classes and for a human to read the image.
 from __future__ import annotations
 
 import colorsys
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from riskfield.protocol import ade20k
 
 from ..geometry.camera import PinholeCamera
 from .kernels import HAVE_NUMBA
 from .scene import NO_LABEL, Snapshot
-
-#: Body (x forward, y left, z up) ← camera (x right, y down, z forward), looking straight ahead.
-R_BODY_CAMERA = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-@dataclass(frozen=True)
-class CameraMount:
-    """Where the camera sits on the robot: offset in the body frame and a downward pitch."""
-
-    x: float = 0.15
-    y: float = 0.0
-    z: float = 0.1
-    pitch_deg: float = 0.0  # > 0 tilts the optical axis towards the floor
-
-    def T_body_camera(self) -> np.ndarray:
-        """4x4 camera → body."""
-        T = np.eye(4)
-        # Pitching down turns the optical axis (+z) towards +y (down) of the camera: −pitch about x.
-        T[:3, :3] = R_BODY_CAMERA @ Rotation.from_euler("x", -math.radians(self.pitch_deg)).as_matrix()
-        T[:3, 3] = (self.x, self.y, self.z)
-        return T
 
 
 def _palette() -> np.ndarray:

@@ -41,11 +41,11 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from riskfield.protocol import ade20k
+from riskfield.protocol.platforms import LIMO, CameraMount
 
 from ..geometry.camera import PinholeCamera
 from ..geometry.transforms import pose_matrix
 from . import procedural
-from .camera import CameraMount
 from .mesh_io import load_labelled_ply
 from .robots import resolve_robot_type
 from .scene import LIFT, Motion, Scene, SceneObject
@@ -135,10 +135,15 @@ class ObjectSpec(_Model):
 
 
 class MountSpec(_Model):
-    x: float = 0.15
-    y: float = 0.0
-    z: float = 0.1
-    pitch_deg: float = Field(0.0, ge=-89, le=89)
+    """The scenario file's camera mount: the optical centre in the robot's base frame (m) and a pitch
+    (degrees, > 0 looks down). What a scenario leaves out is the LIMO's (``LIMO.camera``), so the
+    simulated camera sits where perception's default extrinsic says it does."""
+
+    # The file has no roll or yaw: a forward camera on a ground robot only tilts.
+    x: float = LIMO.camera.position[0]
+    y: float = LIMO.camera.position[1]
+    z: float = LIMO.camera.position[2]
+    pitch_deg: float = Field(LIMO.camera.rpy_deg[1], ge=-89, le=89)
 
 
 class CameraSpec(_Model):
@@ -157,7 +162,9 @@ class CameraSpec(_Model):
                              base.cx if self.cx is None else self.cx, base.cy if self.cy is None else self.cy)
 
     def camera_mount(self) -> CameraMount:
-        return CameraMount(self.mount.x, self.mount.y, self.mount.z, self.mount.pitch_deg)
+        """The mount as the platform description spells it (``geometry.camera.T_base_camera`` poses it)."""
+        m = self.mount
+        return CameraMount(position=(m.x, m.y, m.z), rpy_deg=(0.0, m.pitch_deg, 0.0))
 
 
 class RobotSpec(_Model):

@@ -14,6 +14,7 @@ import numpy as np
 
 from riskfield.protocol import SimActor, ade20k
 
+from ..geometry.camera import T_base_camera
 from .camera import Render, Renderer
 from .robots import KinematicState, Robot, make_robot
 from .scenario import ObjectSpec, Scenario, build_scene, load_scenario, object_from_spec
@@ -33,7 +34,7 @@ class World:
         self.robot: Robot = make_robot(r.type, r.start, r.z, **dict(r.params))
         self.camera = self.scenario.camera.pinhole()
         self.renderer = Renderer(self.camera)
-        self.T_body_camera = self.scenario.camera.camera_mount().T_body_camera()
+        self.T_BC = T_base_camera(self.scenario.camera.camera_mount())
         self.physics_dt = physics_dt
         self.watchdog_s = watchdog_s
         self.t = 0.0
@@ -89,7 +90,7 @@ class World:
 
     def T_WC(self) -> np.ndarray:
         """Camera → world now."""
-        return self.robot.pose() @ self.T_body_camera
+        return self.robot.pose() @ self.T_BC
 
     def snapshot(self) -> Snapshot:
         return self.scene.at(self.t)

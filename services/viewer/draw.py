@@ -22,10 +22,6 @@ from riskfield.protocol.ade20k import CLASSES
 
 GROUP_TINT = {"high": (230, 40, 40), "mid": (245, 150, 30), "low": (150, 150, 150)}
 
-#: A camera looking along the robot's x axis: optical x (right) = −y, y (down) = −z, z (ahead) = x.
-R_ROBOT_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
 def label_palette(n: int = 65536) -> np.ndarray:
     """A deterministic, well-spread RGB colour per label (golden-ratio hues)."""
     i = np.arange(min(n, 65536))

@@ -47,12 +47,13 @@ from riskfield.protocol import (
     TrackedObjects,
     VelocityCommand,
 )
+from riskfield.protocol.platforms import LIMO, CameraMount
 
+from ..geometry.camera import T_base_camera
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
 from .draw import (
-    R_ROBOT_OPTICAL,
     OnChange,
     ade20k_classes,
     camera_in_robot,
@@ -82,7 +83,7 @@ class ViewerSettings(NodeSettings):
     camera_period_s: float = Field(0.5, ge=0, description="draw at most one camera image per this period (s), "
                                    "JPEG-compressed, so that view.rrd stays small")
     camera_mount: tuple[float, float, float] = Field(
-        (0.15, 0.0, 0.1), description="camera position in the robot frame until a pointmap gives its pose (m)")
+        LIMO.camera.position, description="camera position in the robot frame until a pointmap gives its pose (m)")
 
 
 class RerunView:
@@ -114,8 +115,7 @@ class RerunView:
         self.stream.log("world/pointmap", rr.AnnotationContext(ade20k_classes()), static=True)
         self.stream.log("world/robot/footprint", rr.LineStrips3D([footprint(s.robot_radius)], colors=[40, 120, 230]),
                         static=True)
-        mount = np.eye(4)
-        mount[:3, :3], mount[:3, 3] = R_ROBOT_OPTICAL, s.camera_mount
+        mount = T_base_camera(CameraMount(position=s.camera_mount, rpy_deg=LIMO.camera.rpy_deg))
         self.T_RC = mount
         self.T_WR: np.ndarray | None = None
         self.intrinsics: tuple[float, float, float, float, int] | None = None  # fx, fy, cx, cy, width they hold for

@@ -221,15 +221,17 @@ def test_a_person_crossing_in_simulator_truth_frames_stays_in_the_map(integratio
     Weighting a voxel's surface observation by one pixel's confidence (not by the pixels it
     covers, as the ray integrators' rays do) showed them in ~15 % of the maps projectively."""
     pytest.importorskip("open3d")
+    from riskfield.protocol.platforms import LIMO
+    from riskfield.services.geometry.camera import T_base_camera
     from riskfield.services.geometry.transforms import pose_matrix
     from riskfield.services.simulator import procedural, shapes
-    from riskfield.services.simulator.camera import CameraMount, Renderer
+    from riskfield.services.simulator.camera import Renderer
     from riskfield.services.simulator.node import SimulatorSettings, truth_frame
     from riskfield.services.simulator.scene import Scene, SceneObject
 
     cam = PinholeCamera.from_fov(512, 384, 90.0)
     renderer, stride = Renderer(cam), int(SimulatorSettings.model_fields["truth_stride"].default)
-    T_WC = CameraMount().T_body_camera()
+    T_WC = T_base_camera(LIMO.camera)
     room, body = procedural.room(8, 8), shapes.cylinder(0.25, 1.7)
     m = Mapper(MapperConfig(integration=integration))
     m.set_robot_position(np.zeros(3))

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from riskfield.protocol import Alignment, PerceptionFrame, decode, encode
 from riskfield.protocol.platforms import LIMO, CameraMount
+from riskfield.services.geometry.camera import T_base_camera
 from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.perception.alignment import (
     Aligner,
@@ -25,7 +26,6 @@ from riskfield.services.perception.alignment import (
     umeyama,
 )
 from riskfield.services.perception.degrade import OdometrySlip, SlamErrorConfig, SlamWorld
-from riskfield.services.perception.rgbd_backend import T_base_camera
 
 
 def _random_similarity(seed: int, scale: float) -> Similarity:
@@ -78,7 +78,7 @@ def test_a_line_needs_the_rotation_from_elsewhere() -> None:
 @settings(max_examples=30, deadline=None)
 @given(scale=st.floats(0.7, 1.4), pitch=st.floats(-10, 20), height=st.floats(0.08, 0.5), seed=st.integers(0, 999))
 def test_floor_scale_from_the_cameras_height(scale: float, pitch: float, height: float, seed: int) -> None:
-    T_BC = T_base_camera((0.15, 0.0, height), (0.0, pitch, 0.0))
+    T_BC = T_base_camera(CameraMount(position=(0.15, 0.0, height), rpy_deg=(0.0, pitch, 0.0)))
     rng = np.random.default_rng(seed)
     floor_base = np.c_[rng.uniform(0.5, 3.0, 400), rng.uniform(-1, 1, 400), np.zeros(400)]
     cam = (floor_base - T_BC[:3, 3]) @ T_BC[:3, :3]  # base → camera
@@ -105,7 +105,7 @@ def _drive(aligner: Aligner, slam: Similarity, path: np.ndarray, T_BC: np.ndarra
 
 
 def test_the_window_estimate_converges_on_a_straight_drive_and_a_curve() -> None:
-    T_BC = T_base_camera(LIMO.camera.position, LIMO.camera.rpy_deg)
+    T_BC = T_base_camera(LIMO.camera)
     rng = np.random.default_rng(0)
     truth = Similarity(1 / 1.25, Rotation.from_euler("z", 0.2).as_matrix(), np.array([0.3, -0.2, 0.05]))
     a = Aligner(AlignerConfig())
@@ -196,7 +196,7 @@ def test_frame_aligner_holds_frames_until_odometry_then_publishes_metric_ones() 
     from riskfield.protocol import RobotState
     from riskfield.protocol.messages import Header
 
-    T_BC = T_base_camera(CameraMount().position, CameraMount().rpy_deg)
+    T_BC = T_base_camera(CameraMount())
     fa = FrameAligner(T_BC, 0.002, AlignerConfig())
     s = 1.15
     h, w = 24, 32
@@ -226,7 +226,7 @@ def test_re_posed_keyframes_leave_through_the_current_estimate_and_are_no_pairs(
     from riskfield.protocol import RobotState
     from riskfield.protocol.messages import Header
 
-    T_BC = T_base_camera(LIMO.camera.position, LIMO.camera.rpy_deg)
+    T_BC = T_base_camera(LIMO.camera)
     fa = FrameAligner(T_BC, 0.002, AlignerConfig())
     truth = Similarity(0.8)  # SLAM's world is 1.25 × the metric one
     inv = truth.inverse()

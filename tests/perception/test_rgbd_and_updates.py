@@ -4,6 +4,7 @@ driving a real Mapper, whose ESDF after the correction matches a map built from 
 
 from __future__ import annotations
 
+import math
 import signal
 from pathlib import Path
 
@@ -13,14 +14,14 @@ from pydantic import ValidationError
 
 from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, ade20k
 from riskfield.protocol.messages import Header
+from riskfield.protocol.platforms import LIMO, CameraMount
 from riskfield.services.geometry.transforms import transform_points
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.perception.degrade import DegradationConfig
 from riskfield.services.perception.node import PerceptionSettings
-from riskfield.services.perception.rgbd_backend import RgbdBackend, RgbdConfig, T_base_camera, back_project
+from riskfield.services.perception.rgbd_backend import RgbdBackend, RgbdConfig, back_project
 from riskfield.services.perception.sim_backend import SimBackend, SimBackendConfig
-from riskfield.services.simulator.camera import CameraMount
 from riskfield.services.simulator.scenario import load_scenario
 from riskfield.services.simulator.world import World
 from riskfield.testing import Collector, ServiceProcess, client_session, wait_alive, wait_until
@@ -38,10 +39,22 @@ def state_of(world: World, stamp: int) -> RobotState:
                       linear_velocity=(0, 0, 0), angular_velocity=(0, 0, 0))
 
 
-def test_extrinsic_matches_the_simulators_camera_mount() -> None:
-    for pitch in (0.0, 10.0, -25.0):
-        np.testing.assert_allclose(T_base_camera((0.15, 0.0, 0.1), (0.0, pitch, 0.0)),
-                                   CameraMount(0.15, 0.0, 0.1, pitch).T_body_camera(), atol=1e-12)
+@pytest.mark.parametrize("pitch", [0.0, 10.0, -25.0])
+def test_extrinsic_matches_the_simulators_camera_mount(pitch: float) -> None:
+    """Perception calibrated with a scenario's mount (its settings, as a user sets them) poses the camera
+    where the simulator renders from: the scenario file's pitch and perception's rpy_deg are one angle."""
+    mount = {"x": 0.12, "y": -0.03, "z": 0.2, "pitch_deg": pitch}
+    yaw = 0.7
+    world = World(load_scenario({"room": {"size": [4.0, 4.0]}, "camera": {"width": 16, "height": 12, "mount": mount},
+                                 "robot": {"type": "limo", "start": [0.5, -0.2, yaw]}}))
+    s = PerceptionSettings(geometry="rgbd", camera_position=(0.12, -0.03, 0.2), camera_rpy_deg=(0.0, pitch, 0.0))
+    b = RgbdBackend(RgbdConfig(s.camera_mount()))
+    b.on_state(state_of(world, 1))
+    np.testing.assert_allclose(b.pose_at(1) @ b.T_BC, world.T_WC(), atol=1e-12)
+    # Both sides share T_base_camera, so check the pose against the mount's meaning too: pitch > 0 looks down.
+    p = math.radians(pitch)
+    np.testing.assert_allclose(world.T_WC()[:3, 2], [math.cos(p) * math.cos(yaw), math.cos(p) * math.sin(yaw),
+                                                     -math.sin(p)], atol=1e-12)
 
 
 def test_rgbd_points_land_on_the_true_surface_with_one_class() -> None:
@@ -50,7 +63,8 @@ def test_rgbd_points_land_on_the_true_surface_with_one_class() -> None:
     world.advance(1.0)
     r = world.render()
     cam = world.camera
-    b = RgbdBackend(RgbdConfig(camera_rpy_deg=(0.0, 10.0, 0.0), label=ade20k.index("wall")))
+    b = RgbdBackend(RgbdConfig(CameraMount(position=LIMO.camera.position, rpy_deg=(0.0, 10.0, 0.0)),
+                               label=ade20k.index("wall")))
     b.on_state(state_of(world, 1000))
     img = Image(encoding="rgb8", width=cam.width, height=cam.height, data=r.rgb)
     depth = DepthImage(depth=r.depth, fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy)

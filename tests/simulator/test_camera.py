@@ -9,10 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from riskfield.services.geometry.camera import PinholeCamera
+from riskfield.protocol.platforms import LIMO, CameraMount
+from riskfield.services.geometry.camera import PinholeCamera, T_base_camera
 from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.simulator import procedural, shapes
-from riskfield.services.simulator.camera import CameraMount, Renderer, class_colour
+from riskfield.services.simulator.camera import Renderer, class_colour
 from riskfield.services.simulator.scene import NO_LABEL, Scene, SceneObject
 
 CAM = PinholeCamera.from_fov(64, 48, 90.0)
@@ -44,11 +45,11 @@ def test_rays_have_unit_z_and_centre_pixel_looks_forward():
 
 
 def test_mount_looks_along_the_robot_heading():
-    T = CameraMount(0.15, 0.0, 0.1).T_body_camera()
+    T = T_base_camera(CameraMount(position=(0.15, 0.0, 0.1)))
     np.testing.assert_allclose(T[:3, 2], [1, 0, 0], atol=1e-12)  # optical axis = body x
     np.testing.assert_allclose(T[:3, 0], [0, -1, 0], atol=1e-12)  # image right = body −y
     np.testing.assert_allclose(T[:3, 1], [0, 0, -1], atol=1e-12)  # image down = body −z
-    Tp = CameraMount(pitch_deg=20).T_body_camera()
+    Tp = T_base_camera(CameraMount(rpy_deg=(0.0, 20.0, 0.0)))
     assert Tp[2, 2] == pytest.approx(-math.sin(math.radians(20)))  # tilted towards the floor
     assert np.linalg.det(Tp[:3, :3]) == pytest.approx(1.0)
 
@@ -61,7 +62,7 @@ def test_render_of_a_wall_has_constant_depth_and_world_consistent_pointmap():
     r = Renderer(CAM)
     robot = np.eye(4)
     robot[:3, 3] = (1.0, 2.0, 0.0)
-    T_WC = robot @ CameraMount(0.15, 0.0, 0.1).T_body_camera()
+    T_WC = robot @ T_base_camera(CameraMount(position=(0.15, 0.0, 0.1)))
     f = r.render(_wall_scene(4.0).at(0.0), T_WC)
     np.testing.assert_allclose(f.depth, 4.0 - 1.15, atol=1e-5)
     world = f.points.reshape(-1, 3) @ T_WC[:3, :3].T + T_WC[:3, 3]
@@ -76,7 +77,7 @@ def test_render_of_a_wall_has_constant_depth_and_world_consistent_pointmap():
 def test_render_labels_misses_and_shading():
     scene = Scene([*procedural.room(6, 6), SceneObject("ball", 119, shapes.sphere(0.3), pose_matrix(1.0, 0))])
     T_WC = np.eye(4)
-    T_WC[:3, :3] = CameraMount().T_body_camera()[:3, :3]
+    T_WC[:3, :3] = T_base_camera(LIMO.camera)[:3, :3]
     T_WC[:3, 3] = (0, 0, 0.3)
     f = Renderer(CAM).render(scene.at(0.0), T_WC)
     assert f.labels[CAM.height // 2, CAM.width // 2] == 119

@@ -10,6 +10,7 @@ import pytest
 from pydantic import ValidationError
 
 from riskfield.protocol import ade20k
+from riskfield.protocol.platforms import LIMO
 from riskfield.services.simulator import shapes
 from riskfield.services.simulator.mesh_io import write_ply
 from riskfield.services.simulator.scenario import BUILTIN, build_scene, load_scenario
@@ -72,6 +73,13 @@ def test_scenario_with_a_mesh_file(tmp_path):
 def test_bad_scenarios_are_rejected(bad):
     with pytest.raises((ValidationError, ValueError, KeyError)):
         build_scene(load_scenario(bad))
+
+
+def test_a_scenario_without_a_mount_has_the_limos_camera():
+    mount = load_scenario({"room": {"size": [4.0, 4.0]}}).camera.camera_mount()
+    assert (mount.position, mount.rpy_deg) == (LIMO.camera.position, LIMO.camera.rpy_deg)
+    tilted = load_scenario({"room": {"size": [4.0, 4.0]}, "camera": {"mount": {"pitch_deg": 12}}}).camera.camera_mount()
+    assert (tilted.position, tilted.rpy_deg) == (LIMO.camera.position, (0.0, 12.0, 0.0))
 
 
 def test_unknown_scenario_name():
