@@ -11,6 +11,7 @@ LIMO with it, and walks the person on. The same scenario through the filter core
 
 from __future__ import annotations
 
+import json
 import math
 import time
 
@@ -84,9 +85,11 @@ def test_a_person_walking_at_the_robot_makes_the_node_stop_it_earlier(router_end
     robot = "t_sf_motion"
     args = ["--robot", robot, "--set", "map_timeout_s=60", "--set", "state_timeout_s=60", "--set", "ref_timeout_s=60",
             "--set", "map_margin_voxels=0", "--set", "status_period_s=0.2",
-            # each step's reference is its own cmd/ref source (its name marks the step's command):
-            # one that expires at once never holds the next step's off in the arbitration
-            "--set", "ref_default_timeout_s=0.001"]
+            # Each step's reference is its own cmd/ref source (its name marks the step's command),
+            # ranked above every earlier step's, so the arbitration takes it at once. (Sources of
+            # equal rank that expire after 1 ms raced: a step's reference could arrive within the
+            # millisecond, be preempted by the previous step's, and the node keep that one.)
+            "--set", "ref_sources=" + json.dumps({f"t{k}": {"priority": k + 1} for k in range(STEPS)})]
     root = f"rf/{robot}"
     with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
         assert wait_alive(session, f"{root}/alive/safety-filter"), proc.output
