@@ -32,9 +32,10 @@ for name in "${WANTED[@]}"; do
 done
 
 # The commit measured; "+uncommitted" when tracked files differ from it (the stamp must not claim a commit
-# the code is not). diff-index reads the index without writing it.
+# the code is not). diff-index reads the index without writing it. The document this script writes is not
+# code: a run after an earlier invocation rewrote it still measures the commit.
 commit=$(git rev-parse --short HEAD)
-git diff-index --quiet HEAD -- 2>/dev/null || commit="$commit+uncommitted"
+git diff-index --quiet HEAD -- . ":(exclude)$RESULTS" 2>/dev/null || commit="$commit+uncommitted"
 
 before_tree=""
 if [ -n "${BEFORE:-}" ]; then
