@@ -348,6 +348,9 @@ class SafetyStatus(Message):
     scale_uncertain: bool = False
     distance_margin: NonNegFloat = 0.0
     speed_cap: NonNegFloat | None = None
+    # Additive: an Ackermann chassis could not steer the filtered command's curvature, so the command
+    # is the one it will drive (its tightest circle at that speed), which the filter passed unchanged.
+    steering_limited: bool = False
 
 
 class Alignment(Message):

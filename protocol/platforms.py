@@ -78,6 +78,17 @@ def min_turning_radius(wheelbase: float, track: float, max_inner: float) -> floa
     return wheelbase / math.tan(max_inner) + track / 2
 
 
+def ackermann_steerable(v: float, w: float, max_curvature: float, min_speed: float) -> tuple[float, float]:
+    """The (speed, yaw rate) an Ackermann chassis drives for the command (v, ω), before any speed
+    limit: a curvature beyond ``max_curvature`` becomes the limit's at the same speed (the tightest
+    circle it can steer), and below ``min_speed`` it cannot turn (ω = 0). The LIMO bridge drives
+    this (``edge/limo/kinematics.ackermann_velocity``); the safety filter certifies it
+    (``services/safety_filter/supervisor``), so the path the filter checked is the path driven."""
+    if abs(v) < min_speed:
+        return v, 0.0
+    return v, v * max(-max_curvature, min(max_curvature, w / v))
+
+
 class CameraMount(BaseModel):
     """Where the camera sits on the robot (REP 105's ``base_link``: x forward, y left, z up): the
     optical centre's position and the optical axis's roll, pitch (> 0 looks down) and yaw. Perception
@@ -122,6 +133,8 @@ class PlanarPlatform(BaseModel):
         "it, the wheelbase and the track (edge/limo/ackermann.py: ~0.408 rad, radius ~0.46 m for the LIMO)"))
     max_accel: Pos = Field(description="|linear acceleration| (m/s²)")
     max_yaw_accel: Pos = Field(description="|yaw acceleration| (rad/s²)")
+    min_steering_speed: Pos = Field(1e-3, description=(
+        "below this |speed| (m/s) an Ackermann chassis cannot turn: its steering is straight"))
     camera: CameraMount = Field(default_factory=CameraMount, description="the camera's extrinsics in base_link")
 
     @property
@@ -133,6 +146,11 @@ class PlanarPlatform(BaseModel):
     def min_turning_radius(self) -> float:
         """Radius of the rear axle's centre at the steering limit (Ackermann)."""
         return min_turning_radius(self.wheelbase, self.track, self.max_steering)
+
+    @property
+    def max_curvature(self) -> float:
+        """1 / ``min_turning_radius``: the tightest curvature (1/m) it steers in Ackermann mode."""
+        return 1.0 / self.min_turning_radius
 
 
 class SpatialPlatform(BaseModel):

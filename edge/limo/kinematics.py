@@ -45,6 +45,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 from riskfield.protocol.platforms import LIMO, PlanarPlatform
+from riskfield.protocol.platforms import ackermann_steerable as steerable
 from riskfield.services.geometry.transforms import wrap_angle
 
 from . import ackermann
@@ -79,7 +80,7 @@ class LimoLimits(BaseModel):
         "turning radius follow from it, the wheelbase and the track"))
     wheelbase: Pos = Field(default=LIMO.wheelbase, description="axle distance (m)")
     track: Pos = Field(default=LIMO.track, description="wheel distance left to right (m)")
-    min_speed_for_steering: Pos = Field(default=1e-3, description=(
+    min_speed_for_steering: Pos = Field(default=LIMO.min_steering_speed, description=(
         "below this |speed| (m/s) an Ackermann chassis cannot turn: the steering is 0"))
 
     @classmethod
@@ -128,11 +129,7 @@ def ackermann_velocity(vx: float, wz: float, limits: LimoLimits) -> tuple[float,
     robot follows the tightest circle it can. Then the speed, yaw-rate and wheel-speed limits
     scale (vx, ω) by one λ, which keeps the radius. At |vx| below ``min_speed_for_steering``
     it cannot turn: ω = 0."""
-    if abs(vx) < limits.min_speed_for_steering:
-        w = 0.0
-    else:
-        kmax = limits.max_curvature
-        w = vx * max(-kmax, min(kmax, wz / vx))
+    _, w = steerable(vx, wz, limits.max_curvature, limits.min_speed_for_steering)
     lam = _scale([(vx, limits.max_linear), (w, limits.max_angular),
                   (abs(vx) + abs(w) * limits.track / 2, limits.max_wheel_speed)])
     return lam * vx, lam * w

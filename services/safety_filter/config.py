@@ -149,6 +149,15 @@ class BoundsParams(BaseModel):
     a_max: Pos = 3.0
     """|acceleration| bound (m/s^2); for velocity-controlled models the platform's deceleration, which caps the
     gains at 2 a_max / v_max."""
+    steering: Literal["differential", "ackermann"] = "differential"
+    """unicycle: how the chassis turns. ackermann (the LIMO bridge's mode 1): it drives no circle tighter than the
+    platform's minimum turning radius and does not turn below its min_steering_speed (protocol.platforms), so the
+    filter passes on only a command it has certified as the chassis will drive it (supervisor)."""
+
+    @property
+    def steering_limit(self) -> tuple[float, float] | None:
+        """(max curvature 1/m, min steering speed m/s) of an Ackermann unicycle (the LIMO's); None: it turns freely."""
+        return (LIMO.max_curvature, LIMO.min_steering_speed) if self.steering == "ackermann" else None
 
 
 class QpParams(BaseModel):
@@ -315,6 +324,12 @@ class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
         for key, value in MODEL_BOUNDS.get(self.model, {}).items():
             if key not in self.model_fields_set:
                 setattr(self, key, value)
+        return self
+
+    @model_validator(mode="after")
+    def _steering_is_a_ground_robots(self) -> FilterConfig:
+        if self.steering != "differential" and self.model != "unicycle":
+            raise ValueError(f"steering {self.steering!r} is a wheeled robot's: model {self.model!r} has no chassis")
         return self
 
     def part(self, params: type[P]) -> P:

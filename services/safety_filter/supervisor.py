@@ -28,6 +28,12 @@ has arrived the field is read shrunk by the map scale's uncertainty, and while t
 converged the speed is capped (``scale_guard``); the status says so (``scale_uncertain``,
 ``distance_margin``, ``speed_cap``) and ``counts`` counts the steps (``scale_uncertain``).
 
+An Ackermann chassis (``steering = "ackermann"``) drives a turn tighter than it can steer on its
+tightest circle instead (``protocol.platforms.ackermann_steerable``), a path the filter did not
+check. Such a command is replaced by the one the chassis will drive, if the filter passes that one
+unchanged (its rows hold for it: the same barrier certifies it); otherwise the filter brakes
+(``unsteerable``). The status says ``steering_limited`` on each replaced step.
+
 ``slack`` is the one fallback that does not brake: the QP was infeasible with fresh inputs and
 the command is the slack-relaxed QP's, at least as safe as maximal braking along the field's
 gradient (``filter``); the status says ``fallback="slack"`` on every such step.
@@ -50,6 +56,7 @@ from riskfield.protocol import (
     TrackedObjects,
     VelocityCommand,
 )
+from riskfield.protocol.platforms import ackermann_steerable
 
 from ..fields import DistanceField, EsdfField
 from .evade import Evader, FreeFloor
@@ -60,6 +67,8 @@ from .scale_guard import ScaleGuard, ScaleGuardConfig
 from .state import FilterState
 
 SOURCE = "safety-filter"
+#: The brake when the command an Ackermann chassis would drive in place of the filtered one fails the barrier.
+UNSTEERABLE = "unsteerable"
 
 
 @dataclass
@@ -233,6 +242,18 @@ class FilterSupervisor:
         if retreat is not None:
             out_lin, out_ang = model.command(retreat, np.zeros(3), state)
             self._count("evading")
+        steered = False
+        limit = self.filter.config.steering_limit
+        if limit is not None:
+            v, w = float(out_lin[0]), float(out_ang[2])
+            _, w_driven = ackermann_steerable(v, w, *limit)
+            if abs(w_driven - w) > 1e-9:
+                out_ang = out_ang.copy()
+                out_ang[2] = w_driven
+                if not self._passes(state, out_lin, out_ang, field, objects):  # type: ignore[arg-type]
+                    return self._brake(UNSTEERABLE, now, res.h, res.risk_group, res.solve_us)
+                steered = True
+                self._count("steering_limited")
         if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
             return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
         if cap is not None:  # the QP may trade speed for safety, never exceed the cap
@@ -245,12 +266,19 @@ class FilterSupervisor:
                               object_rows=res.object_rows, evading=retreat is not None,
                               scale_uncertain=self.guard.uncertain(now),
                               distance_margin=self.guard.margin_at(res.h + float(np.min(self.filter.model.radius))),
-                              speed_cap=cap)
+                              speed_cap=cap, steering_limited=steered)
         if status.scale_uncertain:
             self._count("scale_uncertain")
         if res.yielding:
             self._count("yielding")
         return cmd, status
+
+    def _passes(self, state: FilterState, lin: np.ndarray, ang: np.ndarray, field: DistanceField,
+                objects: np.ndarray | None) -> bool:
+        """Whether the filter passes the body command (lin, ang) unchanged: every barrier row holds for it."""
+        u = self.filter.model.reference(lin, ang, state)
+        res = self.filter.filter(state, u, field, ang, objects)
+        return res.fallback is None and not res.intervening
 
     def brake(self, reason: str, now: float) -> tuple[VelocityCommand, SafetyStatus]:
         """A brake decided outside ``tick`` (the node's shutdown, an error in the core), counted
