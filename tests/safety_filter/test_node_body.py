@@ -58,6 +58,11 @@ class Robot:
         worst_disc = worst_corner = math.inf
         start, cmd, first = s, None, None
         fallbacks: set[str | None] = set()
+        # The reference first, until the node listens to it: otherwise a tick between the first
+        # state and the first reference brakes with no_ref, with the same h as the step awaited.
+        put(self.session, f"{self.root}/cmd/ref", reference)
+        assert wait_until(lambda: any(st.ref_source == reference.source for st in self.status.items[-5:]), 10), (
+            self.status.items[-3:])
         for _ in range(steps):
             msg = message(s)
             self.status.clear()  # what arrives from now on answers this state or a later one
