@@ -104,7 +104,7 @@ def qos_of(relative: str | None) -> Qos:
         return Qos()
     if relative.startswith("status/"):
         return STATUS_QOS
-    return QOS.get(relative, Qos())
+    return QOS.get(base_of(relative), Qos())
 
 
 #: Where a role runs: ``robot`` (the robot's computer and its own router) or ``server`` (the site
@@ -191,6 +191,48 @@ ROUTES: dict[str, Route] = {
     "relay/**": Route(("relay",), ()),
 }
 
+#: Who speaks for which ``cmd/ref`` and ``cmd/lock`` source: role → the source names it puts
+#: ``cmd/ref/<source>`` and ``cmd/lock/<source>`` under (additive keys). The key names the source,
+#: the filter refuses a message that names another, and the routers' access control lets only
+#: this role put that key: on a secure site no identity can claim another's priority or release
+#: another's lock (issue 35). The plain ``cmd/ref`` / ``cmd/lock`` trust the message's declared
+#: ``source``; they stay in the contract for loopback stacks and no role of a secure site puts them.
+REF_SOURCES: dict[str, tuple[str, ...]] = {
+    "joystick": ("joystick",), "teleop": ("keyboard",), "navigator": ("navigator",), "operator": ("operator",),
+    "ros2-bridge": ("ros2/**",),  # ros2/<input name>: one per cmd_vel input of the bridge (docs/ros2.md)
+}
+LOCK_SOURCES: dict[str, tuple[str, ...]] = {"joystick": ("joystick",), "teleop": ("keyboard",),
+                                            "operator": ("operator",)}
+
+#: Keys whose last chunks may name a source (``REF_SOURCES``, ``LOCK_SOURCES``).
+SOURCED = ("cmd/ref", "cmd/lock")
+
+
+def _sourced(base: str, sources: dict[str, tuple[str, ...]]) -> dict[str, Route]:
+    consumers = ROUTES[base].consumers
+    routes = {f"{base}/{name}": Route((role,), consumers) for role, names in sources.items() for name in names}
+    # The plain key: put by no role; and the consumers' one subscription on every source.
+    return {**routes, base: Route((), consumers), f"{base}/**": Route((), consumers)}
+
+
+ROUTES.update(_sourced("cmd/ref", REF_SOURCES))
+ROUTES.update(_sourced("cmd/lock", LOCK_SOURCES))
+
+
+def base_of(relative: str) -> str:
+    """The contract key a relative key is an instance of: ``cmd/ref/joystick`` → ``cmd/ref``."""
+    for base in SOURCED:
+        if relative.startswith(base + "/"):
+            return base
+    return relative
+
+
+def source_of(relative: str) -> str | None:
+    """The source a ``SOURCED`` key names (``cmd/ref/ros2/nav`` → ``ros2/nav``); None for the plain
+    key or any other."""
+    base = base_of(relative)
+    return relative[len(base) + 1:] if base != relative else None
+
 #: Keys outside ``{prefix}/`` that the ROS 2 bridges put and read, relative to the robot's ROS
 #: namespace (``{robot}/...``; docs/ros2.md).
 ROS_ROUTES: dict[str, Route] = {
@@ -240,6 +282,16 @@ class Keys:
     cmd_ref = property(lambda self: self.key("cmd/ref"))
     cmd_safe = property(lambda self: self.key("cmd/safe"))
     cmd_lock = property(lambda self: self.key("cmd/lock"))
+    cmd_ref_any = property(lambda self: self.key("cmd/ref/**"))  # every source, the plain key too
+    cmd_lock_any = property(lambda self: self.key("cmd/lock/**"))
+
+    def cmd_ref_of(self, source: str) -> str:
+        """``cmd/ref/<source>``: the key a source's references go on (``REF_SOURCES``)."""
+        return self.key(f"cmd/ref/{_check(source, 'source', allow_slash=True)}")
+
+    def cmd_lock_of(self, source: str) -> str:
+        """``cmd/lock/<source>``: the key a source's locks go on (``LOCK_SOURCES``)."""
+        return self.key(f"cmd/lock/{_check(source, 'source', allow_slash=True)}")
     safety_status = property(lambda self: self.key("safety/status"))
     nav_goal = property(lambda self: self.key("nav/goal"))
     risk_config = property(lambda self: self.key("config/risk"))

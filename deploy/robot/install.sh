@@ -149,6 +149,9 @@ if [ -n "$SECRETS" ]; then
       echo "RISKFIELD_TLS_ROOT_CA=$SYS_ETC/tls/ca.pem"
       echo "RISKFIELD_TLS_CERT=$SYS_ETC/tls/$s.pem"
       echo "RISKFIELD_TLS_MTLS=true"
+      if [ "$s" = safety-filter ]; then  # a source is the key it puts on, cmd/ref/<source>: the ACL binds it
+        echo "RISKFIELD_REF_PLAIN_KEY=false"
+      fi
       cat "$SECRETS/$ROBOT.$s.env"
     } >"$ETC/$s.env"
     # The key stays root's; systemd hands this node alone a copy (riskfield@.service says why). Not in

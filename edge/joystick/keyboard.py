@@ -110,6 +110,7 @@ class KeyboardSettings(NodeSettings):
 class KeyboardNode:
     def __init__(self, node: Node, s: KeyboardSettings, stdin: int | None = None):
         self.node, self.s = node, s
+        self.ref_key = node.keys.cmd_ref_of(s.source_name)  # its own key: protocol.keys.REF_SOURCES
         self.core = KeyboardTeleop(s.step_linear, s.step_angular, s.max_linear, s.max_lateral, s.max_angular, s.hold_s)
         self.fd = sys.stdin.fileno() if stdin is None else stdin
         self._saved = None
@@ -130,7 +131,7 @@ class KeyboardNode:
             for key in parse_keys(data):
                 self.core.on_key(key, now)
         vx, vy, wz = self.core.command(now)
-        self.node.publish(self.node.keys.cmd_ref, VelocityCommand(
+        self.node.publish(self.ref_key, VelocityCommand(
             linear=(vx, vy, 0.0), angular=(0.0, 0.0, wz), source=self.s.source_name))
         if self._saved is not None:
             print(f"\rvx {vx:+.2f} m/s  vy {vy:+.2f} m/s  wz {wz:+.2f} rad/s   ", end="", file=sys.stderr, flush=True)

@@ -104,6 +104,7 @@ class JoystickSettings(NodeSettings, GatewayConfig):
 class JoystickNode:
     def __init__(self, node: Node, s: JoystickSettings):
         self.node, self.s = node, s
+        self.ref_key = node.keys.cmd_ref_of(s.source_name)  # its own key: protocol.keys.REF_SOURCES
         self.core = JoystickGateway(s.mapping(), s)  # the settings are a GatewayConfig
         self.source = s.event_source()
         self.waker: FdWaker | None = None
@@ -144,7 +145,7 @@ class JoystickNode:
             self.waker.drained()
         if core.should_publish(now):
             c = core.command
-            self.node.publish(self.node.keys.cmd_ref, VelocityCommand(
+            self.node.publish(self.ref_key, VelocityCommand(
                 linear=(c.vx, c.vy, 0.0), angular=(0.0, 0.0, c.wz), source=self.s.source_name,
                 engaged=c.deadman))  # released: the filter's arbitration lets the navigator take over
             core.published(now)

@@ -14,6 +14,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
+from riskfield.protocol.keys import base_of
+
 #: Robot → server: the robot's sensors and the filter's reports, for perception, mapping, the
 #: navigator, the operator and people watching.
 UP = "robot→server"
@@ -58,7 +60,7 @@ def direction(relative: str) -> str:
         return UP if relative.split("/", 1)[1] in ROBOT_SERVICES else DOWN
     if relative.startswith("alive/"):
         return LOCAL  # liveliness tokens: declarations, not a stream
-    return DIRECTION.get(relative, LOCAL)
+    return DIRECTION.get(base_of(relative), LOCAL)
 
 
 @dataclass

@@ -41,6 +41,7 @@ class NavigatorNode:
 
     def __init__(self, node: Node, s: NavigatorSettings):
         self.node, self.s = node, s
+        self.ref_key = node.keys.cmd_ref_of(s.source)  # its own key: protocol.keys.REF_SOURCES
         self.core = Navigator(s.nav)
         self._silent_after = float("inf")
         node.subscribe(node.keys.nav_goal, NavGoal, self.on_goal, queue="fifo")
@@ -75,7 +76,7 @@ class NavigatorNode:
                                distance_to_target=self.core.distance_to_target(),
                                driving=float(cmd.reason == "driving"), escapes=self.core.escapes,
                                escaping=float(self.core.escaping))
-        self.node.publish(self.node.keys.cmd_ref,
+        self.node.publish(self.ref_key,
                           VelocityCommand(linear=cmd.linear, angular=cmd.angular, source=self.s.source))
 
 

@@ -37,11 +37,12 @@ def setup(node: Node, s: OperatorSettings) -> None:
         st = last.get("state")
         now = time.monotonic()
         if not isinstance(st, RobotState) or now - float(last["at"]) > s.state_timeout_s:
-            node.publish(node.keys.cmd_ref, VelocityCommand.zero("operator"))
+            node.publish(node.keys.cmd_ref_of("operator"), VelocityCommand.zero("operator"))
             return
         v, w, phase = op.command(now, st.position[0], st.position[1], st.yaw)
         node.stats["target_index"] = op.index
-        node.publish(node.keys.cmd_ref, VelocityCommand(linear=(v, 0.0, 0.0), angular=(0.0, 0.0, w), source="operator"))
+        node.publish(node.keys.cmd_ref_of("operator"),
+                     VelocityCommand(linear=(v, 0.0, 0.0), angular=(0.0, 0.0, w), source="operator"))
         if phase == "done" and not last.get("done"):
             last["done"] = True
             node.log.info("operator finished all %d targets", len(op.targets))

@@ -169,7 +169,7 @@ def setup(node: Node, s: FoxgloveSettings) -> FoxgloveLive:
     node.subscribe(k.state, RobotState, live.on_state)
     node.subscribe(k.objects, TrackedObjects, live.on_objects)
     node.subscribe(k.safety_status, SafetyStatus, live.on_status, queue="fifo")
-    node.subscribe(k.cmd_ref, VelocityCommand, lambda m: live.on_json(k.cmd_ref, m))
+    node.subscribe(k.cmd_ref_any, VelocityCommand, lambda m: live.on_json(k.cmd_ref, m))
     node.subscribe(k.cmd_safe, VelocityCommand, lambda m: live.on_json(k.cmd_safe, m))
     node.subscribe(k.nav_goal, NavGoal, lambda m: live.on_json(k.nav_goal, m))
     return live

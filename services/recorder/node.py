@@ -24,6 +24,7 @@ from pydantic import Field, field_validator
 
 from riskfield.protocol import EsdfGrid, Image, PerceptionFrame, RobotState, decode
 from riskfield.protocol.errors import DecodeError
+from riskfield.protocol.keys import base_of
 
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
@@ -184,7 +185,8 @@ class Recording:
 
     # -- recording ------------------------------------------------------------------------------
     def _raw_wanted(self, key: str) -> bool:
-        return self.s.raw or any(key == f"{self.root}/{k}" for k in FILTER_INPUTS)
+        relative = key[len(self.root) + 1:] if key.startswith(self.root + "/") else None
+        return self.s.raw or (relative is not None and base_of(relative) in FILTER_INPUTS)
 
     def _on_payload(self, key: str, payload: bytes) -> None:
         if not is_status(key):  # tests and tools wait on this count

@@ -27,7 +27,9 @@ STATE_KEYS = ("state", "state/relocalise")
 
 
 def is_command(key: str) -> bool:
-    return any(key == c or key.endswith("/" + c) for c in COMMAND_KEYS)
+    # A command key anywhere in the key, not only at its end: cmd/ref/<source> and
+    # cmd/lock/<source> are commands too (protocol.keys.SOURCED). Withholding too much is safe.
+    return any(f"/{c}/" in f"/{key}/" for c in COMMAND_KEYS)
 
 
 def is_state(key: str) -> bool:

@@ -283,7 +283,7 @@ def setup(node: Node, s: Ros2BridgeSettings) -> None:
             if cmd is None:
                 count(f"{name}_preempted")
                 return
-            node.publish(node.keys.cmd_ref, cmd)
+            node.publish(node.keys.cmd_ref_of(cmd.source), cmd)
         return on_velocity
 
     if s.cmd_in_topic:

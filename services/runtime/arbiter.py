@@ -34,6 +34,10 @@ MAX_PRIORITY = 255
 
 #: Why ``CommandMux.admit`` refused a message.
 UNKNOWN, PREEMPTED, LOCKED, IDLE = "unknown_source", "preempted", "locked", "idle"
+#: Why a message never reached the arbitration: its key ``cmd/ref/<source>`` names another source
+#: than the message declares, or it came on the plain key where that is not taken
+#: (``protocol.keys.REF_SOURCES``: the key, not the message, is what the routers authenticate).
+SOURCE_MISMATCH, PLAIN_KEY = "source_mismatch", "plain_key"
 
 
 @dataclass

@@ -30,6 +30,7 @@ class Slot:
     dropped: int = 0
     nbytes: int = 0  # what the queued items count against max_bytes
     queued: bool = False  # whether the slot sits in the ready queue
+    owner: Any = None  # whom the loop hands its items to (the node's subscription)
 
 
 class Inbox:

@@ -17,14 +17,14 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
 
 from riskfield.protocol import ENCODING, DecodeError, Keys, Limits, Message, NodeStatus, decode, encode
-from riskfield.protocol.keys import qos_of
+from riskfield.protocol.keys import base_of, qos_of
 
 from .inbox import Inbox, QueueKind, Slot
 from .logs import RateLimitedLog, process_age_s, setup_logging
@@ -42,13 +42,40 @@ def _entity(gid: Any) -> str:
     return f"{gid.zid}/{gid.eid}"
 
 
-class _Sub:
-    """A subscription's slot plus how to decode and whom to call."""
+#: A ``latest`` subscription on a wildcard keeps the newest sample of each of this many keys
+#: (cmd/ref/<source>: one per source), the rest share one slot: the count of slots stays bounded
+#: whatever keys a publisher makes up.
+KEYED_SLOTS = 16
 
-    def __init__(self, key: str, slot: Slot, msg_type: type[Message] | None, handler: Callable, limits: Limits):
+
+class _Sub:
+    """A subscription's slot plus how to decode and whom to call. With ``keyed`` (a wildcard
+    ``latest`` subscription) each sample key gets a latest slot of its own, up to ``KEYED_SLOTS``:
+    slots are served round-robin, so one source's stream never displaces another's newest value."""
+
+    def __init__(self, key: str, slot: Slot, msg_type: type[Message] | None, handler: Callable, limits: Limits,
+                 keyed: Callable[[str], Slot] | None = None):
         self.key, self.slot, self.msg_type, self.handler, self.limits = key, slot, msg_type, handler, limits
+        slot.owner = self
         self.invalid = 0
         self.foreign = 0  # samples dropped because their key is not one this subscription serves
+        self._keyed, self._lock = keyed, threading.Lock()
+        self.by_key: dict[str, Slot] = {}
+
+    def slot_for(self, key: str) -> Slot:
+        if self._keyed is None:
+            return self.slot
+        with self._lock:  # Zenoh may call back from several threads
+            slot = self.by_key.get(key)
+            if slot is None and len(self.by_key) < KEYED_SLOTS:
+                slot = self.by_key[key] = self._keyed(key)
+                slot.owner = self
+        return self.slot if slot is None else slot
+
+    @property
+    def slots(self) -> list[Slot]:
+        with self._lock:
+            return [self.slot, *self.by_key.values()]
 
 
 def compile_watch() -> Any:
@@ -121,7 +148,7 @@ class Node:
     def backlog(self, key: str) -> int:
         """How many samples of the subscription on ``key`` wait behind the one being handled: a
         handler of a ``fifo`` stream can skip a superseded item when only the newest matters."""
-        return sum(len(sub.slot.items) for sub in self._subs if sub.key == key)
+        return sum(len(slot.items) for sub in self._subs if sub.key == key for slot in sub.slots)
 
     def subscribe(
         self,
@@ -140,7 +167,8 @@ class Node:
         A ``fifo`` queue holds at most ``maxlen`` samples and, with ``max_bytes``, that many
         payload bytes (inbox.py); the oldest go first, counted in ``NodeStatus.dropped``.
         """
-        sub = _Sub(key, self._inbox.slot(key, queue, maxlen, max_bytes), msg_type, handler, limits or Limits())
+        keyed = (lambda k: self._inbox.slot(k, "latest")) if queue == "latest" and "*" in key else None
+        sub = _Sub(key, self._inbox.slot(key, queue, maxlen, max_bytes), msg_type, handler, limits or Limits(), keyed)
         self._subs.append(sub)
 
         def on_sample(sample: zenoh.Sample, sub: _Sub = sub) -> None:
@@ -155,7 +183,7 @@ class Node:
             info = sample.source_info
             source = None if info is None else _entity(info.source_id)
             payload = sample.payload.to_bytes()
-            self._inbox.put(sub.slot, ("sample", key, payload, time.time_ns(), source), len(payload))
+            self._inbox.put(sub.slot_for(key), ("sample", key, payload, time.time_ns(), source), len(payload))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -292,7 +320,7 @@ class Node:
         if kind == "call":
             self._call(f"posted {getattr(a, '__name__', a)}", a)
             return
-        sub = next(s for s in self._subs if s.slot is slot)
+        sub = slot.owner
         if kind == "query":
             self._answer(sub, a)
             return
@@ -344,7 +372,16 @@ class Node:
     # -- status -------------------------------------------------------------------------------
     def status(self) -> NodeStatus:
         d = np.asarray(self._durations, dtype=float) * 1e3 if self._durations else np.zeros(1)
-        rel = lambda k: self.keys.relative(k) or k  # noqa: E731
+        def per_key(counts: Iterable[tuple[str, int]]) -> dict[str, int]:
+            # Counted per contract key: cmd/ref/<source>, and a subscription on cmd/ref/**, count as
+            # cmd/ref (protocol.keys.base_of), as they did before sources had keys of their own.
+            out: dict[str, int] = {}
+            for key, n in counts:
+                relative = self.keys.relative(key)
+                name = key if relative is None else base_of(relative)
+                out[name] = out.get(name, 0) + n
+            return out
+
         extra = {k: float(v) for k, v in self.stats.items() if np.isfinite(v)}
         # Wildcard (or otherwise foreign-keyed) puts dropped by the runtime, all subscriptions.
         extra["wildcard_dropped"] = extra.get("wildcard_dropped", 0.0) + sum(s.foreign for s in self._subs)
@@ -356,10 +393,10 @@ class Node:
             service=self.service,
             pid=os.getpid(),
             uptime_s=time.monotonic() - self._t0,
-            received={rel(s.key): s.slot.received for s in self._subs},
-            invalid={rel(s.key): s.invalid for s in self._subs},
-            dropped={rel(s.key): s.slot.dropped for s in self._subs},
-            published={rel(k): v for k, v in self._published.items()},
+            received=per_key((s.key, sum(x.received for x in s.slots)) for s in self._subs),
+            invalid=per_key((s.key, s.invalid) for s in self._subs),
+            dropped=per_key((s.key, sum(x.dropped for x in s.slots)) for s in self._subs),
+            published=per_key(self._published.items()),
             errors=self._errors,
             handler_ms_p50=float(np.percentile(d, 50)),
             handler_ms_p99=float(np.percentile(d, 99)),

@@ -28,6 +28,11 @@ times out, then the navigator's next command is taken. ``{robot}/cmd/lock`` (add
 ``CommandLock``) holds every source below ``lock_priority``: while the reference in force comes from
 a held source the filter brakes with ``fallback = "locked"``. ``SafetyStatus.ref_source`` names the
 source listened to. The arbitration decides which reference enters the step, never the step itself.
+Each source puts on its own key, ``cmd/ref/<source>`` and ``cmd/lock/<source>`` (additive): a
+message whose key names another source than it declares is refused (``ref_refused_source_mismatch``,
+``lock_refused_source_mismatch``), so on a secure site, whose routers let only a source's identity
+put its key, no identity can take another's priority or release its lock. The plain keys trust the
+declared source and are taken unless ``ref_plain_key`` is false (``..._plain_key``).
 
 The risk configuration in force has a version and a hash (``runtime.risk_file.RiskStore``), in
 ``SafetyStatus.risk_version`` / ``risk_hash`` and ``NodeStatus``; with ``state_dir`` it is kept
@@ -64,8 +69,9 @@ from riskfield.protocol import (
     VelocityCommand,
     decode,
 )
+from riskfield.protocol.keys import source_of
 
-from ..runtime.arbiter import LOCKED
+from ..runtime.arbiter import LOCKED, PLAIN_KEY, SOURCE_MISMATCH
 from ..runtime.continuity import StateGate, report_refused
 from ..runtime.node import Node
 from ..runtime.risk_file import RiskStore, watch_risk_file
@@ -103,7 +109,7 @@ class FilterNode:
         for name in ("steps", "brakes", "slack", "intervening", "invalid_map", "invalid_state", "invalid_ref",
                      "risk_reloads", "risk_errors", "map_refused", "esdf_publishers", "invalid_objects",
                      "objects_missing", "objects_stale", "objects_moving", "state_refused", "yielding", "object_rows",
-                     "ref_refused", "locks"):
+                     "ref_refused", "locks", "invalid_lock"):
             node.stats[name] = 0.0
         self.mux = s.command_mux()  # cmd/ref arbitration (module doc)
         self.state_gate = StateGate.of(s, s.clock_tolerance_s)  # continuity of the state (module doc)
@@ -111,8 +117,8 @@ class FilterNode:
         node.subscribe(k.esdf, None, self._on_map, queue="latest")
         node.subscribe(k.state, None, self._on_state, queue="latest")
         node.subscribe(k.state_relocalise, None, self._on_relocalise, queue="fifo", maxlen=4)
-        node.subscribe(k.cmd_ref, None, self._on_ref, queue="latest")
-        node.subscribe(k.cmd_lock, CommandLock, self._on_lock, queue="fifo", maxlen=64)
+        node.subscribe(k.cmd_ref_any, None, self._on_ref, queue="latest")
+        node.subscribe(k.cmd_lock_any, None, self._on_lock, queue="fifo", maxlen=64)
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
         node.subscribe(k.objects, None, self._on_objects, queue="latest")
         node.subscribe(k.alignment, Alignment, self._on_alignment, queue="latest")
@@ -179,25 +185,52 @@ class FilterNode:
     def _on_relocalise(self, key: str, payload: bytes) -> None:
         self._on_state(key, payload, relocalise=True)
 
+    def _misnamed(self, key: str, declared: str) -> str | None:
+        """Why a cmd/ref or cmd/lock message on ``key`` is not taken as from ``declared``, or None:
+        ``cmd/<x>/<source>`` must name the source the message declares (the routers let only
+        that source's identity put the key, protocol.keys.REF_SOURCES); the plain key is taken
+        only with ``ref_plain_key``."""
+        named = source_of(self.node.keys.relative(key) or "")
+        if named is None:
+            return None if self.settings.ref_plain_key else PLAIN_KEY
+        return None if named == declared else SOURCE_MISMATCH
+
+    def _refuse_ref(self, refused: str, key: str, source: str, now: float) -> None:
+        st = self.node.stats
+        st["ref_refused"] += 1
+        st[f"ref_refused_{refused}"] = st.get(f"ref_refused_{refused}", 0) + 1
+        if refused != "preempted":  # giving way is the normal case; the others are worth a line
+            self.node.ratelog(logging.WARNING, f"ref_refused:{refused}",
+                              f"not taking {key} from {source!r} ({refused}; listening to "
+                              f"{self.mux.active(now)!r})")
+
     def _on_ref(self, key: str, payload: bytes) -> None:
         msg = self._decode("ref", payload, VelocityCommand, self._small_limits)
         if msg is not None:
             now = time.monotonic()
-            refused = self.mux.admit(msg.source, now, claims=msg.engaged is not False)
+            refused = self._misnamed(key, msg.source)
+            if refused is None:
+                refused = self.mux.admit(msg.source, now, claims=msg.engaged is not False)
             if refused is not None:
-                st = self.node.stats
-                st["ref_refused"] += 1
-                st[f"ref_refused_{refused}"] = st.get(f"ref_refused_{refused}", 0) + 1
-                if refused != "preempted":  # giving way is the normal case; the others are worth a line
-                    self.node.ratelog(logging.WARNING, f"ref_refused:{refused}",
-                                      f"not taking cmd/ref from {msg.source!r} ({refused}; listening to "
-                                      f"{self.mux.active(now)!r})")
+                self._refuse_ref(refused, key, msg.source, now)
                 return
             self.supervisor.on_ref(msg, now)
         self._step()  # a bad reference brakes at once, too
 
-    def _on_lock(self, lock: CommandLock) -> None:
+    def _on_lock(self, key: str, payload: bytes) -> None:
+        try:
+            lock = decode(payload, CommandLock, self._small_limits)
+        except DecodeError as exc:  # not a brake: a lock that does not decode changes nothing
+            self.node.stats["invalid_lock"] += 1
+            self.node.ratelog(logging.WARNING, "invalid_lock", f"rejected a cmd/lock message ({exc})")
+            return
         now = time.monotonic()
+        refused = self._misnamed(key, lock.source)
+        if refused is not None:
+            self.node.stats[f"lock_refused_{refused}"] = self.node.stats.get(f"lock_refused_{refused}", 0) + 1
+            self.node.ratelog(logging.WARNING, f"lock_refused:{refused}",
+                              f"not taking the lock on {key} from {lock.source!r} ({refused})")
+            return
         was = self.mux.lock_priority(now)
         self.mux.lock(lock.source, lock.locked, now)
         self.node.stats["locks"] += lock.locked

@@ -72,6 +72,10 @@ class FilterSettings(NodeSettings, FilterConfig, StateGateSettings, RiskStateSet
         "cmd/ref sources by VelocityCommand.source, each {priority, timeout_s}: a command is taken only from "
         "the highest-priority live source (the first listed among equals), as twist_mux does; the joystick "
         "outranks the navigator by default"))
+    ref_plain_key: bool = Field(default=True, description=(
+        "take references and locks on the plain cmd/ref and cmd/lock keys, trusting the source a message "
+        "declares; false: only on cmd/ref/<source> and cmd/lock/<source>, the keys a secure site's routers "
+        "let only that source's identity put (protocol.keys.REF_SOURCES)"))
     ref_default_priority: Priority | None = 0
     """Priority of a cmd/ref source not in ref_sources; null: its commands are refused (ref_unknown_source)."""
     ref_default_timeout_s: Timeout = 0.5

@@ -240,7 +240,7 @@ def setup(node: Node, s: ViewerSettings) -> RerunView:
     node.subscribe(k.objects, TrackedObjects, view.objects)
     node.subscribe(k.camera_image, Image, view.image)
     node.subscribe(k.state, RobotState, view.state)
-    node.subscribe(k.cmd_ref, VelocityCommand, lambda c: view.command("ref", c))
+    node.subscribe(k.cmd_ref_any, VelocityCommand, lambda c: view.command("ref", c))
     node.subscribe(k.cmd_safe, VelocityCommand, lambda c: view.command("safe", c))
     node.subscribe(k.safety_status, SafetyStatus, view.status, queue="fifo")
     return view

@@ -129,7 +129,7 @@ def test_stack_across_a_shaped_link_keeps_maps_fresh_brakes_on_a_cut_and_resumes
         ]
         status = Collector(rs, KEYS.safety_status, SafetyStatus)
         state_lat = Latency(ss, KEYS.state, RobotState)  # robot → server
-        cmd_lat = Latency(rs, KEYS.cmd_ref, VelocityCommand)  # server → robot
+        cmd_lat = Latency(rs, KEYS.cmd_ref_of("operator"), VelocityCommand)  # server → robot
         states = Collector(rs, KEYS.state, RobotState)
         transits = {"camera/image": Transit(rs, ss, KEYS.camera_image), "map/esdf": Transit(ss, rs, KEYS.esdf)}
         node_status = {n: Collector(ss, KEYS.status(n), NodeStatus) for n in ("perception", "mapping")}

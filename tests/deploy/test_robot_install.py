@@ -212,6 +212,8 @@ def test_each_node_gets_its_own_key_and_password_only(tmp_path: Path) -> None:
         assert Path(env["RISKFIELD_TLS_KEY"]).read_bytes() == (etc / f"tls/{s}.key").read_bytes()
         assert env["RISKFIELD_USER"] == f"limo3.{s}" and (etc / f"tls/{s}.key").stat().st_mode & 0o077 == 0
         seen[s] = env["RISKFIELD_PASSWORD"]
+        # with identities, the filter takes a source only from its own key (protocol.keys.REF_SOURCES)
+        assert env.get("RISKFIELD_REF_PLAIN_KEY") == ("false" if s == "safety-filter" else None), s
     assert len(set(seen.values())) == len(services)
     assert (etc / "tls").stat().st_mode & 0o777 == 0o755  # the certificates are public, each key 0600
     install(tmp_path / "root", "--server", "tcp/10.0.0.2:7447", "--robot", "limo3", "--services", " ".join(services))

@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from riskfield.protocol import EsdfGrid, Keys, VelocityCommand
-from riskfield.protocol.keys import READ_ALL, ROLES, ROS_ROUTES, ROUTES, TOPICS
+from riskfield.protocol.keys import READ_ALL, REF_SOURCES, ROLES, ROS_ROUTES, ROUTES, TOPICS
 from riskfield.services.runtime.acl import identity, router_config
 from riskfield.services.runtime.session import zenoh_config
 from riskfield.services.runtime.settings import NodeSettings
@@ -36,6 +36,7 @@ if TYPE_CHECKING:  # the fixture's type; conftest is not imported at run time
 REPO = Path(__file__).resolve().parents[2]
 ROBOT, OTHER = "t_sec", "t_sec2"  # conftest.ROBOTS: the deployment's two robots
 KEYS, OTHER_KEYS = Keys(robot=ROBOT), Keys(robot=OTHER)
+TELEOP_REF, JOY_REF = KEYS.cmd_ref_of("keyboard"), KEYS.cmd_ref_of("joystick")  # REF_SOURCES
 NOBODY = "nobody"  # conftest.NOBODY: valid credentials, no role
 
 
@@ -202,14 +203,34 @@ def test_plain_tcp_is_not_served(secrets: Secrets, server: str) -> None:
 def test_teleop_cmd_safe_never_reaches_a_subscriber(secrets: Secrets, server: str) -> None:
     with watcher(secrets, server) as watch, session(secrets, server, me("teleop")) as tele:
         safe = Collector(watch, KEYS.cmd_safe, VelocityCommand)
-        ref = Collector(watch, KEYS.cmd_ref, VelocityCommand)
-        assert wait_matched(tele, KEYS.cmd_safe) and wait_matched(tele, KEYS.cmd_ref)
+        ref = Collector(watch, TELEOP_REF, VelocityCommand)
+        assert wait_matched(tele, KEYS.cmd_safe) and wait_matched(tele, TELEOP_REF)
         for _ in range(3):
-            deliver(tele, KEYS.cmd_safe, cmd("teleop-forged"), ref, KEYS.cmd_ref, cmd("teleop"))
+            deliver(tele, KEYS.cmd_safe, cmd("teleop-forged"), ref, TELEOP_REF, cmd("teleop"))
         assert sources(safe) == []
         assert set(sources(ref)) == {"teleop"}  # the same session's allowed key got through
         safe.close()
         ref.close()
+
+
+@pytest.mark.parametrize("role", ["navigator", "teleop"])
+def test_a_source_puts_only_its_own_reference_key(secrets: Secrets, server: str, role: str) -> None:
+    """Issue 35: priority follows the key, and the key follows the identity. The navigator (and the
+    keyboard) may not put the joystick's cmd/ref/joystick, its lock, or the plain cmd/ref whose
+    declared source the filter would trust; its own cmd/ref/<source> gets through."""
+    own_key = KEYS.cmd_ref_of(REF_SOURCES[role][0])
+    with watcher(secrets, server) as watch, session(secrets, server, me(role)) as src:
+        others = [JOY_REF, KEYS.cmd_ref, KEYS.cmd_lock_of("joystick"), KEYS.cmd_lock, KEYS.cmd_ref_of("ros2/teleop")]
+        forged = [Collector(watch, k) for k in others]
+        own = Collector(watch, own_key, VelocityCommand)
+        assert all(wait_matched(src, k) for k in others)
+        for k in others:
+            put(src, k, cmd("joystick"))
+        deliver(src, own_key, cmd(role), own, own_key, cmd(role))  # after the forged ones, on the same link
+        assert [c.items for c in forged] == [[]] * len(forged)
+        assert set(sources(own)) == {role}
+        for c in (*forged, own):
+            c.close()
 
 
 def test_only_the_filter_publishes_cmd_safe_and_not_operator_keys(secrets: Secrets, server: str) -> None:
@@ -268,10 +289,10 @@ def test_a_session_receives_only_the_keys_its_role_consumes(secrets: Secrets, se
           session(secrets, server, me("joystick")) as joy,
           session(secrets, server, me("mapping")) as mapping,
           watcher(secrets, server)):
-        at_limo = [Collector(limo, KEYS.cmd_ref, VelocityCommand), Collector(limo, KEYS.esdf)]
-        ref, esdf = Collector(filt, KEYS.cmd_ref, VelocityCommand), Collector(filt, KEYS.esdf)
-        assert wait_matched(joy, KEYS.cmd_ref) and wait_matched(mapping, KEYS.esdf)
-        put(joy, KEYS.cmd_ref, cmd("joystick"))
+        at_limo = [Collector(limo, JOY_REF, VelocityCommand), Collector(limo, KEYS.esdf)]
+        ref, esdf = Collector(filt, KEYS.cmd_ref_any, VelocityCommand), Collector(filt, KEYS.esdf)
+        assert wait_matched(joy, JOY_REF) and wait_matched(mapping, KEYS.esdf)
+        put(joy, JOY_REF, cmd("joystick"))
         put(mapping, KEYS.esdf, _grid(2.0))
         ref.wait(1)
         esdf.wait(1)
@@ -358,8 +379,9 @@ def forge(publisher: zenoh.Session, keys: list[str]) -> None:
 
 @pytest.mark.parametrize(("role", "allowed", "forbidden"), [
     # teleop may put cmd/ref, never cmd/safe: not through cmd/*, the robot's ** or **.
-    ("teleop", "cmd/ref", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/cmd/s$*", f"rf/{ROBOT}/**", "**", "rf/*/cmd/safe",
-                           "rf/**/cmd/safe", f"rf/{ROBOT}/*/safe", "rf/*/cmd/ref"]),
+    ("teleop", "cmd/ref/keyboard", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/cmd/s$*", f"rf/{ROBOT}/**", "**",
+                                    "rf/*/cmd/safe", "rf/**/cmd/safe", f"rf/{ROBOT}/*/safe", "rf/*/cmd/ref",
+                                    f"rf/{ROBOT}/cmd/ref/*", f"rf/{ROBOT}/cmd/ref/**", "rf/*/cmd/ref/keyboard"]),
     # a data service reaches none of the four guarded keys.
     ("mapping", "map/esdf", [f"rf/{ROBOT}/cmd/*", f"rf/{ROBOT}/nav/*", f"rf/{ROBOT}/config/*", f"rf/{ROBOT}/**",
                              "**", f"rf/{ROBOT}/*/*", "rf/*/cmd/ref", "rf/*/nav/goal", "rf/*/config/risk"]),
@@ -481,15 +503,15 @@ def test_two_sites_mesh_over_mutual_tls_and_each_router_enforces_roles(
                     c.close()
             # The teleop's allowed cmd/ref, put after its forged cmd/safe, marks when the latter
             # would have arrived at each site (one session's puts travel its links in order).
-            ref_server = Collector(remote, KEYS.cmd_ref, VelocityCommand)
-            ref_robot = Collector(filt, KEYS.cmd_ref, VelocityCommand)
-            assert wait_until(lambda: (put(tele, KEYS.cmd_ref, cmd("probe")),
+            ref_server = Collector(remote, TELEOP_REF, VelocityCommand)
+            ref_robot = Collector(filt, KEYS.cmd_ref_any, VelocityCommand)
+            assert wait_until(lambda: (put(tele, TELEOP_REF, cmd("probe")),
                                        bool(ref_server.items) and bool(ref_robot.items))[1], timeout_s=15, period_s=0.2)
             assert wait_matched(tele, KEYS.cmd_safe)
             for c in (at_server, at_robot, ref_server, ref_robot):
                 c.clear()
             put(tele, KEYS.cmd_safe, cmd("teleop-forged"))
-            put(tele, KEYS.cmd_ref, cmd("teleop"))
+            put(tele, TELEOP_REF, cmd("teleop"))
             put(filt, KEYS.cmd_safe, cmd("filter"))
             for c in (at_server, at_robot, ref_server, ref_robot):
                 c.wait(1)

@@ -28,7 +28,7 @@ def test_recorded_joystick_publishes_zero_on_release_and_loss(
         {"events": packets((0.3, [(EV_KEY, TRIG, 1), (EV_ABS, RZ, 0)])), "axes": {str(THR): 0}},
     ]}))
     with client_session(router_endpoint) as s:
-        refs = Collector(s, keys.cmd_ref, VelocityCommand)
+        refs = Collector(s, keys.cmd_ref_of("joystick"), VelocityCommand)
         args = ["--robot", robot, "--set", "source=recorded", "--set", f"device={rec}", "--set", "rate_hz=20",
                 "--set", "reconnect_s=0.5", "--set", "max_linear=0.4"]
         with ServiceProcess("joystick", router_endpoint, args) as node:
@@ -56,7 +56,7 @@ def test_raw_event_fifo_drives_the_node(router_endpoint: str, tmp_path: Path) ->
     fifo = tmp_path / "event0"
     os.mkfifo(fifo)
     with client_session(router_endpoint) as s:
-        refs = Collector(s, keys.cmd_ref, VelocityCommand)
+        refs = Collector(s, keys.cmd_ref_of("joystick"), VelocityCommand)
         # Neither the poll (every 600 s) nor the fixed-rate publication (every 1000 s) comes due
         # during the test: only the descriptor wake-up can deliver an event at all.
         args = ["--robot", robot, "--set", "source=raw", "--set", f"device={fifo}", "--set", "speed_scale=",

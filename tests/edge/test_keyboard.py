@@ -39,7 +39,7 @@ def test_keyboard_node_on_a_pty(router_endpoint: str) -> None:
     keys = Keys(robot)
     master, slave = os.openpty()
     with client_session(router_endpoint) as s:
-        refs = Collector(s, keys.cmd_ref, VelocityCommand)
+        refs = Collector(s, keys.cmd_ref_of("keyboard"), VelocityCommand)
         proc = subprocess.Popen(
             [sys.executable, "-m", "riskfield.edge.joystick.keyboard", "-e", router_endpoint, "--robot", robot,
              "hold_s=0.5", "rate_hz=20"],

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from riskfield.protocol import REGISTRY, TOPICS, Keys, RiskConfig, RiskGroup, ade20k
+from riskfield.protocol.keys import QOS, ROUTES, base_of, qos_of, source_of
 from riskfield.protocol.schema import export, json_schemas
 
 
@@ -26,6 +27,23 @@ def test_keys_follow_the_contract():
     assert k2.relative("site1/rf/other/cmd/ref") is None
     assert set(TOPICS) >= {"camera/image", "perception/frame", "map/esdf", "map/esdf/query", "state", "cmd/ref",
                            "cmd/safe", "safety/status", "nav/goal"}
+
+
+def test_each_source_has_a_key_of_its_own_that_maps_back_to_the_contract_key():
+    k = Keys()
+    assert k.cmd_ref_of("joystick") == "rf/limo1/cmd/ref/joystick"
+    assert k.cmd_lock_of("ros2/teleop") == "rf/limo1/cmd/lock/ros2/teleop"
+    for rel, base, source in (("cmd/ref/joystick", "cmd/ref", "joystick"), ("cmd/ref/ros2/nav", "cmd/ref", "ros2/nav"),
+                              ("cmd/ref", "cmd/ref", None), ("cmd/lock/operator", "cmd/lock", "operator"),
+                              ("cmd/refx", "cmd/refx", None), ("map/esdf", "map/esdf", None)):
+        assert (base_of(rel), source_of(rel)) == (base, source)
+    assert qos_of("cmd/ref/joystick") == QOS["cmd/ref"]
+    for bad in ("", "a*", "$x", "a//b", "a b"):
+        with pytest.raises(ValueError):
+            k.cmd_ref_of(bad)
+    # every source role puts only its own key, and the plain key is put by no role
+    assert ROUTES["cmd/ref"].producers == () and ROUTES["cmd/lock"].producers == ()
+    assert ROUTES["cmd/ref/joystick"].producers == ("joystick",)
 
 
 @pytest.mark.parametrize("robot", ["", "a/b", "r*", "r?x", "$x", "a b"])

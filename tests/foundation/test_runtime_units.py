@@ -8,7 +8,9 @@ from typing import ClassVar
 
 import pytest
 
+from riskfield.protocol import Limits
 from riskfield.services.runtime import Inbox, NodeSettings, RateLimitedLog, parse_overrides, zenoh_config
+from riskfield.services.runtime.node import KEYED_SLOTS, _Sub
 
 
 class DemoSettings(NodeSettings):
@@ -131,6 +133,26 @@ def test_slots_are_served_round_robin():
     inbox.put(b, "b0")
     order = [inbox.get(0)[1] for _ in range(4)]
     assert order.index("b0") == 1
+
+
+def test_a_wildcard_latest_subscription_keeps_the_newest_of_each_key_up_to_a_bound():
+    """cmd/ref/<source>: a flood on one source's key never displaces another's newest value; keys
+    past KEYED_SLOTS share one slot, so made-up keys cannot grow the inbox."""
+    inbox = Inbox()
+    sub = _Sub("rf/r/cmd/ref/**", inbox.slot("rf/r/cmd/ref/**", "latest"), None, print, Limits(),
+               keyed=lambda k: inbox.slot(k, "latest"))
+    inbox.put(sub.slot_for("rf/r/cmd/ref/joystick"), "joy")
+    for i in range(50):
+        inbox.put(sub.slot_for("rf/r/cmd/ref/navigator"), f"nav{i}")
+    for i in range(KEYED_SLOTS + 5):
+        inbox.put(sub.slot_for(f"rf/r/cmd/ref/made-up{i}"), f"x{i}")
+    assert len(sub.slots) == 1 + KEYED_SLOTS
+    got = []
+    while (item := inbox.get(0)) is not None:
+        assert item[0].owner is sub
+        got.append(item[1])
+    assert got[:2] == ["joy", "nav49"] and f"x{KEYED_SLOTS + 4}" in got
+    assert sum(s.received for s in sub.slots) == 1 + 50 + KEYED_SLOTS + 5
 
 
 def test_get_wakes_when_an_item_arrives():

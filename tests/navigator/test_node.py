@@ -33,7 +33,7 @@ def test_closed_loop_over_zenoh_reaches_goal_and_stops(router_endpoint):
     args = ["--robot", robot, "--set", "rate_hz=50", "--set", "nav.v_max=0.8", "--set", "stop_hold_s=30"]
     with ServiceProcess("navigator", router_endpoint, args) as nav, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/navigator"), nav.output
-        cmds = Collector(session, f"rf/{robot}/cmd/ref", VelocityCommand)
+        cmds = Collector(session, f"rf/{robot}/cmd/ref/navigator", VelocityCommand)
         goal = NavGoal(waypoints=np.array([[0.6, 0.0, 0.0], [0.6, 0.5, 0.0]]), tolerance=0.05, loop=False)
         x, y, yaw = 0.0, 0.0, 0.0
         put(session, f"rf/{robot}/state", state(x, y, yaw))
@@ -69,7 +69,7 @@ def test_stale_state_gives_zero_commands(router_endpoint):
             "--set", "status_period_s=0.1"]
     with ServiceProcess("navigator", router_endpoint, args) as nav, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/navigator"), nav.output
-        cmds = Collector(session, f"rf/{robot}/cmd/ref", VelocityCommand)
+        cmds = Collector(session, f"rf/{robot}/cmd/ref/navigator", VelocityCommand)
         status = StatusWatch(session, f"rf/{robot}/status/navigator")
         # Its loop has run for a while (uptime) without a goal: it published no command.
         assert status.wait(lambda st: st.uptime_s > 0.3).published.get("cmd/ref", 0) == 0
@@ -93,7 +93,7 @@ def test_hostile_goals_and_states_are_rejected_and_node_keeps_serving(router_end
     args = ["--robot", robot, "--set", "rate_hz=50", "--set", "status_period_s=0.2"]
     with ServiceProcess("navigator", router_endpoint, args) as nav, client_session(router_endpoint) as session:
         assert wait_alive(session, f"rf/{robot}/alive/navigator"), nav.output
-        cmds = Collector(session, f"rf/{robot}/cmd/ref", VelocityCommand)
+        cmds = Collector(session, f"rf/{robot}/cmd/ref/navigator", VelocityCommand)
         status = Collector(session, f"rf/{robot}/status/navigator", NodeStatus)
         goal = NavGoal(waypoints=np.array([[1.0, 1.0, 0.0]]), tolerance=0.05, loop=False)
         st = state(0, 0, 0)

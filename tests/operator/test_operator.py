@@ -62,7 +62,7 @@ def test_operator_node_publishes_references(router_endpoint):
     args = ["--robot", "t_op", "--set", "targets=[[ball, 2.0, 0.0]]", "--set", "seed=4"]
     with ServiceProcess("operator", router_endpoint, args) as op, client_session(router_endpoint) as s:
         assert wait_alive(s, "rf/t_op/alive/operator"), op.output
-        refs = Collector(s, "rf/t_op/cmd/ref", VelocityCommand)
+        refs = Collector(s, "rf/t_op/cmd/ref/operator", VelocityCommand)
         first = refs.wait(2)
         assert all(r.linear == (0, 0, 0) and r.angular == (0, 0, 0) for r in first[:2])  # no state yet: zero
         refs.clear()

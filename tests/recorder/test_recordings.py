@@ -492,3 +492,6 @@ def test_a_recorded_lock_or_unlock_is_withheld_like_the_commands():
     from riskfield.services.recorder.replay import is_command
 
     assert is_command("rf/limo1/cmd/lock") and not is_command("rf/limo1/cmd/lockout")
+    # each source's own key too (protocol.keys.REF_SOURCES): a replayed joystick would drive
+    assert all(is_command(f"rf/limo1/{k}") for k in ("cmd/ref/joystick", "cmd/ref/ros2/nav", "cmd/lock/operator"))
+    assert not is_command("rf/limo1/cmd/refx/joystick") and not is_command("rf/limo1/map/esdf")

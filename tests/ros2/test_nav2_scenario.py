@@ -91,7 +91,7 @@ def test_nav2_cmd_vel_through_the_safety_filter(router_endpoint):
         grids = Collector(s, f"{NS}/riskfield/costmap")
         diags = Collector(s, f"{NS}/diagnostics")
         states = Collector(s, f"rf/{ROBOT}/state", RobotState)
-        refs = Collector(s, f"rf/{ROBOT}/cmd/ref", VelocityCommand)
+        refs = Collector(s, f"rf/{ROBOT}/cmd/ref/**", VelocityCommand)
         safety = Collector(s, f"rf/{ROBOT}/safety/status", SafetyStatus)
         status = Collector(s, f"rf/{ROBOT}/status/ros2-bridge", NodeStatus)
 

@@ -17,8 +17,12 @@ class Sources:
     """Map and state at the sensors' 20 Hz, and a navigator and (when on) a joystick on cmd/ref,
     interleaved in one thread, as two publishers reach the filter."""
 
-    def __init__(self, session, robot: str):
+    def __init__(self, session, robot: str, keyed: bool = False):
         self.session, self.root = session, f"rf/{robot}"
+        # keyed: each source on its own cmd/ref/<source> (protocol.keys.REF_SOURCES), else the plain key
+        self.keys = {n: f"{self.root}/cmd/ref/{n}" if keyed else f"{self.root}/cmd/ref"
+                     for n in ("navigator", "joystick")}
+        self.forged: list[tuple[str, VelocityCommand]] = []  # (key, message) put each cycle too
         self.joystick: VelocityCommand | None = None
         self.navigator = VelocityCommand(linear=(0.3, 0.0, 0.0), angular=(0.0, 0.0, 0.0), source="navigator")
         self._stop = threading.Event()
@@ -30,10 +34,12 @@ class Sources:
             esdf.header.stamp_ns = time.time_ns()
             put(self.session, f"{self.root}/map/esdf", esdf)
             put(self.session, f"{self.root}/state", st)
-            put(self.session, f"{self.root}/cmd/ref", self.navigator)
+            put(self.session, self.keys["navigator"], self.navigator)
+            for key, msg in list(self.forged):
+                put(self.session, key, msg)
             joystick = self.joystick
             if joystick is not None:
-                put(self.session, f"{self.root}/cmd/ref", joystick)
+                put(self.session, self.keys["joystick"], joystick)
             time.sleep(0.05)  # the sources' 20 Hz (not a synchronisation)
 
     def __enter__(self) -> Sources:
@@ -94,6 +100,52 @@ def test_the_joystick_outranks_the_navigator_which_takes_over_after_its_timeout_
         status.close()
         cmds.close()
         counters.close()
+        assert proc.stop() == 0, proc.output
+
+
+def test_a_source_is_the_key_it_puts_on_so_no_one_takes_the_joysticks_priority_or_lock(router_endpoint):
+    """Issue 35: with ref_plain_key=false (a secure site, whose routers let only a source's identity
+    put cmd/ref/<source>), a command that declares the joystick on the operator's key, or on the
+    plain key, is refused and counted, and so is a lock put under another source's name; the
+    joystick on its own key still wins, and a lock on the operator's own key still brakes."""
+    robot = "t_sf_keyed"
+    args = ["--robot", robot, "--set", "status_period_s=0.2", "--set", "ref_plain_key=false"]
+    root = f"rf/{robot}"
+    with ServiceProcess("safety-filter", router_endpoint, args) as proc, client_session(router_endpoint) as session:
+        assert wait_alive(session, f"{root}/alive/safety-filter"), proc.output
+        status = Collector(session, f"{root}/safety/status", SafetyStatus)
+        cmds = Collector(session, f"{root}/cmd/safe", VelocityCommand)
+        counters = StatusWatch(session, f"{root}/status/safety-filter")
+        with Sources(session, robot, keyed=True) as src:
+            wait_fallback(status, None)
+            assert wait_until(lambda: latest(status).ref_source == "navigator", 5), latest(status)
+            fast = stick(0.6, engaged=True)
+            # The operator's identity claims the joystick on its own key; anyone on the plain key.
+            src.forged = [(f"{root}/cmd/ref/operator", fast), (f"{root}/cmd/ref", fast)]
+            counters.wait(lambda ns: ns.extra.get("ref_refused_source_mismatch", 0) >= 10
+                          and ns.extra.get("ref_refused_plain_key", 0) >= 10)
+            cmds.clear()
+            assert wait_until(lambda: len(cmds.items) >= 10, 5)
+            assert {c.source for c in cmds.items} == {"safety-filter/navigator"}, latest(status).fallback
+            assert latest(status).ref_source == "navigator"
+            # Locks: under another's name, or on the plain key, nothing; on the operator's own key, a brake.
+            put(session, f"{root}/cmd/lock/navigator", CommandLock(locked=True, source="operator"))
+            put(session, f"{root}/cmd/lock", CommandLock(locked=True, source="operator"))
+            counters.wait(lambda ns: ns.extra.get("lock_refused_source_mismatch", 0) >= 1
+                          and ns.extra.get("lock_refused_plain_key", 0) >= 1)
+            assert latest(status).fallback is None and latest(status).ref_source == "navigator"
+            put(session, f"{root}/cmd/lock/operator", CommandLock(locked=True, source="operator"))
+            wait_fallback(status, "locked")
+            put(session, f"{root}/cmd/lock/navigator", CommandLock(locked=False, source="operator"))  # refused
+            counters.wait(lambda ns: ns.extra.get("lock_refused_source_mismatch", 0) >= 2)
+            assert latest(status).fallback == "locked"
+            put(session, f"{root}/cmd/lock/operator", CommandLock(locked=False, source="operator"))
+            wait_fallback(status, None)
+            # The joystick on its own key takes over.
+            src.joystick = stick(0.1, engaged=True)
+            assert wait_until(lambda: latest(status).ref_source == "joystick", 5), latest(status)
+        for c in (status, cmds, counters):
+            c.close()
         assert proc.stop() == 0, proc.output
 
 

@@ -343,7 +343,7 @@ def test_bridge_node_over_zenoh_serves_through_garbage(router_endpoint):
     with ServiceProcess("ros2-bridge", router_endpoint, args) as bridge, client_session(router_endpoint) as s:
         assert wait_alive(s, f"rf/{robot}/alive/ros2-bridge"), bridge.output
         twists = Collector(s, f"{ns}/cmd_vel")
-        refs = Collector(s, f"rf/{robot}/cmd/ref", VelocityCommand)
+        refs = Collector(s, f"rf/{robot}/cmd/ref/**", VelocityCommand)
         states = Collector(s, f"rf/{robot}/state", RobotState)
         status = Collector(s, f"rf/{robot}/status/ros2-bridge", NodeStatus)
         zeros = twists.wait(1)  # no cmd/safe yet: the watchdog streams zero TwistStampeds
@@ -395,6 +395,7 @@ def test_bridge_node_over_zenoh_serves_through_garbage(router_endpoint):
         s.put(f"{ns}/cmd_vel_smoothed", valid["cmd_vel_smoothed"])  # teleop is fresh: nav is held back
         assert wait_until(lambda: _extra(status, "nav_preempted") >= 1)
         assert refs.items[-1].source == "ros2/teleop"
+        assert refs.keys[-1] == f"rf/{robot}/cmd/ref/ros2/teleop"  # its own key (protocol.keys.REF_SOURCES)
         assert "rejected a Twist" in bridge.output and "rejected an Odometry" in bridge.output
         # One log line per rate-limit period, not one per bad sample.
         assert bridge.output.count("rejected an Odometry") < 10

@@ -189,14 +189,14 @@ def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, fil
     esdf = far_obstacles_esdf()
     common = ["--robot", robot]
     if filter_service == "relay":
-        filter_args = ["--set", "in_key=cmd/ref", "--set", "out_key=cmd/safe", "--set", "queue=latest"]
+        filter_args = ["--set", "in_key=cmd/ref/joystick", "--set", "out_key=cmd/safe", "--set", "queue=latest"]
     else:
         filter_args = [a for kv in (filter_set or []) for a in ("--set", kv)]
     console.print(f"[bold]latency bench[/bold]: joystick → {filter_service} → limo, robot id {robot}")
     with EmbeddedRouter() as router, ChassisEmulator(on_frame=on_frame) as emu, \
             client_session(router.endpoint) as session, ProcessRunner(router.endpoint, keys) as runner:
         subs = []
-        for key, tl in ((keys.cmd_ref, ref), (keys.cmd_safe, safe)) if hops else ():
+        for key, tl in ((keys.cmd_ref_any, ref), (keys.cmd_safe, safe)) if hops else ():
             def cb(sample: object, tl: Timeline = tl) -> None:
                 t = time.perf_counter()
                 msg = decode(sample.payload.to_bytes(), VelocityCommand)  # type: ignore[attr-defined]

@@ -57,8 +57,8 @@ def run_class(stack: Stack, cls: str, runs: int, run_s: float, perception: str, 
     stack.start("filter", "safety-filter", filter_args(preset))
     traces = []
     k = stack.keys
-    keys = {"state": (k.state, RobotState), "ref": (k.cmd_ref, VelocityCommand), "safe": (k.cmd_safe, VelocityCommand),
-            "status": (k.safety_status, SafetyStatus)}
+    keys = {"state": (k.state, RobotState), "ref": (k.cmd_ref_any, VelocityCommand),
+            "safe": (k.cmd_safe, VelocityCommand), "status": (k.safety_status, SafetyStatus)}
     for run in range(runs):
         stack.start("sim", "simulator", ["--set", f"scenario={scenario}", "--set", "camera_hz=10"])
         with recording(stack.session, keys) as rec:

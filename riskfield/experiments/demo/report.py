@@ -42,6 +42,7 @@ from riskfield.protocol import (
     VelocityCommand,
     decode,
 )
+from riskfield.protocol.keys import base_of
 from riskfield.services.recorder.mcap_io import iter_mcap, latest_recording, raw_key, read_records
 from riskfield.services.simulator.scene import Scene
 
@@ -95,7 +96,7 @@ def load_streams(mcap_path: str | Path, root: str) -> Streams:
             s.t0_ns = first
         t = (rec.log_time_ns - first) / 1e9
         last = rec.log_time_ns
-        rel = rec.key[len(root) + 1:] if rec.key.startswith(root + "/") else rec.key
+        rel = base_of(rec.key[len(root) + 1:]) if rec.key.startswith(root + "/") else rec.key
         s.counts[rel] += 1
         try:
             if rel == "state":
