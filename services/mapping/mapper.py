@@ -63,6 +63,7 @@ from .esdf_integrator import EsdfIntegrator
 from .free_floor import FreeFloorIntegrator, FreeFloorLayer
 from .keyframes import NEW, UPDATE, KeyframeMap
 from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
+from .objects import MapReading
 from .occupancy import semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
 from .projective_integrator import ProjectiveIntegrator
@@ -476,6 +477,19 @@ class Mapper:
         if self.volume is not None:
             self._groups = (groups, self.volume.origin_index.copy())
         return groups
+
+    def reading(self, occupancy: np.ndarray) -> MapReading | None:
+        """What the object tracker reads of this update, whose occupancy is ``occupancy``; None
+        before the first frame placed the volume."""
+        if self.volume is None:
+            return None
+        k_lo, k_hi, _ = self.band_indices()
+        tsdf, semantic = self.read  # the layers the occupancy was made of
+        return MapReading(
+            occupancy=occupancy, band=(k_lo, k_hi), origin=self.volume.origin, voxel_size=self.volume.voxel_size,
+            label=semantic.label, tsdf=tsdf.tsdf, weight=tsdf.weight, min_weight=self.config.min_weight,
+            hit=self.tsdf.hit, present_hit=None if self.present is None else self.present.hit,
+            label_to_group=self.label_to_group, stamp_ns=self.stamp_ns, now_ms=self.now_ms)
 
     def band_indices(self) -> tuple[int, int, float]:
         """z-voxel range [k_lo, k_hi) whose centres lie in the height band, and the slice's z."""

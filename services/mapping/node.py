@@ -206,7 +206,7 @@ class MappingNode:
         if self.tracker is None or update.occupancy is None:
             return
         t0 = time.perf_counter()
-        objects = self.tracker.update_map(self.mapper, update.occupancy)
+        objects = self.tracker.update_map(self.mapper.reading(update.occupancy))
         self.mapper.protected = self.tracker.protected()  # the next decay forgets the rest (T_w)
         self.node.publish(self.node.keys.objects, TrackedObjects(header=update.primary.header.model_copy(),
                                                                  objects=objects))

@@ -42,7 +42,8 @@ how young a track is). Then bounded: capped at ``object_max_speed``, and zero be
 walking person-sized box within 0.15 m/s after 5 maps, a static scene at zero).
 
 Pure core: no I/O; the mapping node calls ``ObjectTracker.update_map`` after each ESDF update and
-publishes the result with the ESDF's header.
+publishes the result with the ESDF's header. The tracker reads the map only through ``MapReading``
+(``Mapper.reading``), and gives back only ``protected``: the footprints the map's decay keeps.
 """
 
 from __future__ import annotations
@@ -50,7 +51,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numba import njit
@@ -219,6 +219,27 @@ class Track:
     seen_ms: int | None = None  # the newest sighting of its footprint (``Detection.seen_ms``)
 
 
+@dataclass(frozen=True)
+class MapReading:
+    """All the tracker reads of one map update (``Mapper.reading``), and nothing else of the map:
+    the semantic occupancy and the layers it was made of (the present layer's overlay), the slice's
+    height band, and the map's clocks."""
+
+    occupancy: np.ndarray  # per-voxel obstacle risk group
+    band: tuple[int, int]  # z-voxel range [k_lo, k_hi) of the ESDF slice's height band
+    origin: np.ndarray  # the volume's origin (m)
+    voxel_size: float
+    label: np.ndarray  # per-voxel label of the layers read
+    tsdf: np.ndarray  # their signed distances and weights: a surface voxel is a sighting
+    weight: np.ndarray
+    min_weight: float
+    hit: np.ndarray  # when each voxel was last seen as a surface (the ``hit`` clock, ms)
+    present_hit: np.ndarray | None  # the same for the current frame's layer, if there is one
+    label_to_group: np.ndarray
+    stamp_ns: int  # the map's stamp
+    now_ms: int  # the map's clock (``Mapper.now_ms``)
+
+
 class ObjectTracker:
     """Footprints of movable objects → tracks with velocities, across map updates (module doc)."""
 
@@ -251,19 +272,15 @@ class ObjectTracker:
         self.stamp_ns = 0
         self.now_ms = None
 
-    def update_map(self, mapper: object, occupancy: np.ndarray, stamp_ns: int | None = None) -> list[TrackedObject]:
-        """One map update of ``mapper`` (a ``Mapper``), whose semantic occupancy is ``occupancy``:
-        the movable objects of its height band, tracked, at the map's stamp (or ``stamp_ns``)."""
-        volume = mapper.volume  # type: ignore[attr-defined]
-        if volume is None:
+    def update_map(self, reading: MapReading | None, stamp_ns: int | None = None) -> list[TrackedObject]:
+        """One map update, as ``Mapper.reading`` gives it (None: no map yet): the movable objects of
+        its height band, tracked, at the map's stamp (or ``stamp_ns``)."""
+        if reading is None:
             return []
-        k_lo, k_hi, _ = mapper.band_indices()  # type: ignore[attr-defined]
-        m: Any = mapper
-        tsdf, semantic = m.read  # the layers the occupancy was made of (the present layer's overlay)
-        present = m.present.hit if m.present is not None else None
-        dets = detect(occupancy, semantic.label, (k_lo, k_hi), volume.origin, volume.voxel_size, m.label_to_group,
-                      self.params, tsdf.tsdf, tsdf.weight, m.config.min_weight, m.tsdf.hit, present)
-        return self.update(m.stamp_ns if stamp_ns is None else stamp_ns, dets, m.label_to_group, m.now_ms)
+        r = reading
+        dets = detect(r.occupancy, r.label, r.band, r.origin, r.voxel_size, r.label_to_group, self.params,
+                      r.tsdf, r.weight, r.min_weight, r.hit, r.present_hit)
+        return self.update(r.stamp_ns if stamp_ns is None else stamp_ns, dets, r.label_to_group, r.now_ms)
 
     def update(self, stamp_ns: int, detections: list[Detection], label_to_group: np.ndarray | None = None,
                now_ms: int | None = None) -> list[TrackedObject]:
@@ -372,4 +389,4 @@ class ObjectTracker:
         return out
 
 
-__all__ = ["Detection", "ObjectTracker", "Track", "detect"]
+__all__ = ["Detection", "MapReading", "ObjectTracker", "Track", "detect"]

@@ -365,7 +365,7 @@ def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero
         mapper.integrate(pts, conf, lab, T, stamp_ns=10**18 + n * STEP_NS, intrinsics=(cam.fx, cam.fy, cam.cx, cam.cy))
         update = mapper.update_esdf()
         assert update is not None and update.occupancy is not None
-        obj = only(tracker.update_map(mapper, update.occupancy))
+        obj = only(tracker.update_map(mapper.reading(update.occupancy)))
         assert obj.label == PERSON and obj.id == 0 and obj.velocity == (0.0, 0.0, 0.0)
         assert 0.8 <= obj.position[0] <= 1.3 and -0.75 <= obj.position[1] <= -0.35  # the box: x 0.8–1.0, y −0.7–−0.4
 

@@ -49,7 +49,7 @@ class Feed:
         self.t += dt_ns
         update = self.m.update_esdf()
         if self.tracker is not None and update is not None and update.occupancy is not None:
-            self.tracker.update_map(self.m, update.occupancy)
+            self.tracker.update_map(self.m.reading(update.occupancy))
             self.m.protected = self.tracker.protected()
 
     def at(self, x: float, y: float = 0.0) -> tuple[float, int]:

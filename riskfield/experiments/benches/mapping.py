@@ -378,8 +378,8 @@ def main(
     # The tracker after each map update (10 Hz stamps): the room's person and animal, tracked.
     tracker = ObjectTracker.warmed(mapper.config)
     stamps = iter(range(10**9, 10**18, 100_000_000))
-    results["objects"] = _stats(_time(lambda: tracker.update_map(mapper, groups, next(stamps)), repeat))
-    tracked = tracker.update_map(mapper, groups, next(stamps))
+    results["objects"] = _stats(_time(lambda: tracker.update_map(mapper.reading(groups), next(stamps)), repeat))
+    tracked = tracker.update_map(mapper.reading(groups), next(stamps))
 
     fields = {}
     for inflation in ("exact", "dilate"):
