@@ -64,7 +64,7 @@ from scipy import ndimage
 
 from ..runtime.jit import threads
 from . import distance_transform
-from .config import MapperConfig
+from .config import EsdfParams, MapperConfig
 from .esdf_wave import WaveEsdf
 
 
@@ -102,10 +102,15 @@ def _ball(radius: int, ndim: int) -> np.ndarray:
 class EsdfIntegrator:
     """Builds the signed, semantically inflated distance field (see the module docstring)."""
 
-    def __init__(self, config: MapperConfig):
-        self.config = config
+    def __init__(self, params: EsdfParams, voxel_size: float):
+        self.config, self.voxel_size = params, voxel_size
         self._wave: WaveEsdf | None = None  # the wavefront maps, made by the first ``update``
         self._depth_pad = 1  # voxels: the deep voxels' box pad (``_deep_depth``), learnt per call
+
+    @classmethod
+    def of(cls, config: MapperConfig) -> EsdfIntegrator:
+        """Wired from a whole mapper configuration: its ``EsdfParams`` and the volume's voxel size."""
+        return cls(config.part(EsdfParams), config.voxel_size)
 
     # -- the two public forms ---------------------------------------------------------------
     def compute(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +133,7 @@ class EsdfIntegrator:
         groups[0, 0, 0], groups[-1, -1, -1] = 1, 2
         self._field3d(groups, margins)
         if self.config.esdf_incremental == "wave":  # compile the wave kernels (a scratch instance)
-            wave = WaveEsdf(self.config.voxel_size, self.config.max_distance)
+            wave = WaveEsdf(self.voxel_size, self.config.max_distance)
             wave.update(groups, margins)
             groups[3:6, 3:6, 3:6] = 1
             wave.update(groups, margins)
@@ -141,7 +146,7 @@ class EsdfIntegrator:
 
     def _wave_esdf(self) -> WaveEsdf:
         if self._wave is None:
-            self._wave = WaveEsdf(self.config.voxel_size, self.config.max_distance)
+            self._wave = WaveEsdf(self.voxel_size, self.config.max_distance)
         return self._wave
 
     def compute_reference(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -185,10 +190,10 @@ class EsdfIntegrator:
             box = _bbox(groups != previous_groups, 0)
         if box is None:
             return previous[0].copy(), previous[1].copy(), 0
-        n_groups = margins.shape[0] - 1
-        reach = math.ceil((c.max_distance + float(np.max(margins[1:], initial=0.0)) + c.voxel_size) / c.voxel_size) + 1
+        n_groups, v = margins.shape[0] - 1, self.voxel_size
+        reach = math.ceil((c.max_distance + float(np.max(margins[1:], initial=0.0)) + v) / v) + 1
         if c.inflation == "dilate":
-            reach += max(round(float(m) / c.voxel_size) for m in margins[1:]) if n_groups else 0
+            reach += max(round(float(m) / v) for m in margins[1:]) if n_groups else 0
         out_box = _grow(box, reach, groups.shape)
         in_box = _grow(box, 2 * reach, groups.shape)
         if all(s.start == 0 and s.stop == n for s, n in zip(in_box, groups.shape, strict=True)):
@@ -232,7 +237,7 @@ class EsdfIntegrator:
 
         c = self.config
         n_groups = margins.shape[0] - 1
-        v, dmax = c.voxel_size, c.max_distance
+        v, dmax = self.voxel_size, c.max_distance
         groups = np.ascontiguousarray(groups, dtype=np.uint8)
         if not groups.flags.writeable:  # one compiled signature (numba types read-only arrays apart)
             groups = groups.copy()
@@ -284,7 +289,7 @@ class EsdfIntegrator:
         deepest depth of the last call plus one voxel (obstacles change little between frames). The
         result does not depend on p, only the cost does."""
         c = self.config
-        v = c.voxel_size
+        v = self.voxel_size
         if c.esdf_edt == "compiled":
             distance_transform.inside_depth(groups, depth, occupied[0], occupied[1], v, c.threads)
             return
@@ -313,9 +318,9 @@ class EsdfIntegrator:
         """Distance (m, float32) from every voxel to the nearest True voxel of ``sites`` (0 there)."""
         c = self.config
         if c.esdf_edt == "compiled":
-            return distance_transform.edt(sites, c.voxel_size, c.threads)
+            return distance_transform.edt(sites, self.voxel_size, c.threads)
         free = np.ascontiguousarray(~np.asarray(sites, dtype=bool)).view(np.uint8)
-        return _edt_package().edt(free, anisotropy=(c.voxel_size,) * free.ndim, black_border=False,
+        return _edt_package().edt(free, anisotropy=(self.voxel_size,) * free.ndim, black_border=False,
                                   parallel=c.threads)
 
     def _edt_of_label(self, labels: np.ndarray, label: int, equal: bool,
@@ -324,7 +329,7 @@ class EsdfIntegrator:
         ``site_box`` (inclusive lo, hi) bounds where the sites are (``distance_transform.edt_of_label``)."""
         c = self.config
         if c.esdf_edt == "compiled":
-            return distance_transform.edt_of_label(labels, label, equal, c.voxel_size, c.threads, site_box)
+            return distance_transform.edt_of_label(labels, label, equal, self.voxel_size, c.threads, site_box)
         return self._edt((labels == label) == equal)
 
     def _edt_two_sided(self, union: np.ndarray) -> np.ndarray:
@@ -337,7 +342,7 @@ class EsdfIntegrator:
             e += self._edt(~union)
             return e
         labels = np.ascontiguousarray(union).view(np.uint8) + np.uint8(1)
-        return _edt_package().edt(labels, anisotropy=(c.voxel_size,) * union.ndim, black_border=False,
+        return _edt_package().edt(labels, anisotropy=(self.voxel_size,) * union.ndim, black_border=False,
                                   parallel=c.threads)
 
     def _field(self, masks: dict[int, np.ndarray], margins: np.ndarray, shape: tuple[int, ...],
@@ -345,7 +350,10 @@ class EsdfIntegrator:
         """``counts``: voxels per group of the whole grid when ``masks`` cover a part of it (the base
         group is chosen by them, so a part computes what the whole does)."""
         c = self.config
-        v, dmax = c.voxel_size, c.max_distance
+        v, dmax = self.voxel_size, c.max_distance
+        # Group sizes before any dilation: the counts a part is given are the whole grid's groups,
+        # so the whole must choose its base group by the same numbers.
+        sizes = {g: int(m.sum()) for g, m in masks.items()} if counts is None else None
         if c.inflation == "dilate":
             masks, margins = self._dilate(masks, margins), np.zeros_like(margins)
         if not masks:
@@ -357,7 +365,7 @@ class EsdfIntegrator:
         # The base term: the union's signed distance less the smallest margin stands for the
         # group L with that margin (the largest such group, usually walls and structure).
         m_min = min(float(margins[g]) for g in masks)
-        size = (lambda g: int(masks[g].sum())) if counts is None else (lambda g: int(counts[g]))
+        size = sizes.__getitem__ if sizes is not None else (lambda g: int(counts[g]))
         base = max((g for g in masks if float(margins[g]) == m_min), key=lambda g: (size(g), -g))
         if dist is None:
             dist = self._edt(union)
@@ -395,7 +403,7 @@ class EsdfIntegrator:
         The distance to the box is a lower bound of the distance to the group, so outside this
         region the group's term is no smaller than the union term (or is clipped).
         """
-        v = self.config.voxel_size
+        v = self.voxel_size
         tight = _bbox(mask, 0)
         if tight is None:
             return None
@@ -449,13 +457,13 @@ class EsdfIntegrator:
                     face[a] = slice(side, side + 1) if side == 0 else slice(-1, None)
                     exposed[tuple(face)] |= ~union[tuple(outer)]
         exposed &= sub
-        depth[box] = np.where(exposed, np.float32(c.voxel_size), np.float32(0.0))
+        depth[box] = np.where(exposed, np.float32(self.voxel_size), np.float32(0.0))
         deep = sub & ~exposed
         if not deep.any():
             return depth, None
         deep_full = np.zeros(union.shape, dtype=bool)
         deep_full[box] = deep
-        dbox = _bbox(deep_full, math.ceil((c.max_distance + c.voxel_size) / c.voxel_size) + 1)
+        dbox = _bbox(deep_full, math.ceil((c.max_distance + self.voxel_size) / self.voxel_size) + 1)
         assert dbox is not None
         if math.prod(s.stop - s.start for s in dbox) > union.size // 2:
             both = self._edt_two_sided(union)
@@ -471,7 +479,7 @@ class EsdfIntegrator:
         """The paper's voxel inflation: each group's occupancy dilated by round(m_g / v) voxels."""
         out = {}
         for g, mask in masks.items():
-            r = round(float(margins[g]) / self.config.voxel_size)
+            r = round(float(margins[g]) / self.voxel_size)
             if r <= 0:
                 out[g] = mask
                 continue

@@ -88,8 +88,8 @@ class ContributionIntegrator:
     def __init__(self, config: MapperConfig):
         self.config = config
         # Same rays and weights as the mapper's integrator, but uncapped: w_k must be the whole sum.
-        self.integrator = TsdfIntegrator(config.model_copy(update={"max_weight": 1e30}))
-        self.semantic = SemanticIntegrator(config)
+        self.integrator = TsdfIntegrator(config.tsdf.model_copy(update={"max_weight": 1e30}))
+        self.semantic = SemanticIntegrator(config.tsdf, config.surface_band)
         self.scratch: TsdfLayer | None = None
         self.scratch_sem = SemanticLayer((1, 1, 1))
         self.wsum: np.ndarray | None = None

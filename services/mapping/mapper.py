@@ -112,10 +112,11 @@ class Mapper:
         self.volume: Volume | None = None
         self.tsdf = TsdfLayer(self.shape, c.truncation)
         self.semantic = SemanticLayer(self.shape)
-        self.tsdf_integrator = TsdfIntegrator(c)
-        self.semantic_integrator = SemanticIntegrator(c)
-        self.projective_integrator = ProjectiveIntegrator(c)
-        self.esdf_integrator = EsdfIntegrator(c)
+        # nvblox's pattern: each integrator gets its own parameter struct (config.py), nothing else
+        self.tsdf_integrator = TsdfIntegrator(c.tsdf)
+        self.semantic_integrator = SemanticIntegrator(c.tsdf, c.surface_band)
+        self.projective_integrator = ProjectiveIntegrator(c.tsdf, c.surface_band)
+        self.esdf_integrator = EsdfIntegrator.of(c)
         #: the floor seen free (free_floor.py): what an evading robot may retreat into
         self.free_floor = FreeFloorLayer(self.shape)
         self.free_floor_integrator = FreeFloorIntegrator(c.part(FloorParams), c.truncation, c.min_confidence,

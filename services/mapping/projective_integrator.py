@@ -54,7 +54,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..runtime.jit import threads
-from .config import MapperConfig
+from .config import TsdfParams
 from .layers import SemanticLayer, TsdfLayer
 from .pointmap import FrameRejected
 from .semantic_integrator import vote
@@ -224,8 +224,8 @@ def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarr
 class ProjectiveIntegrator:
     """TSDF and semantic votes of a frame with intrinsics, in one voxel-centric pass (module doc)."""
 
-    def __init__(self, config: MapperConfig):
-        self.config = config
+    def __init__(self, params: TsdfParams, surface_band: float):
+        self.config, self.surface_band = params, surface_band  # as SemanticIntegrator's
 
     def integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer | None, points: np.ndarray,
                   confidence: np.ndarray, labels: np.ndarray | None, T_WC: np.ndarray,
@@ -260,7 +260,7 @@ class ProjectiveIntegrator:
         _integrate_projective(pts, conf, lab, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
                               volume.origin.astype(np.float64), volume.voxel_size, K, tsdf.tsdf, tsdf.weight,
                               tsdf.view, tsdf.hit, now_ms, c.max_free_weight, sem_lab, sem_w, tsdf.truncation,
-                              c.max_weight, c.min_confidence, c.min_depth, c.max_depth, c.surface_band, c.carve,
+                              c.max_weight, c.min_confidence, c.min_depth, c.max_depth, self.surface_band, c.carve,
                               c.carve_weight, c.block_size, far, vote_labels, counts)
         total = counts.sum(axis=0)
         return int(total[0]), int(total[1])

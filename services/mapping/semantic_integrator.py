@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .config import MapperConfig
+from .config import TsdfParams
 from .layers import SemanticLayer
 from .raycast import pixel_ray, ray_voxels
 from .volume import Volume
@@ -73,8 +73,10 @@ def _integrate(points: np.ndarray, conf: np.ndarray, labels: np.ndarray, R: np.n
 class SemanticIntegrator:
     """Fuses per-pixel ADE20K labels into a ``SemanticLayer`` (see the module docstring)."""
 
-    def __init__(self, config: MapperConfig):
-        self.config = config
+    def __init__(self, params: TsdfParams, surface_band: float):
+        # the frame's sampling is the TSDF's (TsdfParams); labels are voted in the occupancy's
+        # surface band (OccupancyParams.surface_band_vox × the voxel size), as in the paper
+        self.config, self.surface_band = params, surface_band
 
     def integrate(self, volume: Volume, layer: SemanticLayer, points: np.ndarray, confidence: np.ndarray,
                   labels: np.ndarray, T_WC: np.ndarray) -> int:
@@ -84,6 +86,6 @@ class SemanticIntegrator:
         return int(_integrate(
             np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32),
             np.asarray(labels, dtype=np.uint16), np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
-            volume.origin.astype(np.float64), volume.voxel_size, layer.label, layer.vote, c.surface_band,
+            volume.origin.astype(np.float64), volume.voxel_size, layer.label, layer.vote, self.surface_band,
             c.min_confidence, c.min_depth, c.max_depth, c.pixel_stride,
         ))

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .config import MapperConfig
+from .config import TsdfParams
 from .layers import TsdfLayer
 from .raycast import pixel_ray, ray_voxels
 from .volume import Volume
@@ -213,8 +213,8 @@ def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_wor
 class TsdfIntegrator:
     """Integrates camera-frame pointmaps into a ``TsdfLayer`` (see the module docstring)."""
 
-    def __init__(self, config: MapperConfig):
-        self.config = config
+    def __init__(self, params: TsdfParams):
+        self.config = params
         self._scratch: tuple[np.ndarray, ...] | None = None
 
     def _buffers(self, n_voxels: int, n_pixels: int) -> tuple[np.ndarray, ...]:

@@ -32,7 +32,7 @@ def test_a_mapping_node_imports_no_edt():
         "from riskfield.services.mapping.config import MapperConfig\n"
         "from riskfield.services.mapping.esdf_integrator import EsdfIntegrator\n"
         "import numpy as np\n"
-        "integrator = EsdfIntegrator(MapperConfig(half_extent=(0.5, 0.5, 0.5)))\n"
+        "integrator = EsdfIntegrator.of(MapperConfig(half_extent=(0.5, 0.5, 0.5)))\n"
         "print('edt' in sys.modules)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

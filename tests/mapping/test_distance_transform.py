@@ -108,8 +108,8 @@ def test_deep_voxels_deeper_than_the_learnt_pad_grow_the_box() -> None:
     """The depth box pad is learnt from the last call: a shallow solid, then a much deeper one; the
     second call must find the pad too small, grow the box, and still give the exact depth."""
     cfg = MapperConfig(max_distance=2.0)
-    esdf = EsdfIntegrator(cfg)
-    reference_esdf = EsdfIntegrator(MapperConfig(max_distance=2.0, esdf_edt="edt"))
+    esdf = EsdfIntegrator.of(cfg)
+    reference_esdf = EsdfIntegrator.of(MapperConfig(max_distance=2.0, esdf_edt="edt"))
     m = np.array([0.0, 0.0])
     shallow = np.zeros((60, 60, 60), np.uint8)
     shallow[10:14, 10:14, 10:14] = 1

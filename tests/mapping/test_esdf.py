@@ -37,7 +37,7 @@ def test_solid_shapes_match_exact_signed_distance_within_half_a_voxel(shape: Sph
     c = centres((41, 41, 41))
     sdf = shape.distance(c)
     groups = np.where(sdf <= 0, 3, 0).astype(np.uint8)
-    esdf = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0))
+    esdf = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=5.0))
     d, g = esdf.compute(groups, no_margins())
     assert np.abs(d - sdf).max() <= 0.5 * V + 1e-5
     assert np.all(g[sdf <= 0] == 3) and np.all(d[sdf <= 0] < 0) and np.all(d[sdf > 0] > 0)
@@ -48,7 +48,7 @@ def test_off_lattice_box_corners_stay_within_the_documented_bound() -> None:
     c = centres((41, 41, 41))
     box = Box((0.52, 0.61, 0.43), (1.27, 1.18, 1.33), 0)
     sdf = box.distance(c)
-    d, _ = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0)).compute(
+    d, _ = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=5.0)).compute(
         np.where(sdf <= 0, 3, 0).astype(np.uint8), no_margins())
     assert np.abs(d - sdf).max() <= (np.sqrt(3) - 0.5) * V
     # in front of a face (the nearest box point is on the face) the error is within half a voxel
@@ -63,7 +63,7 @@ def test_half_space_matches_the_plane_distance() -> None:
     plane = Plane((-1, 0, 0), -0.737, 0)  # solid behind the normal: x ≥ 0.737
     signed = c[..., 0] - 0.737  # solid beyond x = 0.737
     groups = np.where(signed >= 0, 3, 0).astype(np.uint8)
-    d, _ = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0)).compute(groups, no_margins())
+    d, _ = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=5.0)).compute(groups, no_margins())
     true = plane.distance(c)
     assert np.abs(d - true).max() <= 0.5 * V + 1e-5
 
@@ -74,7 +74,7 @@ def test_surface_shell_never_overestimates_the_distance(shape: Sphere) -> None:
     c = centres((41, 41, 41))
     sdf = shape.distance(c)
     groups = np.where(np.abs(sdf) <= 0.5 * V, 3, 0).astype(np.uint8)
-    d, _ = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0)).compute(groups, no_margins())
+    d, _ = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=5.0)).compute(groups, no_margins())
     out = (groups == 0) & (sdf > 0)
     assert np.all(d[out] <= sdf[out] + 1e-5)
     assert np.all(d[out] >= sdf[out] - V - 1e-5)
@@ -113,7 +113,7 @@ def test_margins_are_exact_in_metres(seed: int, margins: tuple[float, float, flo
     shape = (9, 8, 7)
     groups = np.where(rng.random(shape) < 0.04, rng.integers(1, 4, shape), 0).astype(np.uint8)
     m = np.array([0.0, *margins])
-    d, g = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=dmax)).compute(groups, m)
+    d, g = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=dmax)).compute(groups, m)
     ref_d, ref_g, terms = brute_force(groups, m, dmax)
     assert np.allclose(d, ref_d, atol=2e-6)
     # the group is the argmin wherever the minimum is unambiguous
@@ -138,7 +138,7 @@ def test_group_crops_are_exact_on_a_larger_grid(seed: int, dmax: float) -> None:
         idx = rng.integers(0, shape, size=(n, 3))
         groups[tuple(idx.T)] = g
     m = np.array([0.0, 0.15, 0.05, 0.0])
-    d, g = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=dmax)).compute(groups, m)
+    d, g = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=dmax)).compute(groups, m)
     ref_d, ref_g, terms = brute_force(groups, m, dmax)
     assert np.allclose(d, ref_d, atol=2e-6)
     srt = np.sort(terms, axis=0)
@@ -150,8 +150,8 @@ def test_margin_of_a_single_voxel_is_exact_and_the_dilation_variant_rounds_it() 
     groups = np.zeros((41, 41, 41), np.uint8)
     groups[20, 20, 20] = 1
     m = np.array([0.0, 0.07, 0.05, 0.0])
-    exact, g = EsdfIntegrator(MapperConfig(voxel_size=V)).compute(groups, m)
-    dil, gd = EsdfIntegrator(MapperConfig(voxel_size=V, inflation="dilate")).compute(groups, m)
+    exact, g = EsdfIntegrator.of(MapperConfig(voxel_size=V)).compute(groups, m)
+    dil, gd = EsdfIntegrator.of(MapperConfig(voxel_size=V, inflation="dilate")).compute(groups, m)
     for n in range(2, 10):
         assert exact[20 + n, 20, 20] == pytest.approx(n * V - 0.5 * V - 0.07, abs=1e-6)
         # dilation by round(0.07 / 0.05) = 1 voxel: the margin becomes 0.05 m
@@ -172,20 +172,20 @@ def test_nearest_group_and_clipping() -> None:
     groups[10, 2, 2] = 3  # low, no margin
     groups[40, 2, 2] = 1  # high, 0.15 m
     m = np.array([0.0, 0.15, 0.05, 0.0])
-    d, g = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=1.0)).compute(groups, m)
+    d, g = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=1.0)).compute(groups, m)
     # midway-ish: at x index 26 the low voxel is 16 voxels (0.8 m) away, the high one 14 (0.7 − 0.15)
     assert g[26, 2, 2] == 1 and d[26, 2, 2] == pytest.approx(0.7 - 0.025 - 0.15, abs=1e-6)
     assert g[12, 2, 2] == 3
     # far from both: clipped to max_distance, no group
     groups2 = np.zeros((61, 5, 5), np.uint8)
     groups2[0, 2, 2] = 2
-    d2, g2 = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=0.5)).compute(groups2, m)
+    d2, g2 = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=0.5)).compute(groups2, m)
     assert d2.max() == pytest.approx(0.5) and np.all(g2[d2 >= 0.5] == 0) and g2[3, 2, 2] == 2
     assert d2.min() >= -0.5
 
 
 def test_empty_occupancy_is_max_distance_everywhere() -> None:
-    d, g = EsdfIntegrator(MapperConfig(max_distance=1.25)).compute(np.zeros((7, 8, 9), np.uint8), no_margins())
+    d, g = EsdfIntegrator.of(MapperConfig(max_distance=1.25)).compute(np.zeros((7, 8, 9), np.uint8), no_margins())
     assert np.all(d == np.float32(1.25)) and not g.any()
 
 
@@ -197,7 +197,7 @@ def test_slice_is_the_min_over_the_band_of_the_3d_field(seed: int) -> None:
     groups = np.where(rng.random(shape) < 0.01, rng.integers(1, 4, shape), 0).astype(np.uint8)
     k_lo, k_hi = 3, 8
     m = np.array([0.0, 0.15, 0.05, 0.0])
-    esdf = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=0.8))
+    esdf = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=0.8))
     d2, _ = esdf.compute_slice(groups, k_lo, k_hi, m)
     assert d2.shape == (24, 20, 1)
     band_only = np.zeros_like(groups)
@@ -225,7 +225,7 @@ def test_one_multi_label_edt_gives_both_sides_of_a_solid(seed: int) -> None:
         lo = rng.integers(0, [26, 20, 16])
         hi = lo + rng.integers(2, 9, size=3)
         union[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = True
-    esdf = EsdfIntegrator(MapperConfig(voxel_size=V, max_distance=5.0))
+    esdf = EsdfIntegrator.of(MapperConfig(voxel_size=V, max_distance=5.0))
     depth, outside = esdf._inside(union)
     v = (V,) * 3
     inside_true = edt_binary(union, v)

@@ -70,7 +70,7 @@ def test_wave_equals_full_recompute_on_random_edit_sequences(start: list, edits:
                                                              margins: tuple) -> None:
     """Adds, removals, relabels, several in a row, four risk groups with different margins."""
     cfg = MapperConfig(max_distance=max_distance, threads=1)
-    oracle = EsdfIntegrator(cfg)
+    oracle = EsdfIntegrator.of(cfg)
     wave = WaveEsdf(cfg.voxel_size, cfg.max_distance)
     m = np.array(margins)
     groups = np.zeros(SHAPE, np.uint8)
@@ -91,7 +91,7 @@ def test_a_local_edit_touches_only_what_it_changes() -> None:
     """One voxel added beside a wall moves only the voxels nearer to it than to the wall; removing it
     again restores the field exactly. Through ``EsdfIntegrator.update`` (the option)."""
     cfg = MapperConfig(max_distance=0.5, esdf_incremental="wave")
-    esdf = EsdfIntegrator(cfg)
+    esdf = EsdfIntegrator.of(cfg)
     margins = np.array([0.0, 0.15, 0.05, 0.0])
     groups = np.zeros((60, 60, 40), np.uint8)
     groups[:, :, 0:2] = 3
@@ -114,7 +114,7 @@ def test_a_local_edit_touches_only_what_it_changes() -> None:
 
 def test_new_shape_or_margins_start_over() -> None:
     cfg = MapperConfig(max_distance=0.3)
-    wave, oracle = WaveEsdf(cfg.voxel_size, cfg.max_distance), EsdfIntegrator(cfg)
+    wave, oracle = WaveEsdf(cfg.voxel_size, cfg.max_distance), EsdfIntegrator.of(cfg)
     groups = np.zeros((20, 20, 20), np.uint8)
     groups[5:9, 5:9, 5:9] = 2
     for margins in (np.array([0.0, 0.1, 0.0]), np.array([0.0, 0.1, 0.2])):
@@ -138,7 +138,7 @@ def test_wave_follows_a_volume_shift(start: list, after: list, delta: tuple) -> 
     """The maps move with the volume (``volume.shift_array``), sites left behind are lost, entering
     voxels are free; then an edit: the field is the full recompute's."""
     cfg = MapperConfig(max_distance=0.35, threads=1)
-    oracle, wave = EsdfIntegrator(cfg), WaveEsdf(cfg.voxel_size, cfg.max_distance)
+    oracle, wave = EsdfIntegrator.of(cfg), WaveEsdf(cfg.voxel_size, cfg.max_distance)
     m = np.array([0.0, 0.15, 0.05, 0.0, 0.3])
     groups = np.zeros(SHAPE, np.uint8)
     for e in start:

@@ -31,7 +31,7 @@ def fuse(scene: list, poses: list[np.ndarray], cfg: MapperConfig,
     for T in poses:
         pts, conf, lab = render(scene, T, CAM)
         if projective:
-            ProjectiveIntegrator(cfg).integrate(vol, layer, sem, pts, conf, lab, T, K)
+            ProjectiveIntegrator(cfg, cfg.surface_band).integrate(vol, layer, sem, pts, conf, lab, T, K)
         else:
             TsdfIntegrator(cfg).integrate(vol, layer, pts, conf, T)
     return vol, layer, sem
@@ -136,7 +136,7 @@ def test_low_confidence_and_weight_cap() -> None:
     pts, _, lab = render([Plane((1, 0, 0), 0.8, 0)], T, CAM)
     vol = Volume.centred(cfg.voxel_size, cfg.shape, np.zeros(3))
     layer = TsdfLayer(vol.shape, cfg.truncation)
-    integ = ProjectiveIntegrator(cfg)
+    integ = ProjectiveIntegrator(cfg, cfg.surface_band)
     assert integ.integrate(vol, layer, None, pts, np.full(pts.shape[:2], 0.1, np.float32), lab, T, K) == (0, 0)
     assert layer.weight.max() == 0
     for _ in range(5):
@@ -170,5 +170,5 @@ def test_bad_intrinsics_reject_the_frame() -> None:
     vol = Volume.centred(cfg.voxel_size, cfg.shape, np.zeros(3))
     pts, conf, lab = render([Plane((1, 0, 0), 0.3, 0)], np.eye(4), CAM)
     with pytest.raises(FrameRejected, match="intrinsics"):
-        ProjectiveIntegrator(cfg).integrate(vol, TsdfLayer(vol.shape, cfg.truncation), None, pts, conf, lab,
-                                            np.eye(4), (0.0, 1.0, 0.0, 0.0))
+        ProjectiveIntegrator(cfg, cfg.surface_band).integrate(
+            vol, TsdfLayer(vol.shape, cfg.truncation), None, pts, conf, lab, np.eye(4), (0.0, 1.0, 0.0, 0.0))

@@ -57,7 +57,7 @@ def test_integrator_votes_the_voxel_a_pixel_sees() -> None:
     cfg = MapperConfig(pixel_stride=1, min_confidence=0.0)
     vol = Volume.centred(0.05, (21, 21, 21), np.zeros(3))
     layer = SemanticLayer(vol.shape)
-    integ = SemanticIntegrator(cfg)
+    integ = SemanticIntegrator(cfg, cfg.surface_band)
     T = np.eye(4)  # camera at the origin looking along +z
     pts = np.array([[[0.0, 0.0, 0.3]]], dtype=np.float32)
     target = tuple(vol.to_index(np.array([0.0, 0.0, 0.3])))

@@ -120,10 +120,10 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
     m.set_robot_position(np.zeros(3))
     m.warm_up()
     esdf = m.esdf_integrator
-    old = EsdfIntegrator(MapperConfig(threads=threads, esdf_kernel="numpy", esdf_edt="edt"))
-    with_edt = EsdfIntegrator(MapperConfig(threads=threads, esdf_edt="edt"))  # compiled glue, edt package
+    old = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_kernel="numpy", esdf_edt="edt"))
+    with_edt = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_edt="edt"))  # compiled glue, edt package
     with_edt.warm_up()
-    wave = EsdfIntegrator(MapperConfig(threads=threads, esdf_incremental="wave"))
+    wave = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_incremental="wave"))
     wave.warm_up()
     wave_ms: list[float] = []
     wave_err: list[float] = []  # max |d_wave − d_full| per frame
