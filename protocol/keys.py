@@ -195,7 +195,7 @@ ROUTES: dict[str, Route] = {
 #: ``cmd/ref/<source>`` and ``cmd/lock/<source>`` under (additive keys). The key names the source,
 #: the filter refuses a message that names another, and the routers' access control lets only
 #: this role put that key: on a secure site no identity can claim another's priority or release
-#: another's lock (issue 35). The plain ``cmd/ref`` / ``cmd/lock`` trust the message's declared
+#: another's lock. The plain ``cmd/ref`` / ``cmd/lock`` trust the message's declared
 #: ``source``; they stay in the contract for loopback stacks and no role of a secure site puts them.
 REF_SOURCES: dict[str, tuple[str, ...]] = {
     "joystick": ("joystick",), "teleop": ("keyboard",), "navigator": ("navigator",), "operator": ("operator",),

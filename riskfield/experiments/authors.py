@@ -1,6 +1,6 @@
 """The authors' benchmark protocol (``riskfield bench safety --protocol authors``), as plain objects.
 
-The facts restated in issue 14 from the authors' published protocol (phai-lab/SafeDF, parent of its
+The facts of the authors' published protocol (phai-lab/SafeDF, parent of its
 latest commit: ``repro/table_metrics/README_success6_final_experiment.md``,
 ``scripts/export_scene_specific_semantic_risk_configs.py``, ``scripts/recompute_paper_tables_from_rollouts.py``),
 written here in our own code:

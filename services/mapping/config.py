@@ -106,8 +106,8 @@ class TsdfParams(BaseModel):
     ``max_weight``). A surface appearing in space long seen free is then not drowned: its mean
     crosses into the surface band once its weight is about 3× this (the band is a quarter of the
     truncation). Measured (``tests/mapping/test_present.py``, 10 Hz frames): a person appears in
-    2 frames at the ``sim`` backend's confidence ≈ 7 of a fresh keyframe, 3 at 4, 5 at 2 (with 50,
-    the cap of surfaces then, 2 s at 7: issue 23). Lower shows single-frame outliers as obstacles."""
+    2 frames at the ``sim`` backend's confidence ≈ 7 of a fresh keyframe, 3 at 4, 5 at 2 (a cap of
+    50 would take 2 s at 7). Lower shows single-frame outliers as obstacles."""
     max_pixels: Annotated[int, Field(gt=0)] = 4_000_000
     """Frames with more pixels than this are rejected as absurd."""
 

@@ -15,7 +15,7 @@ Before any state arrives it follows the camera of the incoming frames instead, a
 
 The mapper has no I/O; it is driven by the mapping node, the benchmark and the tests.
 
-**The map shows the present** (issue 23). Every frame that carries the camera's current view —
+**The map shows the present.** Every frame that carries the camera's current view —
 a frame without ``kind``, a ``tracking`` frame, a ``keyframe_new`` — reaches the map, as the
 authors' release integrates every current frame:
 

@@ -21,9 +21,9 @@ Per frame:
    everywhere. Or follow the keyframe map-update protocol (``publish = "updates"``, see the
    README): ``keyframe_new`` once per keyframe, ``keyframe_update`` (full pointmap) every
    ``update_every`` fused frames and when the next keyframe starts, ``tracking`` (the current
-   frame's own pointmap and pose) otherwise. Until issue 23, ``keyframe`` re-sent the keyframe's
-   fused pointmap and pose under each new frame's stamp: the map showed the keyframe's moment as
-   the present (a person 1.5 m from where they were, a departed one kept as a ghost).
+   frame's own pointmap and pose) otherwise. Never the keyframe's fused pointmap under a newer
+   frame's stamp: the map would show the keyframe's moment as the present (a person 1.5 m from
+   where they are, a departed one kept as a ghost).
 
 **Drift and correction** (``publish = "updates"``, ``correct_every`` = n > 0): with pose drift on
 (``drift_t``, ``drift_yaw``), every n-th new keyframe triggers a simulated loop closure: the drift is

@@ -327,7 +327,7 @@ class DoubleIntegrator(BarrierModel):
     a_max ≥ a_b and s ≤ max(s, s₀)): from its safe set the rows stay feasible within the
     bounds, which eq. 14 as written (``hocbf``, whose safe set admits any speed) cannot promise.
     Outside the safe set the row recovers at the HOCBF's rate γ = (1 + 2|h_b|/max(h, 1 mm))/c
-    (``model.point_row``: ψ₁ = h_b/c, k_fast = 1/c); with a fixed floor at κ, as before issue 25.
+    (``model.point_row``: ψ₁ = h_b/c, k_fast = 1/c); with a fixed floor, at the constant rate κ.
 
     A fixed speed floor s₀ (``brake_speed_floor``) keeps the input's coefficient c ≥ s₀/a_b: with
     φ = s²/(2a_b) alone, c vanishes at rest and a robot at rest just inside its barrier (a

@@ -88,7 +88,7 @@ class BarrierParams(BaseModel):
     the paper's HOCBF (h_b = h + ḣ/k₂), above it the robot can still stop within the bounds; on
     the safety benchmark (v ≤ 0.5 m/s < a_b/k₂ = 0.7 m/s) it collides as often as ``hocbf``: at
     zero extra margin (gt, 486 trajectories) 0.037 / 0.004 full-run collisions (ESDF / semantic
-    ESDF) for both, where s₀ = 0.1 m/s with ℓ = 2 cm (the default before issue 25) had
+    ESDF) for both, where a fixed s₀ = 0.1 m/s with ℓ = 2 cm had
     0.171 / 0.074 — its fast approach rode the map's surface within millimetres, and the map
     reads a few millimetres to centimetres long. A fixed s₀ keeps the input coefficient ≥ s₀/a_b
     (``DoubleIntegrator``). ``brake_rate_length`` ℓ (m) shapes the class-K function

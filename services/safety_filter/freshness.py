@@ -1,4 +1,4 @@
-"""Freshness of the map by its content, not by its arrival (issue 19, DESIGN "What a stamp means").
+"""Freshness of the map by its content, not by its arrival (DESIGN "What a stamp means").
 
 An ESDF's ``header.stamp_ns`` is the time of the newest sensor data integrated into it; mapping
 keeps it across re-publications (a risk-config change, a recentring), so a map re-emitted while

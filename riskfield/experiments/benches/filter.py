@@ -15,10 +15,10 @@ footprint's disc cover, the braking-distance barrier, the slack-relaxed QP), eac
 with numpy beside it). A second table compares, per model, the compiled step (``backend: numba``,
 ``safety_filter.compiled``: one numba call per step) with the numpy step of the same configuration
 and with ``before`` on the same compiled backend (so the ratio is the configuration's, not the
-backend's), as ratios measured in this run (issue 16: p99 ≤ 30 µs for every model). A third table
+backend's), as ratios measured in this run (the target: p99 ≤ 30 µs for every model). A third table
 shows the norms of the field's Hessian at the double integrator's query points for each
-interpolation against the analytic geometry's own (issue 13: finite-difference Hessians of the
-trilinear field reach tens of m⁻¹ on 5 cm voxels).
+interpolation against the analytic geometry's own (finite-difference Hessians of the trilinear
+field reach tens of m⁻¹ on 5 cm voxels).
 """
 
 from __future__ import annotations

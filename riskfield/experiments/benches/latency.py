@@ -14,7 +14,7 @@ split the total into hops (those subscribers add a little load of their own).
 ``--filter relay`` replaces the safety filter by the relay node (cmd/ref → cmd/safe unchanged):
 the transport-only baseline, and a way to run the bench before a filter exists.
 
-The camera path (issue 16, ``--path camera`` or ``both``, the default): the services from the
+The camera path (``--path camera`` or ``both``, the default): the services from the
 camera to ``cmd/safe`` exactly as ``riskfield demo`` runs them (``demo.run.camera_pipeline``:
 simulator in the demo's room, perception, mapping, safety filter), each in its own process over a
 loopback router, while an operator's reference turns the robot on the spot at 20 Hz so every
@@ -25,7 +25,7 @@ clock that stamped them) and reports, with the demo report's own functions
 (``experiments.latency.latency_summary``): camera → first ``cmd/safe`` after the ESDF built from that
 frame arrived, the ESDF content age at each ``cmd/safe`` (now − stamp) and its arrival age
 (now − arrival), p50/p99, the time from the stamp to each stage and the frames a stage never
-passed on, and the nodes' own timings from their status. Targets (issue 23): content age p99 ≤
+passed on, and the nodes' own timings from their status. Targets: content age p99 ≤
 camera period + 40 ms, camera → ``cmd/safe`` p99 ≤ 100 ms. The bench's own subscribers (the images
 and pointmaps included) load the machine a little, as the demo's recorder does.
 
@@ -67,11 +67,11 @@ from riskfield.services.runtime.processes import EmbeddedRouter, ProcessRunner, 
 app = typer.Typer(add_completion=False)
 TARGET_P99_MS = 5.0
 MAX_LINEAR = 0.5
-#: The camera path's targets (issue 23, tightening issue 16's period + 60 ms): ESDF content age at
+#: The camera path's targets: ESDF content age at
 #: ``cmd/safe`` p99 ≤ the camera period + this, and camera frame → first ``cmd/safe`` using it p99 ≤ that.
 CONTENT_AGE_MARGIN_MS = 40.0
 CAMERA_TO_SAFE_P99_MS = 100.0
-#: ``--previous``: the scheduling before issue 16's latency work, per service label.
+#: ``--previous``: the earlier scheduling (the ESDF at a fixed rate, the filter on its timer), per service label.
 PREVIOUS = {"mapping": ["--set", "esdf_rate_hz=10"], "safety-filter": ["--set", "step_on_map=false"]}
 
 

@@ -9,7 +9,7 @@ velocities from the map, once per map update; ``services/mapping/objects.py``). 
 medians and p99 in milliseconds; ``summary.json`` in ``--out`` holds every number, plus the error
 the dilation variant makes on the margins.
 
-A second table (issue 16) sets the current kernels beside the previous implementation, measured
+A second table sets the current kernels beside the previous implementation, measured
 in the same run on the same frames: TSDF + semantic integration of a frame, projective (the frame's
 intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel semantic rays, at
 full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
@@ -412,7 +412,7 @@ def main(
         table.add_row(name, f"{r['median']:.2f}", f"{r['p99']:.2f}" if "p99" in r else "",
                       f"{r['cpu_median']:.2f}")
     console.print(table)
-    ctable = Table(title="issue 16: previous implementation vs now (same run, same frames; medians)")
+    ctable = Table(title="previous implementation vs now (same run, same frames; medians)")
     for col in ("step", "previous ms", "now ms", "previous / now"):
         ctable.add_column(col, justify="left" if col == "step" else "right")
     for name, r in comparison.items():
