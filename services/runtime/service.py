@@ -126,14 +126,16 @@ def unknown_service(name: str) -> str:
     return f"unknown service {name!r}{hint} (known: {', '.join(SERVICES)})"
 
 
-def load_service(name: str) -> ServiceSpec:
+def load_service(name: str, runnable: bool = True) -> ServiceSpec:
+    """The service's spec; ``runnable=False``: its settings are all that is wanted, so a package
+    it needs only once it runs (``RUNTIME_NEEDS``: the viewer's rerun) may be missing."""
     target = SERVICES.get(name)
     if target is None:
         raise ServiceUnavailable(unknown_service(name))
     module, attr = target.split(":")
     try:
         spec = getattr(importlib.import_module(module), attr)
-        for needed in RUNTIME_NEEDS.get(name, ()):
+        for needed in RUNTIME_NEEDS.get(name, ()) if runnable else ():
             if importlib.util.find_spec(needed) is None:
                 raise ModuleNotFoundError(f"No module named {needed!r}", name=needed)
     except ModuleNotFoundError as exc:

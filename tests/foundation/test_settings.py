@@ -161,6 +161,26 @@ def test_an_unknown_variable_only_warns_when_a_service_cannot_load_here(env, mon
     assert "RISKFIELD_VOXEL_SIZE" in caplog.text and "mapping, not installed here" in caplog.text
 
 
+def test_a_service_that_cannot_run_here_still_has_its_settings_checked(env, monkeypatch):
+    """The viewer needs rerun only to run: without it, its keys are still known, so a typo in a
+    shared file is an error rather than a warning that it might be the viewer's."""
+    import importlib.util
+
+    from riskfield.cli import every_service_settings
+    from riskfield.services.runtime import ServiceUnavailable, load_service
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "rerun" else find_spec(name, *a))
+    with pytest.raises(ServiceUnavailable, match="rerun"):
+        load_service("viewer")  # it cannot run here
+    known = every_service_settings()
+    assert "viewer" not in known.missing and "live" in known.keys
+    know_other_services(lambda: known)
+    env.setenv("RISKFIELD_VOXEL_SIZ", "0.1")
+    with pytest.raises(ValueError, match="RISKFIELD_VOXEL_SIZ"):
+        FilterSettings()
+
+
 def _env_file(path) -> dict[str, str]:
     out = {}
     for line in path.read_text().splitlines():
