@@ -161,7 +161,7 @@ def _print_settings(service: str) -> None:
     from riskfield.settings_help import setting_lines
 
     try:
-        spec = load_service(service)
+        spec = load_service(service, runnable=False)  # its settings, even where it cannot run
     except ServiceUnavailable as exc:
         console.print(f"[yellow]{escape(str(exc))}[/yellow]")
         return
@@ -531,13 +531,16 @@ def services() -> None:
     Console(soft_wrap=True).print(table)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)
+# The names in the command's own help: every typer shows that (an argument's help is not rendered
+# by typer 0.16, the lowest allowed).
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False,
+             help=f"Run a benchmark, one of: {', '.join(BENCHES)}. `riskfield bench NAME --help` lists "
+                  "that benchmark's options.")
 @_missing_extras_in_one_line
 def bench(
     ctx: typer.Context,
     name: Annotated[str | None, typer.Argument(help=f"One of: {', '.join(BENCHES)}.", show_default=False)] = None,
 ) -> None:
-    """Run a benchmark; `riskfield bench NAME --help` lists that benchmark's options."""
     if name is None or name in ("--help", "-h"):
         typer.echo(ctx.get_help())
         raise typer.Exit(0)

@@ -144,7 +144,9 @@ def transform_points(T: np.ndarray, P: np.ndarray, dtype: type = np.float64) -> 
     """
     P = np.asarray(P)
     R, t = np.asarray(T, np.float64)[:3, :3], np.asarray(T, np.float64)[:3, 3]
-    x, y, z = P[..., 0].astype(dtype), P[..., 1].astype(dtype), P[..., 2].astype(dtype)
+    # In float64 whatever ``dtype`` (stored as it): numpy 2 promotes a float32 array times a
+    # float64 scalar to float64, numpy 1 did not, and the compiled kernels compute in float64.
+    x, y, z = P[..., 0].astype(np.float64), P[..., 1].astype(np.float64), P[..., 2].astype(np.float64)
     out = np.empty((*P.shape[:-1], 3), dtype)
     for i in range(3):
         out[..., i] = R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i]

