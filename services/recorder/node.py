@@ -117,7 +117,7 @@ class Recording:
     def __init__(self, node: Node, s: RecordSettings):
         s.out.mkdir(parents=True, exist_ok=True)
         self.s, self._node, self._out = s, node, s.out
-        self.root = node.keys.root
+        self.keys, self.root = node.keys, node.keys.root
         self.filter = KeyFilter(self.root, s.include, s.exclude)
         self.files: list[Path] = []
         self._closed_bytes = 0
@@ -185,7 +185,7 @@ class Recording:
 
     # -- recording ------------------------------------------------------------------------------
     def _raw_wanted(self, key: str) -> bool:
-        relative = key[len(self.root) + 1:] if key.startswith(self.root + "/") else None
+        relative = self.keys.relative(key)
         return self.s.raw or (relative is not None and base_of(relative) in FILTER_INPUTS)
 
     def _on_payload(self, key: str, payload: bytes) -> None:
