@@ -12,6 +12,7 @@ from .codec import DEFAULT_LIMITS, ENCODING, REGISTRY, Limits, decode, encode, t
 from .errors import DecodeError, EncodeError
 from .keys import TOPICS, Keys
 from .messages import (
+    CERTAIN_CONFIDENCE,
     MESSAGE_TYPES,
     Alignment,
     CommandLock,
@@ -37,7 +38,8 @@ from .messages import (
 from .risk import RiskConfig, RiskGroup
 
 __all__ = [
-    "DEFAULT_LIMITS", "ENCODING", "MESSAGE_TYPES", "REGISTRY", "TOPICS", "Alignment", "CommandLock",
+    "CERTAIN_CONFIDENCE", "DEFAULT_LIMITS", "ENCODING", "MESSAGE_TYPES", "REGISTRY", "TOPICS", "Alignment",
+    "CommandLock",
     "DecodeError", "DepthImage", "DistanceQuery", "DistanceReply", "EncodeError", "EsdfGrid", "Header", "Image",
     "Keys", "Limits", "LimoDiagnostics", "Message", "NavGoal", "NodeStatus", "PerceptionFrame", "RiskConfig",
     "RiskGroup",

@@ -92,6 +92,13 @@ class Image(Message):
 
 DEPTH16, DEPTH32 = ArraySpec("<f2", (None, None)), ArraySpec("<f4", (None, None))
 
+#: The ``confidence`` of a depth known to be right: a simulator's truth frame, a depth camera's valid
+#: pixel. MASt3R's per-observation confidence is 1 + exp(·) ≥ 1 (``Frame.get_average_conf``), so 1 is
+#: its least certain pixel, and the mapping's weights are in these units: a surface seen at 1 where
+#: the map holds free space shows only after ~9 frames (0.9 s at 10 Hz), at this value after one or
+#: two. It is the ``sim`` backend's most confident pixel (a surface seen head-on, close).
+CERTAIN_CONFIDENCE = 10.0
+
 
 class PerceptionFrame(Message):
     """A camera-frame pointmap with pose, per-pixel confidence and ADE20K labels.

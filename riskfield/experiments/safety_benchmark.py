@@ -39,7 +39,7 @@ import numpy as np
 
 from riskfield.experiments.metrics import Rollout
 from riskfield.experiments.sampling import Pair, Target, sample_pairs, targets_from_boxes
-from riskfield.protocol import RiskConfig
+from riskfield.protocol import CERTAIN_CONFIDENCE, RiskConfig
 from riskfield.services.fields import DistanceField, EsdfField, PointCloudField
 from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
@@ -191,11 +191,11 @@ Perceive = Callable[[object, np.ndarray], Frame]
 
 
 def gt_perception(renderer) -> Perceive:
-    """Exact pointmaps and labels straight from the renderer, confidence 1 where something was hit."""
+    """Exact pointmaps and labels straight from the renderer, ``CERTAIN_CONFIDENCE`` where something was hit."""
 
     def perceive(snapshot, T_WC: np.ndarray) -> Frame:
         r = renderer.render(snapshot, T_WC)
-        return Frame(T_WC, r.points, r.valid.astype(np.float32), r.labels)
+        return Frame(T_WC, r.points, np.where(r.valid, np.float32(CERTAIN_CONFIDENCE), np.float32(0.0)), r.labels)
 
     return perceive
 

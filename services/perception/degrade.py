@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from riskfield.protocol import ade20k
+from riskfield.protocol import CERTAIN_CONFIDENCE, ade20k
 
 from .kernels import HAVE_NUMBA
 
@@ -56,7 +56,7 @@ STRUCTURE = {_I["wall"], _I["floor"], _I["ceiling"]}
 class DegradationConfig:
     noise_a: float = 0.005  # m
     noise_b: float = 0.004  # 1/m
-    c_gain: float = 9.0
+    c_gain: float = CERTAIN_CONFIDENCE - 1.0  # the most confident pixel is as certain as a truth frame
     z_scale: float = 4.0  # m
     boundary_px: int = 2
     p_boundary: float = 0.3

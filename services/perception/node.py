@@ -21,7 +21,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
 
-from riskfield.protocol import DepthImage, Image, Keys, PerceptionFrame, RobotState, ade20k
+from riskfield.protocol import CERTAIN_CONFIDENCE, DepthImage, Image, Keys, PerceptionFrame, RobotState, ade20k
 from riskfield.protocol.platforms import LIMO, CameraMount
 
 from ..geometry.camera import T_base_camera
@@ -66,7 +66,7 @@ class PerceptionSettings(NodeSettings):
     """sim: depth noise sigma(z) = noise_a + noise_b z^2, constant term (m)."""
     noise_b: float = Field(0.004, ge=0)
     """sim: depth noise sigma(z) = noise_a + noise_b z^2, quadratic term (1/m)."""
-    c_gain: float = Field(9.0, ge=0)
+    c_gain: float = Field(CERTAIN_CONFIDENCE - 1.0, ge=0)
     """sim: confidence 1 + c_gain cos(incidence) exp(-z / z_scale) of a valid pixel."""
     z_scale: float = Field(4.0, gt=0)
     """sim: range (m) over which the confidence decays, exp(-z / z_scale)."""

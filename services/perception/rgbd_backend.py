@@ -11,7 +11,7 @@ image and ``T_BC`` the camera extrinsic (``geometry.camera.T_base_camera`` of a 
 the node's settings: position in the base frame, roll / pitch / yaw of the optical axis; pitch > 0
 looks down). Labels come from a ``Labeller`` (EfficientViT) when one is installed, otherwise every
 pixel gets one configurable class, so the geometry still protects at that class's margin. Confidence
-is ``confidence`` where the depth is in (0, ``max_depth``], else 0.
+is ``confidence`` (``CERTAIN_CONFIDENCE``: measured, not inferred) where the depth is in (0, ``max_depth``], else 0.
 
 Every frame is an independent measurement: messages carry no ``kind`` and the mapper integrates
 each one as it comes (there are no keyframes to correct).
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState
+from riskfield.protocol import CERTAIN_CONFIDENCE, DepthImage, Image, PerceptionFrame, RobotState
 from riskfield.protocol.messages import Header
 from riskfield.protocol.platforms import LIMO, CameraMount
 
@@ -51,7 +51,7 @@ def back_project(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) 
 class RgbdConfig:
     camera: CameraMount = LIMO.camera  # the node passes its calibration (camera_position, camera_rpy_deg)
     label: int = 0  # ADE20K index for every pixel when there is no labeller ("wall")
-    confidence: float = 1.0
+    confidence: float = CERTAIN_CONFIDENCE  # a depth camera's valid pixel is measured, not inferred
     max_depth: float = 6.0
     max_state_age_s: float = 0.2  # the nearest state must be this close to the image's stamp
     frame_id: str = "map"

@@ -3,9 +3,9 @@
 Simulation-only keys (additive; nothing outside simulation depends on them):
 
 * ``{prefix}/{robot}/sim/truth`` — ``PerceptionFrame/1`` with the perfect camera-frame
-  pointmap as depth + intrinsics at every ``truth_stride``-th pixel, the true ``T_WC``, confidence 1
-  (0 where a ray hit nothing) and ground-truth ADE20K labels, published right after each image
-  **with the same header stamp**, so the perception
+  pointmap as depth + intrinsics at every ``truth_stride``-th pixel, the true ``T_WC``,
+  confidence ``CERTAIN_CONFIDENCE`` (0 where a ray hit nothing) and ground-truth ADE20K labels,
+  published right after each image **with the same header stamp**, so the perception
   ``sim`` backend pairs image and truth by ``stamp_ns`` across processes.
 * ``{prefix}/{robot}/camera/depth`` — with ``publish_depth``: ``DepthImage/1`` (additive), the
   rendered depth (z, metres; 0 where nothing was hit) and the camera's intrinsics, stamped like
@@ -40,7 +40,15 @@ import msgpack
 import numpy as np
 from pydantic import Field, ValidationError
 
-from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, SimActors, VelocityCommand
+from riskfield.protocol import (
+    CERTAIN_CONFIDENCE,
+    DepthImage,
+    Image,
+    PerceptionFrame,
+    RobotState,
+    SimActors,
+    VelocityCommand,
+)
 from riskfield.protocol.messages import Header
 
 from ..geometry.camera import PinholeCamera
@@ -98,10 +106,11 @@ def jpeg_bytes(rgb: np.ndarray, quality: int) -> bytes:
 
 def truth_frame(render: Render, camera: PinholeCamera, stride: int, header: Header, seq: int) -> PerceptionFrame:
     """The ``sim/truth`` of one render: every ``stride``-th pixel (0, n, 2n, …) as float32 depth with
-    the strided camera's intrinsics, confidence 1 where a ray hit (0 elsewhere), the true labels."""
+    the strided camera's intrinsics, ``CERTAIN_CONFIDENCE`` where a ray hit (0 elsewhere: the truth is
+    certain, not MASt3R's least certain pixel), the true labels."""
     depth = np.ascontiguousarray(render.depth[::stride, ::stride], np.float32)
     return PerceptionFrame(header=header, T_WC=render.T_WC, depth=depth, intrinsics=camera.strided(stride).intrinsics,
-                           confidence=(depth > 0).astype(np.float32),
+                           confidence=np.where(depth > 0, np.float32(CERTAIN_CONFIDENCE), np.float32(0.0)),
                            labels=np.ascontiguousarray(render.labels[::stride, ::stride]), keyframe_id=seq)
 
 

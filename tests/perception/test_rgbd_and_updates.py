@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from riskfield.protocol import DepthImage, Image, PerceptionFrame, RobotState, ade20k
+from riskfield.protocol import CERTAIN_CONFIDENCE, DepthImage, Image, PerceptionFrame, RobotState, ade20k
 from riskfield.protocol.messages import Header
 from riskfield.protocol.platforms import LIMO, CameraMount
 from riskfield.services.geometry.transforms import transform_points
@@ -76,7 +76,7 @@ def test_rgbd_points_land_on_the_true_surface_with_one_class() -> None:
     world_pts = transform_points(f.T_WC, f.points[ok])
     true_pts = transform_points(r.T_WC, r.points[ok])
     assert np.abs(world_pts - true_pts).max() < 1e-4
-    assert np.all(f.confidence[ok] == 1.0) and np.all(f.confidence[~ok] == 0.0)
+    assert np.all(f.confidence[ok] == CERTAIN_CONFIDENCE) and np.all(f.confidence[~ok] == 0.0)
     assert np.all(f.labels == ade20k.index("wall"))
     # no state near the image's time: refused with a reason, not posed wrongly
     with pytest.raises(ValueError, match="nearest robot state"):
@@ -127,7 +127,7 @@ def test_the_stack_runs_with_rgbd_on_the_simulators_depth(router_endpoint) -> No
         d = next((d for d in depths.items if d.header.stamp_ns == f.header.stamp_ns), None)
         assert d is not None and f.points.shape == (96, 128, 3)
         np.testing.assert_allclose(f.points[..., 2], np.where(d.depth <= 6.0, d.depth, 0.0), atol=1e-6)
-        assert f.confidence.max() == 1.0 and np.all(f.labels == ade20k.index("wall"))
+        assert f.confidence.max() == CERTAIN_CONFIDENCE and np.all(f.labels == ade20k.index("wall"))
         assert per.stop(signal.SIGTERM) == 0 and sim.stop() == 0
         depths.close()
         frames.close()

@@ -9,7 +9,15 @@ import msgpack
 import numpy as np
 import pytest
 
-from riskfield.protocol import Image, NodeStatus, PerceptionFrame, RobotState, VelocityCommand, ade20k
+from riskfield.protocol import (
+    CERTAIN_CONFIDENCE,
+    Image,
+    NodeStatus,
+    PerceptionFrame,
+    RobotState,
+    VelocityCommand,
+    ade20k,
+)
 from riskfield.services.perception.node import decode_image
 from riskfield.testing import (
     Collector,
@@ -44,7 +52,7 @@ def test_simulator_publishes_state_image_truth_and_obeys_commands(router_endpoin
         assert img.width == 128 and img.height == 96 and img.encoding == "jpeg"
         assert decode_image(img).data.shape == (96, 128, 3)
         # every 2nd pixel (truth_stride), as float32 depth + the strided camera's intrinsics
-        assert truth.points is None and truth.pixels == (48, 64) and np.all(truth.confidence == 1.0)
+        assert truth.points is None and truth.pixels == (48, 64) and np.all(truth.confidence == CERTAIN_CONFIDENCE)
         cx, cy = truth.intrinsics[2:]
         assert truth.depth.dtype == np.float32 and np.allclose((cx, cy), (127 / 2 / 2, 95 / 2 / 2))
         assert np.all(truth.depth > 0) and set(np.unique(truth.labels)) <= set(range(ade20k.NUM_CLASSES))
