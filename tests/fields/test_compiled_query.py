@@ -62,3 +62,52 @@ def test_a_decoded_message_gives_the_same_kernel_arrays():
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
     assert b[0].dtype == np.float64 and b[0].flags.writeable and b[1].dtype == np.uint8 and b[1].flags.writeable
+
+
+if fc.HAVE_NUMBA:
+    @fc.numba.njit  # no on-disk cache: a test leaves nothing behind
+    def _stamp_slots(fbuf, ftab, ibuf, itab, k1, k2, k3):
+        """Through the compiled views: slot k1 (1-D) += 1, k2 (2-D) [i, j] += 10 i + j, k3 (3-D)
+        [i, j, l] -= 100 i + 10 j + l on the float buffer, and the int slot 0 (1-D) += its index.
+        Returns the sum read back through the same views."""
+        a, b, c, d = fc.view1(fbuf, ftab, k1), fc.view2(fbuf, ftab, k2), fc.view3(fbuf, ftab, k3), \
+            fc.view1(ibuf, itab, 0)
+        for i in range(a.shape[0]):
+            a[i] += 1.0
+        for i in range(b.shape[0]):
+            for j in range(b.shape[1]):
+                b[i, j] += 10 * i + j
+        for i in range(c.shape[0]):
+            for j in range(c.shape[1]):
+                for m in range(c.shape[2]):
+                    c[i, j, m] -= 100 * i + 10 * j + m
+        for i in range(d.shape[0]):
+            d[i] += i
+        return a.sum() + b.sum() + c.sum()
+
+
+@settings(max_examples=40, deadline=None)
+@given(dims=st.lists(st.integers(1, 5), min_size=6, max_size=6), order=st.permutations([0, 1, 2]),
+       n_int=st.integers(1, 7))
+def test_compiled_views_are_the_layouts_slots(dims, order, n_int):
+    """``view1``-``view3`` (``fields.compiled.carve`` in machine code) address exactly the slot
+    ``Layout.view`` gives, in any order of slots and sizes, and write through to the buffer."""
+    shapes = {"one": ("a",), "two": ("b", "c"), "three": ("d", "e", "f")}
+    layout = fc.Layout("Probe", [("pad", (3,)), *[(name, shapes[name]) for name in
+                                                   (["one", "two", "three"][i] for i in order)], ("tail", (2,))])
+    ints = fc.Layout("ProbeInts", [("counts", ("g",)), ("after", (1,))])
+    ftab = layout.table(**dict(zip("abcdef", dims, strict=True)))
+    itab = ints.table(g=n_int)
+    rng = np.random.default_rng(sum(dims))
+    fbuf, ibuf = rng.normal(size=fc.Layout.size(ftab)), np.zeros(fc.Layout.size(itab), np.int64)
+    want = fbuf.copy()
+    one, two, three = (layout.view(want, ftab, name) for name in ("one", "two", "three"))
+    one += 1.0
+    two += 10 * np.arange(two.shape[0])[:, None] + np.arange(two.shape[1])[None, :]
+    three -= (100 * np.arange(three.shape[0])[:, None, None] + 10 * np.arange(three.shape[1])[None, :, None]
+              + np.arange(three.shape[2])[None, None, :])
+    got = _stamp_slots(fbuf, ftab, ibuf, itab, *(int(layout.slot[s]) for s in ("one", "two", "three")))
+    np.testing.assert_array_equal(fbuf, want)  # no write strays outside its slot
+    assert got == pytest.approx(one.sum() + two.sum() + three.sum())
+    np.testing.assert_array_equal(ints.view(ibuf, itab, "counts"), np.arange(n_int))
+    assert ints.view(ibuf, itab, "after")[0] == 0
