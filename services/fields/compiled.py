@@ -170,7 +170,7 @@ def view3(buf, table, k):
 
 # --------------------------------------------------------------------------- field query
 
-#: The field's metadata as :func:`query_field` reads it (:func:`kernel_view`).
+#: The field's metadata as :func:`query_point` reads it (:func:`kernel_view`).
 FIELD_INTS = Layout("FieldInts", [("dims", (1,)), ("shape", (3,)), ("strides", (3,))])
 FIELD_FLOATS = Layout("FieldFloats", [("origin", (3,)), ("inv_h", (1,)), ("poly", (3, 4, 4))])
 _FI, _FF = FIELD_INTS.table(), FIELD_FLOATS.table()
@@ -179,7 +179,7 @@ _FIS, _FFS = FIELD_INTS.slot, FIELD_FLOATS.slot
 
 def kernel_view(field: EsdfField) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(coefficients float64, risk groups uint8, metadata int64 (:data:`FIELD_INTS`), metadata
-    float64 (:data:`FIELD_FLOATS`)): ``field`` as :func:`query_field` reads it (few arrays: a call
+    float64 (:data:`FIELD_FLOATS`)): ``field`` as :func:`query_point` reads it (few arrays: a call
     into numba costs per argument)."""
     flat = field._flat
     if flat.dtype != np.float64 or not flat.flags.writeable or not flat.flags.c_contiguous:
@@ -201,21 +201,29 @@ def kernel_view(field: EsdfField) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     return flat, rgs, meta_i, meta_f
 
 
-@jit
-def query_field(flat, rgs, meta_i, meta_f, k, p, i, dist, grad, hess, rg_out, inside, block, w, r1, r2, r3):
-    """:func:`query_point` on a field as :func:`kernel_view` gives it (its metadata carved by the layouts)."""
-    query_point(flat, rgs, view1(meta_i, _FI, _FIS.dims)[0], view1(meta_i, _FI, _FIS.shape),
-                view1(meta_i, _FI, _FIS.strides), view1(meta_f, _FF, _FFS.origin), view1(meta_f, _FF, _FFS.inv_h)[0],
-                view3(meta_f, _FF, _FFS.poly), k, p, i, dist, grad, hess, rg_out, inside, block, w, r1, r2, r3)
+#: The scratch of one :func:`query_point`: the stencil's values, its per-axis weights and the
+#: partial contractions.
+QUERY_SCRATCH = Layout("QueryScratch", [("block", (4, 4, 4)), ("w", (3, 3, 4)), ("r1", (4, 4, 3)),
+                                        ("r2", (4, 3, 3)), ("r3", (3, 3, 3))])
+_QS = QUERY_SCRATCH.table()
+_QSS = QUERY_SCRATCH.slot
+#: Floats a caller keeps for :func:`query_point`'s ``scratch``.
+QUERY_SCRATCH_SIZE = Layout.size(_QS)
 
 
 @jit
-def query_point(flat, rgs, dims, shape, strides, origin, inv_h, poly, k, p, i, dist, grad, hess, rg_out, inside,
-           block, w, r1, r2, r3):
-    """``EsdfField.query`` at one point p, into row i of the outputs (distance, gradient, Hessian when
-    k = 3, risk group, inside); ``block``, ``w``, ``r1``-``r3`` are scratch ((4, 4, 4), (3, 3, 4),
-    (4, 4, 3), (4, 3, 3), (3, 3, 3)). The field enters as :func:`kernel_view` gives it, its
-    metadata unpacked: dims, shape and strides (3 each), origin (3), 1/h, polynomials (3, 4, 4)."""
+def query_point(field, k, p, i, out, scratch):
+    """``EsdfField.query`` at one point p, into row i of ``out`` = (distance, gradient, Hessian
+    when k = 3, risk group, inside). ``field`` is the tuple :func:`kernel_view` gives;
+    ``scratch`` holds :data:`QUERY_SCRATCH_SIZE` floats."""
+    flat, rgs, meta_i, meta_f = field
+    dist, grad, hess, rg_out, inside = out
+    dims, shape, strides = view1(meta_i, _FI, _FIS.dims)[0], view1(meta_i, _FI, _FIS.shape), \
+        view1(meta_i, _FI, _FIS.strides)
+    origin, inv_h, poly = view1(meta_f, _FF, _FFS.origin), view1(meta_f, _FF, _FFS.inv_h)[0], \
+        view3(meta_f, _FF, _FFS.poly)
+    block, w, r1 = view3(scratch, _QS, _QSS.block), view3(scratch, _QS, _QSS.w), view3(scratch, _QS, _QSS.r1)
+    r2, r3 = view3(scratch, _QS, _QSS.r2), view3(scratch, _QS, _QSS.r3)
     ins = True
     ix0 = iy0 = iz0 = 0
     nx = ny = nz = 0

@@ -19,7 +19,7 @@ every model.
 
 The buffers are laid out once (:data:`FLOATS`, :data:`INTS`: ``fields.compiled.Layout``), and
 each phase of the step carves the views it needs by slot name. The field is queried by
-``fields.compiled.query_field``. The kernel is compiled (or loaded from numba's on-disk cache)
+``fields.compiled.query_point``. The kernel is compiled (or loaded from numba's on-disk cache)
 when the filter is built — in the node's setup — never in the control loop.
 """
 
@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from ..fields.compiled import HAVE_NUMBA, Layout, jit, kernel_view, query_field, view1, view2, view3
+from ..fields.compiled import HAVE_NUMBA, QUERY_SCRATCH_SIZE, Layout, jit, kernel_view, query_point, view1, view2, view3
 from ..fields.grid import EsdfField
 from . import model as mdl
 from .model import GAIN_COLUMNS, OBJECT_COLUMNS, YIELD, DescInts
@@ -65,7 +65,7 @@ FLOATS = Layout("Floats", [
     ("u_box", ("n",)), ("u_bk", ("n",)), ("u_c", ("n",)), ("u_stop", ("n",)), ("lo", ("n",)), ("hi", ("n",)),
     ("rot", (3, 3)), ("rot1", (3, 3)), ("s1", (3, 3)), ("s2", (3, 3)), ("pos1", (3,)), ("vel1", (3,)), ("w1", (3,)),
     ("still", (3,)), ("wobj", (3,)), ("v_ref", (3,)), ("when", ("k",)),
-    ("block", (4, 4, 4)), ("w", (3, 3, 4)), ("r1", (4, 4, 3)), ("r2", (4, 3, 3)), ("r3", (3, 3, 3)),
+    ("query", (QUERY_SCRATCH_SIZE,)),
     ("rc", ("rows", "n")), ("rd", ("rows",)), ("norms", ("rows",)), ("gram", (8, 8)), ("aug", (8, 9)),
     ("z", ("n",)), ("rhs", (8,)), ("rr", (8,)), ("step", ("n",)), ("lam", (8,)), ("marks", ("n2",)), ("sw", ("n",)),
 ])
@@ -187,8 +187,12 @@ def _solve_small(gram, rhs, q, aug, x):
 
 
 @jit
-def _dual_active_set(rc, rd, nr, n, z, norms, active, lam, gram, rhs, rr, step, aug):
-    """qp.ActiveSetSolver._dual_active_set: status 0 solved, 1 infeasible, 2 failed."""
+def _dual_active_set(wf, wi, lf, li, nr, n):
+    """qp.ActiveSetSolver._dual_active_set on the scaled rows (FLOATS rc, rd) into z: status 0
+    solved, 1 infeasible, 2 failed."""
+    rc, rd, z, norms = view2(wf, lf, F.rc), view1(wf, lf, F.rd), view1(wf, lf, F.z), view1(wf, lf, F.norms)
+    lam, gram, rhs, rr = view1(wf, lf, F.lam), view2(wf, lf, F.gram), view1(wf, lf, F.rhs), view1(wf, lf, F.rr)
+    step, aug, active = view1(wf, lf, F.step), view2(wf, lf, F.aug), view1(wi, li, I.active)
     for i in range(nr):
         s = 0.0
         for j in range(n):
@@ -268,10 +272,16 @@ def _dual_active_set(rc, rd, nr, n, z, norms, active, lam, gram, rhs, rr, step, 
 
 
 @jit
-def _active_set(w, r, A, b, nrow, lo, hi, n, u, rc, rd, norms, gram, aug, z, rhs, rr, step, lam, marks, sw, active):
-    """qp.ActiveSetSolver.solve on rows A[:nrow]: status 0 solved, 1 infeasible, 2 failed."""
+def _active_set(wf, wi, lf, li, dl, n, nrow):
+    """The exact QP (qp.ActiveSetSolver.solve): into u the input closest to u_ref (the description's
+    weights) in the box (FLOATS lo, hi) that keeps the live rows A2[:nrow], B2; status 0 solved,
+    1 infeasible, 2 failed."""
+    w, r = view1(view1(wf, lf, F.desc), dl, D.weights), view1(wf, lf, F.u_ref)
+    A, b, lo, hi, u = view2(wf, lf, F.A2), view1(wf, lf, F.B2), view1(wf, lf, F.lo), view1(wf, lf, F.hi), \
+        view1(wf, lf, F.u)
+    rc, rd, z, sw = view2(wf, lf, F.rc), view1(wf, lf, F.rd), view1(wf, lf, F.z), view1(wf, lf, F.sw)
     if nrow == 1:
-        return _one_row(w, r, A[0], b[0], lo, hi, n, u, marks)
+        return _one_row(w, r, A[0], b[0], lo, hi, n, u, view1(wf, lf, F.marks))
     for j in range(n):
         sw[j] = math.sqrt(w[j])
     nr = 0
@@ -300,7 +310,7 @@ def _active_set(w, r, A, b, nrow, lo, hi, n, u, rc, rd, norms, gram, aug, z, rhs
         for j in range(n):
             u[j] = r[j]
         return 0
-    status = _dual_active_set(rc, rd, nr, n, z, norms, active, lam, gram, rhs, rr, step, aug)
+    status = _dual_active_set(wf, wi, lf, li, nr, n)
     if status != 0:
         return status
     for j in range(n):
@@ -395,19 +405,18 @@ def _points(wf, wi, lf, li, dl, predictive):
 
 
 @jit
-def _sample(wf, wi, lf, li, flat, rgs, fmi, fmf, table, npts, order):
+def _sample(wf, wi, lf, li, field, table, npts, order):
     """Field query at every sample and the gains of their groups (capped for first-order models).
     False when a point is not finite (the numpy path decides)."""
     pts, dist, grad, hess = view2(wf, lf, F.pts), view1(wf, lf, F.dist), view2(wf, lf, F.grad), view3(wf, lf, F.hess)
     rgq, inside, gains = view1(wi, li, I.rgq), view1(wi, li, I.inside), view2(wf, lf, F.gains)
-    block, w, r1 = view3(wf, lf, F.block), view3(wf, lf, F.w), view3(wf, lf, F.r1)
-    r2, r3 = view3(wf, lf, F.r2), view3(wf, lf, F.r3)
+    out, scratch = (dist, grad, hess, rgq, inside), view1(wf, lf, F.query)
     k = 3 if order == 2 else 2
     for i in range(npts):
         for a in range(3):
             if not math.isfinite(pts[i, a]):
                 return False
-        query_field(flat, rgs, fmi, fmf, k, pts[i], i, dist, grad, hess, rgq, inside, block, w, r1, r2, r3)
+        query_point(field, k, pts[i], i, out, scratch)
     nt = table.shape[0]
     cap = _scalar(wf, lf, F.alpha_cap)
     first_order = view1(wi, li, I.first_order)[0]
@@ -556,19 +565,6 @@ def _drop_inactive(wf, wi, lf, li, dl, nrows, n):
 
 
 @jit
-def _qp(wf, wi, lf, li, dl, n, nlive):
-    """The exact QP on the live rows (A2, B2) in the box (FLOATS lo, hi) into u: status 0 solved,
-    1 infeasible, 2 failed."""
-    df = view1(wf, lf, F.desc)
-    return _active_set(view1(df, dl, D.weights), view1(wf, lf, F.u_ref), view2(wf, lf, F.A2),
-                       view1(wf, lf, F.B2), nlive, view1(wf, lf, F.lo), view1(wf, lf, F.hi),
-                       n, view1(wf, lf, F.u), view2(wf, lf, F.rc), view1(wf, lf, F.rd), view1(wf, lf, F.norms),
-                       view2(wf, lf, F.gram), view2(wf, lf, F.aug), view1(wf, lf, F.z), view1(wf, lf, F.rhs),
-                       view1(wf, lf, F.rr), view1(wf, lf, F.step), view1(wf, lf, F.lam), view1(wf, lf, F.marks),
-                       view1(wf, lf, F.sw), view1(wi, li, I.active))
-
-
-@jit
 def _relax(wf, wi, lf, li, dl, m, n, nlive):
     """An infeasible QP with the slack relaxation on (filter's module docstring): the backup u_bk —
     of the braking input and the maximal braking along each live row's (distinct) gradient, the
@@ -617,7 +613,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
                 B2[i] = ab
                 soft = True
     if soft:
-        status = _qp(wf, wi, lf, li, dl, n, nlive)
+        status = _active_set(wf, wi, lf, li, dl, n, nlive)
         if status == 2:
             return 2, HANDBACK
         for i in range(nlive):
@@ -633,7 +629,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
             blind = True
         B2[i] = min(B2[i], ab)
     if status == 1 and not blind:
-        status = _qp(wf, wi, lf, li, dl, n, nlive)
+        status = _active_set(wf, wi, lf, li, dl, n, nlive)
         if status == 2:
             return 2, HANDBACK
         if status != 0:
@@ -646,7 +642,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
 
 
 @jit
-def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
+def step_kernel(wf, wi, lf, li, dl, field, table):
     """One filter step (SafetyFilter.filter) over the workspaces ``wf``, ``wi`` (laid out by the
     tables ``lf``, ``li`` of :data:`FLOATS`, :data:`INTS`; ``dl`` the description's
     ``model.DESC`` table), the field as ``fields.compiled.kernel_view`` gives it and the gains per
@@ -664,7 +660,7 @@ def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
         out_i[0] = code
         return
     _points(wf, wi, lf, li, dl, predictive)
-    if not _sample(wf, wi, lf, li, flat, rgs, fmi, fmf, table, 2 * m if predictive else m, order):
+    if not _sample(wf, wi, lf, li, field, table, 2 * m if predictive else m, order):
         out_i[0] = HANDBACK
         return
     dist, grad, hb = view1(wf, lf, F.dist), view2(wf, lf, F.grad), view1(wf, lf, F.hb)
@@ -689,12 +685,12 @@ def step_kernel(wf, wi, lf, li, dl, flat, rgs, fmi, fmf, table):
     nlive, yielding_live = _drop_inactive(wf, wi, lf, li, dl, nrows, n)
     boxed = yielding_live and mdl.yield_box(di, df, dl, view1(wf, lf, F.u_ref), view1(wf, lf, F.lo),
                                             view1(wf, lf, F.hi))
-    status = _qp(wf, wi, lf, li, dl, n, nlive)
+    status = _active_set(wf, wi, lf, li, dl, n, nlive)
     if status == 1 and boxed:
         # The static rows ask more than slowing (recovery from inside a static margin): the full
         # box, the yielding rows still clipped (filter's numpy path).
         _full_box(wf, lf, dl, n)
-        status = _qp(wf, wi, lf, li, dl, n, nlive)
+        status = _active_set(wf, wi, lf, li, dl, n, nlive)
     code = OK
     if status == 2:
         out_i[0] = HANDBACK  # the numpy path takes it to OSQP
@@ -788,8 +784,7 @@ class CompiledStep:
         if k:
             self.objects[:k] = objects[:k]
         self.nobj[0] = k
-        flat, rgs, fmi, fmf = self.prepare(field)
-        step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, flat, rgs, fmi, fmf, table)
+        step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, self.prepare(field), table)
 
     def warm_up(self, table: np.ndarray) -> None:
         """Compile (or load from the on-disk cache) with the argument types of the control loop."""

@@ -21,12 +21,9 @@ def compiled_query(field: EsdfField, pts: np.ndarray, hessian: bool) -> tuple[np
     n = pts.shape[0]
     dist, grad, hess = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3, 3))
     rg, inside = np.zeros(n, np.int64), np.zeros(n, np.bool_)
-    scratch = np.zeros((4, 4, 4)), np.zeros((3, 3, 4)), np.zeros((4, 4, 3)), np.zeros((4, 3, 3)), np.zeros((3, 3, 3))
-    flat, rgs, mi, mf = fc.kernel_view(field)
-    poly = mf[4:].reshape(3, 4, 4)
+    view, out, scratch = fc.kernel_view(field), (dist, grad, hess, rg, inside), np.zeros(fc.QUERY_SCRATCH_SIZE)
     for i in range(n):
-        fc.query_point(flat, rgs, mi[0], mi[1:4], mi[4:7], mf[0:3], mf[3], poly, 3 if hessian else 2, pts[i], i,
-                       dist, grad, hess, rg, inside, *scratch)
+        fc.query_point(view, 3 if hessian else 2, pts[i], i, out, scratch)
     return dist, grad, hess, rg, inside
 
 
