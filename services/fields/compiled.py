@@ -104,7 +104,7 @@ def carve(buf, at, shape):
     a few instructions. numba's ``reshape`` (numba/np/arrayobj.py, ``array_reshape``) calls the C
     helper ``numba_attempt_nocopy_reshape``, which LLVM cannot inline, and a view that shares
     buf's meminfo costs an atomic reference count up and down: together ~35 ns a view, and a
-    filter step carves a few hundred (``riskfield bench filter``: the step's p99 fell by a third).
+    filter step carves a few hundred, more than its arithmetic costs.
     The compiled view is therefore *borrowed*: no meminfo, valid while the caller holds ``buf``
     (every :class:`Layout` buffer is the Python caller's, alive for the whole kernel call), and
     never handed back to Python. The caller owns the bounds: a :class:`Layout` table's slots lie
