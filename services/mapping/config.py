@@ -292,6 +292,10 @@ class ObjectParams(BaseModel):
     """A footprint continues a track of the same label if its centre is within this (m) plus
     ``object_max_speed`` × the time since the track was last seen of the track's last position
     (no faster object can be farther); the nearest (to the constant-velocity prediction) wins."""
+    object_fresh_s: NonNeg = 0.05
+    """A footprint's columns seen more than this (s) before its newest sighting (the layers' ``hit``
+    clock) are not in that sighting: behind a walker, they are the trail the map still holds
+    (``objects.py``). Below one frame period: one frame's view."""
     object_window_s: Pos = 0.5
     """Velocity: least squares over the track's centres of the last this many seconds (frame stamps)."""
     object_min_samples: Annotated[int, Field(ge=2, le=100)] = 3

@@ -27,6 +27,14 @@ axis (the 5-sample slope's weights sum to 6 in absolute value over 0.1 s², time
 sides the map holds is recovered within 0.025 m/s at any heading (same search).
 The radius is the farthest cell centre from the position plus half a voxel.
 
+**The trail.** The map keeps a walker's voxels a while after a frame last saw them
+(``dynamic_moving_persist_s``, longer near a track: ``protected``), so a walker's footprint drags a
+trail, and its whole centre moves slower than they do. Once a track moves, a footprint's columns
+that its newest sighting did not see (older than it by more than ``object_fresh_s``) and that lie
+behind the newest sighting's centre along the track's velocity are the trail: they leave the
+position and the radius (the ESDF still holds them as an obstacle). A standing person's footprint
+counts whole: a part the view has lost (its edge, an occluder) is no motion.
+
 **Tracks.** A footprint continues the track of the same label whose constant-velocity prediction
 is nearest, if it lies within ``object_gate`` + ``object_max_speed`` × (time since the track was
 last seen) of the track's last position: no faster object can be farther. Pairs are taken
@@ -75,6 +83,27 @@ class Detection:
     #: when a current frame last saw a surface of it (the layers' ``hit`` clock, ms; None: unknown,
     #: e.g. no TSDF given, which counts as seen now)
     seen_ms: int | None = None
+    #: its columns (world x, y), their inside fractions and whether the newest sighting missed each
+    #: (module doc, the trail); None without ``hit`` times
+    columns: np.ndarray | None = None
+    inside: np.ndarray | None = None
+    stale: np.ndarray | None = None
+    voxel_size: float = 0.0
+
+    def without_trail(self, velocity: np.ndarray) -> tuple[np.ndarray, float]:
+        """(position, radius) without the cells behind the newest sighting along ``velocity`` that
+        it did not see (module doc, the trail)."""
+        if self.columns is None or self.inside is None or self.stale is None or not self.stale.any():
+            return self.position, self.radius
+        fresh = ~self.stale & (self.inside > 0)
+        if not fresh.any():
+            return self.position, self.radius
+        xy, w = self.columns, self.inside
+        ahead = (xy - (w[fresh] @ xy[fresh]) / w[fresh].sum()) @ velocity[:2] >= 0
+        keep = (~self.stale | ahead) & (w > 0)
+        centre = (w[keep] @ xy[keep]) / w[keep].sum()
+        radius = float(np.hypot(*(xy[keep] - centre).T).max()) + 0.5 * self.voxel_size
+        return np.array([centre[0], centre[1], self.position[2]]), radius
 
 
 @njit(cache=True, nogil=True)
@@ -201,8 +230,15 @@ def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], ori
         dx = origin[0] + ci[idx] * voxel_size - centre[0]
         dy = origin[1] + cj[idx] * voxel_size - centre[1]
         radius = float(np.sqrt(dx * dx + dy * dy).max()) + 0.5 * voxel_size
-        seen_ms = int(col_seen[ci[idx], cj[idx]].max()) if use_hit and idx.size else None
-        out.append(Detection(best[cid][0], centre, radius, int(cells[cid]), seen_ms))
+        det = Detection(best[cid][0], centre, radius, int(cells[cid]))
+        if use_hit and idx.size:
+            seen = col_seen[ci[idx], cj[idx]]
+            det.seen_ms = int(seen.max())
+            det.columns = np.column_stack([origin[0] + ci[idx] * voxel_size, origin[1] + cj[idx] * voxel_size])
+            det.inside = w[idx]
+            det.stale = seen < det.seen_ms - round(params.object_fresh_s * 1e3)
+            det.voxel_size = voxel_size
+        out.append(det)
     return out
 
 
@@ -337,10 +373,11 @@ class ObjectTracker:
 
     def _observe(self, tr: Track, d: Detection, stamp_ns: int) -> None:
         p = self.params
-        tr.position, tr.radius, tr.last_ns = d.position.copy(), d.radius, stamp_ns
+        position, tr.radius = d.without_trail(tr.velocity) if tr.velocity.any() else (d.position, d.radius)
+        tr.position, tr.last_ns = position.copy(), stamp_ns
         tr.seen_ms = d.seen_ms
         h = tr.history
-        h.append((stamp_ns, float(d.position[0]), float(d.position[1])))
+        h.append((stamp_ns, float(position[0]), float(position[1])))
         while h and stamp_ns - h[0][0] > p.object_window_s * 1e9:
             h.popleft()
         tr.velocity = np.zeros(3)

@@ -14,7 +14,7 @@ from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import render
 from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import DynamicParams, MapperConfig, ObjectParams
-from riskfield.services.mapping.layers import NO_LABEL
+from riskfield.services.mapping.layers import NEVER, NO_LABEL
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.objects import Detection, ObjectTracker, detect
 
@@ -40,14 +40,15 @@ class Scene:
         self.labels = np.full(SHAPE, NO_LABEL, np.uint16)
         self.tsdf = np.full(SHAPE, TRUNC, np.float32)
         self.weight = np.zeros(SHAPE, np.float32)
+        self.hit: np.ndarray | None = None  # the layers' ``hit`` clock (ms), once a box says when it was seen
         i, j = np.meshgrid(np.arange(SHAPE[0]), np.arange(SHAPE[1]), indexing="ij")
         self.x, self.y = ORIGIN[0] + i * V, ORIGIN[1] + j * V
 
     def box(self, centre: tuple[float, float], size: tuple[float, float], heading: float, label: int,
-            lut: np.ndarray = LUT, height: int = 12) -> Scene:
+            lut: np.ndarray = LUT, height: int = 12, seen_ms: int | None = None) -> Scene:
         """A box standing on the floor, ``size`` (along, across) its heading: its surface band carries
         ``label``, its inside none (the solid interior, never observed deeper than the truncation),
-        all in the label's group (the rules of ``occupancy.py``)."""
+        all in the label's group (the rules of ``occupancy.py``); with ``seen_ms``, a frame saw it then."""
         dx, dy = self.x - centre[0], self.y - centre[1]
         u = np.abs(dx * math.cos(heading) + dy * math.sin(heading)) - size[0] / 2
         w = np.abs(-dx * math.sin(heading) + dy * math.cos(heading)) - size[1] / 2
@@ -59,10 +60,14 @@ class Scene:
         self.weight[near, :height] = 5.0
         self.groups[inside, :height] = lut[label]
         self.labels[inside & (d >= -band), :height] = label
+        if seen_ms is not None:
+            if self.hit is None:
+                self.hit = np.full(SHAPE, NEVER, np.int32)
+            self.hit[near, :height] = seen_ms
         return self
 
     def detect(self, params: MapperConfig | None = None, lut: np.ndarray = LUT, tsdf: bool = True) -> list[Detection]:
-        extra = dict(tsdf=self.tsdf, weight=self.weight, min_weight=0.5) if tsdf else {}
+        extra = dict(tsdf=self.tsdf, weight=self.weight, min_weight=0.5, hit=self.hit) if tsdf else {}
         return detect(self.groups, self.labels, BAND, ORIGIN, V, lut, params or MapperConfig(), **extra)
 
 
@@ -73,6 +78,29 @@ def run(tracker: ObjectTracker, scenes: list[Scene], t0_ns: int = 10**18) -> lis
 def only(objs: list[TrackedObject]) -> TrackedObject:
     assert len(objs) == 1, objs
     return objs[0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(heading=st.floats(0.0, 2 * math.pi), speed=st.floats(0.5, 1.5), turn=st.floats(0.0, math.pi))
+def test_a_walker_is_tracked_where_the_newest_frame_sees_them_not_along_the_trail_the_map_keeps(heading, speed,
+                                                                                                 turn):
+    """The map holds a walker's trail, back to where they stood, a while after each frame saw it
+    (``Mapper.decay``, ``ObjectTracker.protected``): the trail and the walker are one footprint, whose
+    whole centre moves at half their speed. The tracked centre is the newest sighting's, so the
+    position is the walker's and the velocity within 0.15 m/s of theirs after 6 maps."""
+    vel = speed * np.array([math.cos(heading), math.sin(heading)])
+    start = -0.35 * vel  # the last map at the volume's centre
+    tracker = ObjectTracker()
+    out: list[TrackedObject] = []
+    for n in range(6):
+        scene = Scene()
+        for m in range(n + 1):  # every footprint since they set off, each seen when they were there
+            scene.box(tuple(start + vel * 0.1 * m), (0.3, 0.45), heading + turn, PERSON, seen_ms=100 * m)
+        out = tracker.update(10**18 + n * STEP_NS, scene.detect(tracker.params), LUT, 100 * n)
+    obj = only(out)
+    truth = start + vel * 0.5
+    assert math.hypot(obj.position[0] - truth[0], obj.position[1] - truth[1]) <= V
+    assert math.hypot(obj.velocity[0] - vel[0], obj.velocity[1] - vel[1]) <= 0.15, (obj.velocity, vel)
 
 
 @settings(max_examples=150)
@@ -409,3 +437,26 @@ def test_protected_keeps_where_people_stand_and_who_is_seen_not_where_walkers_we
         t += 100
         walker.update(10**18 + t * 10**6, [seen(d, last) for d in s.detect()], LUT, t)
     assert walker.protected() == []
+
+
+def test_only_the_unseen_cells_behind_a_moving_footprint_leave_its_position() -> None:
+    """``Detection.without_trail``: the cells its newest sighting missed count as the trail only
+    behind that sighting's centre along the velocity; unseen cells ahead or beside (out of view,
+    occluded) stay, and without a stale cell, or with no seen one, the footprint is whole."""
+    xs = np.arange(-0.5, 0.55, 0.05)
+    xy = np.column_stack([xs, np.zeros_like(xs)])
+    seen = np.abs(xs) <= 0.1
+    d = Detection(PERSON, np.array([0.0, 0.0, 0.5]), 0.55, len(xs), 100, columns=xy,
+                  inside=np.ones(len(xs)), stale=~seen, voxel_size=V)
+    position, radius = d.without_trail(np.array([1.0, 0.0, 0.0]))
+    kept = xs[seen | (xs > 0)]
+    assert position[0] == pytest.approx(kept.mean()) and position[1] == 0.0 and position[2] == 0.5
+    assert radius == pytest.approx(max(kept.max() - kept.mean(), kept.mean() - kept.min()) + V / 2)
+    position, _ = d.without_trail(np.array([0.0, 1.0, 0.0]))  # moving sideways: nothing lies behind
+    assert position[0] == pytest.approx(0.0, abs=1e-12)
+    whole = Detection(PERSON, d.position, d.radius, len(xs), 100, columns=xy, inside=np.ones(len(xs)),
+                      stale=np.zeros(len(xs), bool), voxel_size=V)
+    assert whole.without_trail(np.array([1.0, 0.0, 0.0]))[1] == d.radius
+    unseen = Detection(PERSON, d.position, d.radius, len(xs), 100, columns=xy, inside=np.ones(len(xs)),
+                       stale=np.ones(len(xs), bool), voxel_size=V)
+    assert unseen.without_trail(np.array([1.0, 0.0, 0.0]))[0] is d.position
