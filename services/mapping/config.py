@@ -13,8 +13,9 @@ Each integrator is built from its own struct alone (the TSDF, semantic and proje
 from ``TsdfParams``, the ESDF's from ``EsdfParams``) plus the few derived numbers it is handed
 (the voxel size, the surface band), as nvblox's integrators take only their own parameters.
 
-Defaults follow the authors' release: a rolling local volume of radius 2.5 m at 5 cm voxels
-(101³ voxels) that follows the robot. Distances are metres, weights are sums of per-pixel
+Defaults follow the authors' release (5 cm voxels in a rolling local volume that follows the
+robot) but for the volume's shape, made for a ground robot (``VolumeParams.half_extent``).
+Distances are metres, weights are sums of per-pixel
 confidences (the pointmap's confidence is the observation weight).
 """
 
@@ -38,8 +39,14 @@ class VolumeParams(BaseModel):
 
     voxel_size: Annotated[float, Field(gt=0.005, le=2.0)] = 0.05
     """Edge (m) of a voxel of the rolling volume."""
-    half_extent: tuple[Pos, Pos, Pos] = (2.5, 2.5, 2.5)
-    """Half size (m) of the rolling volume along x, y, z; 2.5 m at 5 cm gives 101 voxels an axis."""
+    half_extent: tuple[Pos, Pos, Pos] = (3.0, 3.0, 1.25)
+    """Half size (m) of the rolling volume along x, y, z. A ground robot's: a person is in the map, and
+    tracked, once within 3 m along both floor axes (the authors' cube of 2.5 m found a walker crossing
+    at 1.5 m/s towards a robot at 0.5 m/s only 0.3–0.4 s after they set off, too late to stop short
+    of their path: ``riskfield bench crowd``), and 1.25 m up and down holds the 2-D slice's band
+    and what hangs over it. 121 × 121 × 51 voxels at 5 cm, fewer than the cube's 101³; the slice's
+    121² cells keep ``map/esdf`` within the off-board link's 1 MB/s (``riskfield bench link``). A
+    flying robot wants a taller volume."""
     centre_offset: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
     """Volume centre relative to the robot (e.g. raise it for a ground robot)."""
     recentre_distance: NonNeg = 0.25
@@ -139,14 +146,14 @@ class OccupancyParams(BaseModel):
     negative inside however deep; ``free`` leaves them free (an obstacle is then only
     ``truncation`` deep, and deeper inside the field is positive with its gradient pointing in)."""
     behind_surface_depth: Annotated[float, Field(ge=0, le=5.0, allow_inf_nan=False)] = 5.0
-    """Depth (m) of the ``solid`` fill. 5 m spans the default map (2.5 m half extent): the shadow an
-    observed obstacle casts is solid up to the first observed voxel or the map's edge, so an object
-    seen only end-on is negative all the way through, with the gradient pointing out of the shadow
-    (sideways, up, or back to the seen face), never further in. The price: the never-observed space
-    behind an obstacle (a doorway's part hidden by its jamb, the floor behind a sofa) reads closed
-    until a camera looks into it; any ray through it reopens it at once. A shallower fill (0.5 m was
-    the previous default) keeps such gaps open beyond that depth but leaves deeper objects positive
-    inside past τ + the depth, with the gradient pointing further in."""
+    """Depth (m) of the ``solid`` fill. 5 m spans the default map (4.3 m from its centre to a corner): the
+    shadow an observed obstacle casts is solid up to the first observed voxel or the map's edge, so an
+    object seen only end-on is negative all the way through, with the gradient pointing out of the
+    shadow (sideways, up, or back to the seen face), never further in. The price: the never-observed
+    space behind an obstacle (a doorway's part hidden by its jamb, the floor behind a sofa) reads closed
+    until a camera looks into it; any ray through it reopens it at once. A shallower fill (0.5 m was the
+    previous default) keeps such gaps open beyond that depth but leaves deeper objects positive inside
+    past τ + the depth, with the gradient pointing further in."""
     unobserved_below_obstacle: Literal["free", "solid"] = "solid"
     """Never-observed voxels straight below an obstacle (``solid``, with the ``solid`` fill behind
     surfaces): up to ``below_obstacle_depth`` they join it, so an object whose top was seen at a

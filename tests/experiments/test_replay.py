@@ -38,10 +38,12 @@ def test_the_recording_is_compact_and_close_to_todays_frames():
     assert s["truth_bytes_strided"] < s["truth_bytes_full"] / 7
     # at 1–4 m: float16 (≤ 1 mm) and the fused points' sub-pixel offsets from their ray
     assert s["error_pixels"] > 10_000 and s["error_m_median"] < 1e-3 and s["error_m_max"] < 0.03
-    # the maps built from today's frames and from their compact form: within a voxel (5 cm), a distance
-    # the float32 field holds as 0.050000012
+    # the maps built from today's frames and from their compact form: a point error under a voxel moves
+    # a surface by at most one voxel along each axis, so a distance by one diagonal step (√2 × 5 cm; a
+    # wall near a voxel boundary 2.5–3 m away does, over a few % of the cells)
     m = s["map_agreement"]["today_compact"]
-    assert m["comparable"] and m["abs_diff_m_p99"] <= np.float32(0.05) + 1e-6 and m["obstacle_iou"] > 0.9
+    step = float(np.float32(0.05)) * np.sqrt(2)
+    assert m["comparable"] and m["abs_diff_m_p99"] <= step + 1e-6 and m["obstacle_iou"] > 0.9
 
 
 def test_the_mapping_cores_cost_per_frame_as_cpu_and_wall_time():

@@ -88,7 +88,7 @@ def test_run_help_prints_readable_types_defaults_and_descriptions(service):
         assert line is not None, f"{key} is not in the help of {service}"
         assert " = " in line and "  — " in line, f"no default or description: {line!r}"
     if service == "mapping":
-        assert "  half_extent: tuple[float (> 0), float (> 0), float (> 0)] = (2.5, 2.5, 2.5)  — Half size" in out
+        assert "  half_extent: tuple[float (> 0), float (> 0), float (> 0)] = (3.0, 3.0, 1.25)  — Half size" in out
     assert "common to every node:" in out and "  connect_timeout_s: float (> 0) = 30.0  — " in out
 
 

@@ -34,6 +34,7 @@ from riskfield.services.fields import EsdfField, answer_query
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, render
 from riskfield.services.geometry.transforms import look_at, orbit
+from riskfield.services.mapping.config import MapperConfig
 from riskfield.testing import Collector, ServiceProcess, StatusWatch, client_session, put, wait_alive, wait_until
 
 CAM = PinholeCamera.centred(160, 120, 125.0)
@@ -103,7 +104,8 @@ def test_node_publishes_slice_and_3d_grid_and_answers_queries(router_endpoint: s
         feed(s, keys, frames(), grids)
         g = grids.wait(1)[-1]
         g3 = grids3d.wait(1)[-1]
-        assert g.shape == (101, 101, 1) and g3.shape == (101, 101, 101)
+        shape = MapperConfig().shape  # the node's defaults
+        assert g.shape == (*shape[:2], 1) and g3.shape == shape
         assert g.groups == ["high", "mid", "low"] and g.max_distance == 2.0 and not g.unknown_is_occupied
         assert np.isfinite(g.distance).all() and (g.distance < 0).any() and (g.risk_group == 1).any()
         assert g.header.stamp_ns > 0

@@ -13,8 +13,13 @@ from riskfield.services.mapping.volume import Volume, shift_array
 coord = st.floats(-50, 50, allow_nan=False)
 
 
-def test_default_volume_is_the_authors_101_cubed() -> None:
-    assert MapperConfig().shape == (101, 101, 101)
+def test_the_default_volume_is_a_ground_robots_wider_and_flatter_than_the_authors_cube() -> None:
+    """3 m along the floor (a person is tracked that far), 1.25 m up and down (the slice's band and
+    what hangs over it), in fewer voxels than the authors' 101³, whose shape stays one setting away."""
+    c = MapperConfig()
+    assert c.shape == (121, 121, 51) and c.half_extent[0] >= 3.0 and c.band[1] < c.half_extent[2]
+    assert np.prod(c.shape) < 101**3
+    assert MapperConfig(half_extent=(2.5, 2.5, 2.5)).shape == (101, 101, 101)
 
 
 @given(st.tuples(coord, coord, coord))

@@ -1,7 +1,8 @@
 """``riskfield bench mapping``: how long each step of the map update takes on this machine.
 
 A room (walls, floor, a person, a chair, a ball) is rendered as 512×384 pointmaps from a camera
-sweeping an arc, and fused into the default rolling volume (2.5 m radius at 5 cm = 101³ voxels).
+sweeping an arc, and fused into the authors' rolling volume (``CUBE``: 2.5 m radius at 5 cm = 101³
+voxels, not the ground robot's default), so the figures compare across versions.
 Measured per step: TSDF integration, semantic label voting, occupancy extraction, the signed
 ESDF (exact per-group margins vs. the paper's voxel dilation, 3-D grid vs. 2-D ground slice),
 point queries, and the tracker of people and animals (``objects``: footprints, tracks and
@@ -62,6 +63,9 @@ from riskfield.services.mapping.objects import ObjectTracker
 from riskfield.services.mapping.settings import MappingSettings
 from riskfield.services.runtime.memory import keep_freed_heap
 
+#: the volume every figure here is measured in: the authors' 101³ cube
+CUBE = {"half_extent": (2.5, 2.5, 2.5)}
+
 app = typer.Typer(add_completion=False)
 
 
@@ -101,7 +105,7 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
     out: dict[str, dict[str, float]] = {}
     for stride in (1, 2):
         walls: dict[str, list[float]] = {"previous": [], "now": []}
-        mappers = {k: Mapper(MapperConfig(pixel_stride=stride, threads=threads, integration=i), RiskConfig())
+        mappers = {k: Mapper(MapperConfig(pixel_stride=stride, threads=threads, integration=i, **CUBE), RiskConfig())
                    for k, i in (("previous", "merged"), ("now", "projective"))}
         for m in mappers.values():
             m.set_robot_position(np.zeros(3))
@@ -116,14 +120,14 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
     # The 3-D ESDF after each frame (projective map, full resolution): the previous numpy glue around
     # the ``edt`` package against the compiled passes and EDT, full recompute and incremental, and
     # the previous default (full recompute) against the incremental update now.
-    m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d"), RiskConfig())
+    m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d", **CUBE), RiskConfig())
     m.set_robot_position(np.zeros(3))
     m.warm_up()
     esdf = m.esdf_integrator
-    old = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_kernel="numpy", esdf_edt="edt"))
-    with_edt = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_edt="edt"))  # compiled glue, edt package
+    old = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_kernel="numpy", esdf_edt="edt", **CUBE))
+    with_edt = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_edt="edt", **CUBE))  # compiled glue, edt package
     with_edt.warm_up()
-    wave = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_incremental="wave"))
+    wave = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_incremental="wave", **CUBE))
     wave.warm_up()
     wave_ms: list[float] = []
     wave_err: list[float] = []  # max |d_wave − d_full| per frame
@@ -208,7 +212,8 @@ def node_rate_test(rendered: list, poses: list[np.ndarray], camera: PinholeCamer
     stop = threading.Event()
     with Stack(f"bench_{uuid.uuid4().hex[:6]}") as stack:
         extra = [a for kv in mapping_set for a in ("--set", kv)]
-        stack.start("mapping", "mapping", ["--set", f"output={output}", "--set", "esdf_rate_hz=60", *extra])
+        cube = ["--set", f"half_extent={list(CUBE['half_extent'])}"]
+        stack.start("mapping", "mapping", ["--set", f"output={output}", "--set", "esdf_rate_hz=60", *cube, *extra])
         if with_filter:
             stack.start("filter", "safety-filter", FAST_FILTER)
 
@@ -289,7 +294,7 @@ def heap_policy(rendered: list, poses: list[np.ndarray], camera: PinholeCamera, 
     import resource
 
     K = (camera.fx, camera.fy, camera.cx, camera.cy)
-    m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d"), RiskConfig())
+    m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d", **CUBE), RiskConfig())
     m.set_robot_position(np.zeros(3))
     m.warm_up()
     for (pts, conf, lab), T in zip(rendered, poses, strict=True):
@@ -334,7 +339,7 @@ def main(
     poses = [look_at(np.array([0.1 * np.cos(a), 0.6 * np.sin(a), 0.25]), np.array([1.5, 0.0, 0.4]))
              for a in np.linspace(-1.0, 1.0, frames)]
     rendered = [render(scene, T, camera) for T in poses]
-    base = dict(pixel_stride=pixel_stride, threads=threads)
+    base = dict(pixel_stride=pixel_stride, threads=threads, **CUBE)
     results: dict[str, dict[str, float]] = {}
     load0 = os.getloadavg()
     heap = heap_policy(rendered, poses, camera, threads)  # first: every step below runs as the node does
