@@ -242,8 +242,8 @@ class MotionParams(BaseModel):
     The collision course (``model.object_course``): within ``collision_horizon_s`` the object,
     moving on with its velocity and uncertain by ``object_speed_sigma`` · t, comes inside its
     group's margin of the robot's body, with the body moving on as the reference asks or braking
-    to rest. 1.5 s at σ = 0.15 m/s (between the tracker's velocity error per axis, 0.09 m/s from its
-    median and 0.29 m/s RMS with its lag at stops and turns: ``riskfield bench crowd``) grows a walker's
+    to rest. 1.5 s at σ = 0.15 m/s (between the tracker's velocity error per axis, 0.06 m/s from its
+    median and 0.28 m/s RMS with its lag at stops and turns: ``riskfield bench crowd``) grows a walker's
     reach by 0.23 m: a person walking past at a body gap of 0.5 m stays out (0.5 - 0.15 - 0.23 -
     δ > 0), one walking at 1.2 m/s is seen 1.8 m ahead of the contact, more than the LIMO needs to
     stop from 1 m/s (0.33 m at 1.5 m/s²) with the pipeline's latency."""
