@@ -15,8 +15,8 @@ from ``TsdfParams``, the ESDF's from ``EsdfParams``) plus the few derived number
 
 Defaults follow the authors' release (5 cm voxels in a rolling local volume that follows the
 robot) but for the volume's shape, made for a ground robot (``VolumeParams.half_extent``).
-Distances are metres, weights are sums of per-pixel
-confidences (the pointmap's confidence is the observation weight).
+Distances are metres, weights are sums of per-pixel confidences (the pointmap's confidence is the
+observation weight).
 """
 
 from __future__ import annotations
@@ -41,12 +41,11 @@ class VolumeParams(BaseModel):
     """Edge (m) of a voxel of the rolling volume."""
     half_extent: tuple[Pos, Pos, Pos] = (3.0, 3.0, 1.25)
     """Half size (m) of the rolling volume along x, y, z. A ground robot's: a person is in the map, and
-    tracked, once within 3 m along both floor axes (the authors' cube of 2.5 m found a walker crossing
-    at 1.5 m/s towards a robot at 0.5 m/s only 0.3–0.4 s after they set off, too late to stop short
-    of their path: ``riskfield bench crowd``), and 1.25 m up and down holds the 2-D slice's band
-    and what hangs over it. 121 × 121 × 51 voxels at 5 cm, fewer than the cube's 101³; the slice's
-    121² cells keep ``map/esdf`` within the off-board link's 1 MB/s (``riskfield bench link``). A
-    flying robot wants a taller volume."""
+    tracked, once within 3 m along both floor axes, soon enough for the robot to stop short of the
+    path of someone crossing towards it at 1.5 m/s (``riskfield bench crowd``); 1.25 m up and down
+    holds the 2-D slice's band and what hangs over it. 121 × 121 × 51 voxels at 5 cm, fewer than the
+    authors' cube's 101³; the slice's 121² cells keep ``map/esdf`` within the off-board link's 1 MB/s
+    (``riskfield bench link``). A flying robot wants a taller volume."""
     centre_offset: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
     """Volume centre relative to the robot (e.g. raise it for a ground robot)."""
     recentre_distance: NonNeg = 0.25

@@ -102,8 +102,12 @@ class Detection:
         ahead = (xy - (w[fresh] @ xy[fresh]) / w[fresh].sum()) @ velocity[:2] >= 0
         keep = (~self.stale | ahead) & (w > 0)
         centre = (w[keep] @ xy[keep]) / w[keep].sum()
-        radius = float(np.hypot(*(xy[keep] - centre).T).max()) + 0.5 * self.voxel_size
-        return np.array([centre[0], centre[1], self.position[2]]), radius
+        return np.array([centre[0], centre[1], self.position[2]]), _reach(xy[keep], centre, self.voxel_size)
+
+
+def _reach(xy: np.ndarray, centre: np.ndarray, voxel_size: float) -> float:
+    """A footprint's radius: its farthest cell centre (world x, y) from ``centre``, plus half a voxel."""
+    return float(np.hypot(*(xy - centre[:2]).T).max()) + 0.5 * voxel_size
 
 
 @njit(cache=True, nogil=True)
@@ -227,14 +231,12 @@ def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], ori
         centre = origin + voxel_size * np.array([sx[cid], sy[cid], sz[cid]]) / fsum[cid]
         idx = order[starts[cid]:starts[cid + 1]]
         idx = idx[w[idx] > 0]
-        dx = origin[0] + ci[idx] * voxel_size - centre[0]
-        dy = origin[1] + cj[idx] * voxel_size - centre[1]
-        radius = float(np.sqrt(dx * dx + dy * dy).max()) + 0.5 * voxel_size
-        det = Detection(best[cid][0], centre, radius, int(cells[cid]))
+        xy = np.column_stack([origin[0] + ci[idx] * voxel_size, origin[1] + cj[idx] * voxel_size])
+        det = Detection(best[cid][0], centre, _reach(xy, centre, voxel_size), int(cells[cid]))
         if use_hit and idx.size:
             seen = col_seen[ci[idx], cj[idx]]
             det.seen_ms = int(seen.max())
-            det.columns = np.column_stack([origin[0] + ci[idx] * voxel_size, origin[1] + cj[idx] * voxel_size])
+            det.columns = xy
             det.inside = w[idx]
             det.stale = seen < det.seen_ms - round(params.object_fresh_s * 1e3)
             det.voxel_size = voxel_size
