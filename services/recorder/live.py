@@ -36,11 +36,17 @@ import json
 from pathlib import Path
 from typing import Any, ClassVar
 
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from pydantic import Field, field_validator
 
 from riskfield.protocol import (
     EsdfGrid,
     Image,
+    Keys,
     NavGoal,
     PerceptionFrame,
     RobotState,
@@ -54,7 +60,17 @@ from riskfield.protocol.platforms import PlanarPlatform, platform
 from ..runtime.node import Node
 from ..runtime.service import ServiceSpec
 from ..runtime.settings import NodeSettings
-from .views import ImageView, View, esdf_view, json_view, objects_view, pointcloud_view, robot_view, state_views
+from .views import (
+    ImageView,
+    View,
+    esdf_view,
+    json_view,
+    objects_view,
+    pointcloud_view,
+    proto_view,
+    robot_view,
+    state_views,
+)
 
 LAYOUT = Path(__file__).resolve().parents[2] / "deploy" / "foxglove" / "riskfield-layout.json"
 
@@ -91,7 +107,8 @@ class FoxgloveSettings(NodeSettings):
 
 
 class FoxgloveLive:
-    """Logs views on SDK channels, one per (topic, schema), created on the first message."""
+    """Logs views on SDK channels, one per (topic, schema): those of ``declared_views`` made at start, the
+    others on their first message."""
 
     def __init__(self, node: Node, s: FoxgloveSettings):
         import foxglove
@@ -99,13 +116,22 @@ class FoxgloveLive:
         self.fg, self.node, self.s = foxglove, node, s
         self.root = node.keys.root
         self.context = foxglove.Context()
+        self.channels: dict[tuple[str, str], Any] = {}
+        # Made before the server starts. The SDK (source read at 0.26) advertises the channels that exist
+        # when a client connects before that client's tasks run (rust/foxglove/src/websocket/server.rs,
+        # ``handle_connection``: ``register_client_and_advertise``, then ``client.run``). A channel made
+        # while a client is connected is queued to it before it is recorded as advertised
+        # (connected_client.rs, ``advertise_channels``), and ``on_subscribe`` refuses a subscription to a
+        # channel not yet recorded ("Unknown channel ID"): on a busy machine the client's subscription can
+        # come in between, and that client never gets the channel's messages.
+        for v in declared_views(node.keys):
+            self._channel(v)
         self.server = foxglove.start_server(name=f"riskfield {node.settings.robot}", host=s.host, port=s.port,
                                             context=self.context)
         self.port = int(self.server.port)
         node.stats["foxglove_port"] = float(self.port)
         node.log.info(f"Foxglove: open a Foxglove WebSocket connection to ws://{s.host}:{self.port} "
                       f"(layout: {LAYOUT.relative_to(LAYOUT.parents[2])})")
-        self.channels: dict[tuple[str, str], Any] = {}
         self.image = ImageView(s.jpeg_quality)
         self.status: SafetyStatus | None = None
         self.logged = 0
@@ -157,6 +183,19 @@ class FoxgloveLive:
 
     def close(self) -> None:
         self.server.stop()
+
+
+def declared_views(keys: Keys) -> list[View]:
+    """An empty view of every channel whose schema and metadata its key fixes, made before the server
+    starts (``FoxgloveLive.__init__``). Not the ESDF's: its channel carries the first grid's groups and
+    range, and a 3-D grid is a VoxelGrid; nor the raw image of a machine without Pillow."""
+    root = keys.root
+    protos = ((keys.camera_image, CompressedImage), (keys.perception_frame, PointCloud), (keys.state, PoseInFrame),
+              (f"{root}/tf", FrameTransform), (f"{root}/robot", SceneUpdate), (keys.objects, SceneUpdate))
+    jsons = ((keys.safety_status, SafetyStatus), (keys.cmd_ref, VelocityCommand), (keys.cmd_safe, VelocityCommand),
+             (keys.nav_goal, NavGoal))
+    return [*(proto_view(topic, cls()) for topic, cls in protos),
+            *(v for topic, m in jsons for v in json_view(topic, {}, m.SCHEMA))]
 
 
 def setup(node: Node, s: FoxgloveSettings) -> FoxgloveLive:

@@ -103,7 +103,7 @@ def schema_data(proto_cls: Any) -> bytes:
     return _FDS[name]
 
 
-def _proto(topic: str, msg: Any, metadata: tuple[tuple[str, str], ...] = ()) -> View:
+def proto_view(topic: str, msg: Any, metadata: tuple[tuple[str, str], ...] = ()) -> View:
     return View(topic, "protobuf", msg.DESCRIPTOR.full_name, msg.SerializeToString(), metadata, type(msg))
 
 
@@ -122,7 +122,7 @@ class ImageView:
         if m.encoding == "jpeg":
             out = CompressedImage(frame_id=m.header.frame_id, format="jpeg", data=m.data)
             _stamp(out.timestamp, m)
-            return [_proto(topic, out)]
+            return [proto_view(topic, out)]
         try:
             from PIL import Image as PILImage  # the `sim` extra; optional for the recorder
         except ImportError:
@@ -130,12 +130,12 @@ class ImageView:
             raw = RawImage(frame_id=m.header.frame_id, width=m.width, height=m.height, encoding="rgb8",
                            step=3 * m.width, data=np.ascontiguousarray(m.data, np.uint8).tobytes())
             _stamp(raw.timestamp, m)
-            return [_proto(topic, raw)]
+            return [proto_view(topic, raw)]
         buf = io.BytesIO()
         PILImage.fromarray(np.ascontiguousarray(m.data, np.uint8), "RGB").save(buf, "JPEG", quality=self.quality)
         out = CompressedImage(frame_id=m.header.frame_id, format="jpeg", data=buf.getvalue())
         _stamp(out.timestamp, m)
-        return [_proto(topic, out)]
+        return [proto_view(topic, out)]
 
 
 def _cells(distance: np.ndarray, risk: np.ndarray) -> bytes:
@@ -169,7 +169,7 @@ def esdf_view(topic: str, m: EsdfGrid) -> list[View]:
         g.pose.position.x, g.pose.position.y, g.pose.position.z = m.origin[0] - h, m.origin[1] - h, m.origin[2]
         g.pose.orientation.w = 1.0
         _stamp(g.timestamp, m)
-        return [_proto(topic, g, meta)]
+        return [proto_view(topic, g, meta)]
     v = VoxelGrid(frame_id=m.header.frame_id, row_count=ny, column_count=nx, cell_stride=5, row_stride=5 * nx,
                   slice_stride=5 * nx * ny, fields=_grid_fields(),
                   data=_cells(m.distance.transpose(2, 1, 0), m.risk_group.transpose(2, 1, 0)))
@@ -177,7 +177,7 @@ def esdf_view(topic: str, m: EsdfGrid) -> list[View]:
     v.pose.position.x, v.pose.position.y, v.pose.position.z = (c - h for c in m.origin)
     v.pose.orientation.w = 1.0
     _stamp(v.timestamp, m)
-    return [_proto(topic, v, meta)]
+    return [proto_view(topic, v, meta)]
 
 
 def pointcloud_view(topic: str, m: PerceptionFrame, stride: int = 8) -> list[View]:
@@ -196,7 +196,7 @@ def pointcloud_view(topic: str, m: PerceptionFrame, stride: int = 8) -> list[Vie
         PackedElementField(name="class_id", offset=16, type=U16)])
     pc.pose.orientation.w = 1.0
     _stamp(pc.timestamp, m)
-    return [_proto(topic, pc)]
+    return [proto_view(topic, pc)]
 
 
 def state_views(topic: str, tf_topic: str, m: RobotState) -> list[View]:
@@ -209,7 +209,7 @@ def state_views(topic: str, tf_topic: str, m: RobotState) -> list[View]:
         q.x, q.y, q.z, q.w = m.orientation
     _stamp(tf.timestamp, m)
     _stamp(pose.timestamp, m)
-    return [_proto(tf_topic, tf), _proto(topic, pose)]
+    return [proto_view(tf_topic, tf), proto_view(topic, pose)]
 
 
 def jsonable(obj: Any) -> Any:
@@ -286,7 +286,7 @@ def objects_view(topic: str, m: TrackedObjects, groups: tuple[str, ...] = ("high
         label.pose.position.z = o.position[2] + height / 2 + 0.1
         label.pose.orientation.w = 1.0
         _colour(label.color, (1.0, 1.0, 1.0, 1.0))
-    return [_proto(topic, up)]
+    return [proto_view(topic, up)]
 
 
 def _reason(status: SafetyStatus) -> str:
@@ -343,4 +343,4 @@ def robot_view(topic: str, m: RobotState, body: float | tuple[float, float],
     t.pose.position.x, t.pose.position.y, t.pose.position.z = m.position[0], m.position[1], m.position[2] + 0.4
     t.pose.orientation.w = 1.0
     _colour(t.color, rgba)
-    return [_proto(topic, up)]
+    return [proto_view(topic, up)]

@@ -194,6 +194,32 @@ def frame() -> PerceptionFrame:
                            keyframe_id=0)
 
 
+def test_a_client_connected_before_any_message_is_offered_every_fixed_channel_at_once(router_endpoint: str):
+    """The channels a key fixes exist before the server starts, so a client that connects first gets them in
+    its first advertisement, none made while it is connected (the SDK's race: live.py, ``FoxgloveLive``)."""
+    from riskfield.services.recorder.live import declared_views
+
+    keys = Keys("t_foxglove_first")
+    declared = {(v.topic, v.encoding, v.schema) for v in declared_views(keys)}
+    assert {t for t, _, _ in declared} >= {keys.camera_image, keys.perception_frame, keys.state, f"{keys.root}/tf",
+                                        f"{keys.root}/robot", keys.objects, keys.safety_status, keys.cmd_safe}
+    args = ["--robot", keys.robot, "--set", "port=0", "--set", "status_period_s=0.1"]
+    with ServiceProcess("foxglove", router_endpoint, args) as proc, client_session(router_endpoint) as s:
+        assert wait_alive(s, keys.alive("foxglove")), proc.output
+        status = StatusWatch(s, keys.status("foxglove"))
+        port = int(status.wait(lambda st: "foxglove_port" in st.extra, 30).extra["foxglove_port"])
+        status.close()
+        with websockets.sync.client.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"],
+                                            open_timeout=10) as ws:
+            assert json.loads(ws.recv(timeout=10))["op"] == "serverInfo"
+            first = json.loads(ws.recv(timeout=10))
+        assert proc.stop() == 0
+    assert first["op"] == "advertise"
+    # a JSON channel without a schema gets a generated schema name
+    assert {(c["topic"], c["encoding"], c["schemaName"] if c["encoding"] == "protobuf" else "")
+            for c in first["channels"]} == declared
+
+
 def test_node_serves_every_channel_to_a_websocket_client(router_endpoint: str):
     keys = Keys("t_foxglove")
     jpeg = bytes.fromhex("ffd8ffe000104a46494600010100000100010000ffd9")  # served as it comes (no decoding)
@@ -221,7 +247,7 @@ def test_node_serves_every_channel_to_a_websocket_client(router_endpoint: str):
 
         got: dict[str, list[tuple[str, bytes, int]]] = {}  # topic → (schema or encoding, payload, log time)
 
-        def publish() -> None:  # until the client has seen every channel (channels appear on first message)
+        def publish() -> None:  # until the client has seen every channel (the ESDF's is made on its first message)
             # A channel the client has seen is not put again (state and status go on: the footprint's
             # text needs both). Putting all seven, the point cloud among them, every 0.1 s can outrun a
             # node starved by a busy machine, whose bounded inbox then drops (CI missed one channel for 60 s).
