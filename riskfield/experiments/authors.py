@@ -55,7 +55,7 @@ from riskfield.experiments.sampling import Pair
 from riskfield.protocol import RiskConfig, ade20k
 from riskfield.protocol.risk import RiskGroup
 from riskfield.services.fields import DistanceField
-from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.navigator.clf import PointMassCLF
 from riskfield.services.safety_filter.qp import ActiveSetSolver, OsqpSolver
 
 #: The authors' six ScanNet++ scenes (run them with ``--scannetpp DATA/<id>`` each, or ``--scannetpp DATA``).
@@ -334,7 +334,7 @@ Control = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """``control(p, v, u_ref) -> u``; may carry a ``relaxed`` attribute (the last step fell back)."""
 
 
-def rollout(method: str, pair: Pair, control: Control, clf: DoubleIntegratorCLF, distance: Distance,
+def rollout(method: str, pair: Pair, control: Control, clf: PointMassCLF, distance: Distance,
             cfg: AuthorsConfig, scene: str = "") -> AuthorsRollout:
     """Drive the double integrator from the pair's start toward its goal for up to ``cfg.steps``.
 

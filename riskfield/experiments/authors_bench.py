@@ -36,7 +36,7 @@ from riskfield.experiments.safersplat import EllipsoidBarrier, fit_gaussians
 from riskfield.experiments.safety_benchmark import Frame, camera_poses, integrate_within_budget, make_case
 from riskfield.protocol import RiskConfig
 from riskfield.services.fields import EsdfField
-from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.navigator.clf import PointMassCLF
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.state import FilterState
@@ -144,7 +144,7 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
     """The protocol over ``scenes``; ``on_scene(description, rollouts to come)`` and ``on_rollout()``
     drive a progress bar."""
     cfg = cfg or A.AuthorsConfig()
-    clf = DoubleIntegratorCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
+    clf = PointMassCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
     methods = methods_for(modes, baseline, riskfield, no_hessian)
     rollouts: list[Rollout] = []
     info: list[dict] = []

@@ -13,7 +13,7 @@ Per scene:
    (nearest-point barrier on a KD-tree), (ii) the ESDF (all margins 0), (iii) the semantic
    ESDF (margins 0.15 / 0.05 / 0.00 m for high / mid / low).
 4. **Roll-outs** — a 3-D double integrator from each start to its goal: the same CLF nominal
-   controller (``clf.DoubleIntegratorCLF``) and the same filter for every method — the safety
+   controller (``clf.PointMassCLF``) and the same filter for every method — the safety
    filter core (``SafetyFilter``, model ``double3d``) with its default barrier
    (``FilterConfig.barrier``) and identical class-K gains for every group. The barrier is the
    field's distance minus the robot radius minus the filter's *extra margin*: the sampled-data
@@ -44,7 +44,7 @@ from riskfield.services.fields import DistanceField, EsdfField, PointCloudField
 from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.mapper import Mapper
-from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.navigator.clf import PointMassCLF
 from riskfield.services.perception.degrade import Degrader
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
@@ -256,7 +256,7 @@ has a ``relaxed`` attribute (set by each call: True when the step could not cert
 barrier and fell back to a relaxed or braking input) has those steps counted in the roll-out."""
 
 
-def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, clf: DoubleIntegratorCLF,
+def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, clf: PointMassCLF,
             cfg: BenchConfig, case: SceneCase) -> Rollout:
     """Drive the double integrator from ``pair.start`` towards ``pair.goal`` through ``safe``."""
     p, v, goal = pair.start.astype(float).copy(), np.zeros(3), pair.goal.astype(float)

@@ -87,7 +87,7 @@ class UnicycleCLF:
 
 
 @dataclass(frozen=True)
-class DoubleIntegratorCLF:
+class PointMassCLF:
     """Cascaded PD law for ``ṗ = v, v̇ = u`` in any dimension; ``command`` returns ``u``."""
 
     k_p: float = 1.0

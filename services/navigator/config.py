@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from riskfield.protocol.platforms import PlanarPlatform, SpatialPlatform, platform
 
-from .clf import DoubleIntegratorCLF, UnicycleCLF
+from .clf import PointMassCLF, UnicycleCLF
 
 #: The platform a model drives when none is named.
 MODEL_PLATFORM = {"unicycle": "limo", "double_integrator": "point_mass"}
@@ -17,7 +17,7 @@ MODEL_PLATFORM = {"unicycle": "limo", "double_integrator": "point_mass"}
 class NavigatorConfig(BaseModel):
     """``model = "unicycle"``: planar LIMO-like robot, command ``(v, 0, 0) / (0, 0, ω)``.
     ``model = "double_integrator"``: 3-D point robot; the command is the CLF's velocity
-    demand ``v_des`` (see ``clf.DoubleIntegratorCLF``) in the body frame, which a
+    demand ``v_des`` (see ``clf.PointMassCLF``) in the body frame, which a
     velocity-controlled vehicle (MAVLink, simulator) tracks. ``escape`` enables the
     deadlock escape."""
 
@@ -80,9 +80,9 @@ class NavigatorConfig(BaseModel):
             v_max, w_max = min(v_max, p.max_linear), min(w_max, p.max_angular)
         return UnicycleCLF(self.k_rho, self.k_alpha, v_max, w_max, self.allow_reverse)
 
-    def double_integrator(self) -> DoubleIntegratorCLF:
+    def double_integrator(self) -> PointMassCLF:
         v_max, a_max, p = self.v_max, self.a_max, self.robot_platform
         if isinstance(p, SpatialPlatform):
             v_max = min(v_max, p.max_speed)
             a_max = a_max if p.max_accel is None else min(a_max, p.max_accel)
-        return DoubleIntegratorCLF(self.k_p, self.k_d, v_max, a_max)
+        return PointMassCLF(self.k_p, self.k_d, v_max, a_max)

@@ -170,10 +170,10 @@ def test_rollout_clearance_is_unsigned_distance_minus_radius():
     def distance(points: np.ndarray) -> np.ndarray:  # unsigned, to a sphere of radius 0.2
         return np.abs(np.linalg.norm(points - centre, axis=1) - 0.2)
 
-    from riskfield.services.navigator.clf import DoubleIntegratorCLF
+    from riskfield.services.navigator.clf import PointMassCLF
 
     pair = Pair(0, "ball", "low", np.array([0.0, 0.0, 0.5]), np.array([2.0, 0.0, 0.5]))
-    r = A.rollout("off", pair, lambda p, v, u: u, DoubleIntegratorCLF(1.0, 1.6, 0.5, 1.5), distance, cfg)
+    r = A.rollout("off", pair, lambda p, v, u: u, PointMassCLF(1.0, 1.6, 0.5, 1.5), distance, cfg)
     assert r.progress == pytest.approx(1.0, abs=0.02)
     # Straight through the centre: unsigned distance 0.2 there, so the clearance is 0.2 − 0.03 at the
     # centre, and −0.03 on the surface.

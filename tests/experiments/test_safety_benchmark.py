@@ -24,12 +24,12 @@ from riskfield.protocol import RiskConfig, ade20k
 from riskfield.services.fields import AnalyticField
 from riskfield.services.geometry.shapes import Sphere
 from riskfield.services.geometry.transforms import pose_matrix
-from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.navigator.clf import PointMassCLF
 from riskfield.services.simulator import procedural, shapes
 from riskfield.services.simulator.scene import SceneObject
 
 CFG = BenchConfig(robot_radius=0.15)
-CLF = DoubleIntegratorCLF(CFG.k_p, CFG.k_d, CFG.v_max, CFG.a_max)
+CLF = PointMassCLF(CFG.k_p, CFG.k_d, CFG.v_max, CFG.a_max)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.services.geometry.transforms import wrap_angle
-from riskfield.services.navigator.clf import DoubleIntegratorCLF, UnicycleCLF, clip_norm
+from riskfield.services.navigator.clf import PointMassCLF, UnicycleCLF, clip_norm
 
 coord = st.floats(-3.0, 3.0, allow_nan=False)
 angle = st.floats(-math.pi, math.pi, allow_nan=False)
@@ -59,7 +59,7 @@ def test_unicycle_reverse_when_allowed():
 @given(st.lists(coord, min_size=3, max_size=3), st.lists(st.floats(-0.5, 0.5), min_size=3, max_size=3),
        st.lists(coord, min_size=3, max_size=3))
 def test_double_integrator_converges(p0, v0, g):
-    ctrl = DoubleIntegratorCLF()
+    ctrl = PointMassCLF()
     p, v, goal = np.array(p0), np.array(v0), np.array(g)
     dt = 0.01
     for _ in range(3000):
@@ -71,7 +71,7 @@ def test_double_integrator_converges(p0, v0, g):
 
 
 def test_double_integrator_energy_decreases_when_unsaturated():
-    ctrl = DoubleIntegratorCLF(v_max=100.0, a_max=100.0)
+    ctrl = PointMassCLF(v_max=100.0, a_max=100.0)
     p, v, goal, dt = np.array([0.3, -0.2, 0.1]), np.array([0.1, 0.0, -0.1]), np.zeros(3), 1e-3
     energies = []
     for _ in range(3000):
@@ -84,7 +84,7 @@ def test_double_integrator_energy_decreases_when_unsaturated():
 
 
 def test_double_integrator_cruise_speed_is_bounded():
-    ctrl = DoubleIntegratorCLF(v_max=0.5, a_max=1.0)
+    ctrl = PointMassCLF(v_max=0.5, a_max=1.0)
     p, v, goal, dt = np.zeros(3), np.zeros(3), np.array([10.0, 0, 0]), 0.01
     speeds = []
     for _ in range(1500):
@@ -96,7 +96,7 @@ def test_double_integrator_cruise_speed_is_bounded():
 
 
 def test_batch_matches_single():
-    ctrl = DoubleIntegratorCLF()
+    ctrl = PointMassCLF()
     rng = np.random.default_rng(1)
     p, v, g = rng.normal(size=(20, 3)), rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
     batch = ctrl.command_batch(p, v, g)

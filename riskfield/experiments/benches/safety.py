@@ -45,7 +45,7 @@ from riskfield.experiments.scannetpp import load_scene, scannetpp_folders
 from riskfield.experiments.tables import plot_safety, safety_table, table2, table3, write_json
 from riskfield.protocol import RiskConfig
 from riskfield.services.geometry.camera import PinholeCamera
-from riskfield.services.navigator.clf import DoubleIntegratorCLF
+from riskfield.services.navigator.clf import PointMassCLF
 from riskfield.services.simulator.camera import Renderer
 
 app = typer.Typer(add_completion=False)
@@ -102,7 +102,7 @@ def safety(
 
     renderer = Renderer(PinholeCamera.from_fov(*cfg.image, 90.0))
     perceive = gt_perception(renderer) if perception == "gt" else sim_perception(renderer, seed)
-    clf = DoubleIntegratorCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
+    clf = PointMassCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
     safe = filter_safe_control(cfg)
     extra = variants(cfg)
     extra_safe = {v.suffix: filter_safe_control(cfg, overrides=v.overrides) for v in extra}
