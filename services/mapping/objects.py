@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -155,14 +155,37 @@ def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: n
     return body, frac, fz, seeds, label, seen
 
 
-def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], origin: np.ndarray,
-           voxel_size: float, label_to_group: np.ndarray, params: MapperConfig, tsdf: np.ndarray | None = None,
-           weight: np.ndarray | None = None, min_weight: float = 0.5, hit: np.ndarray | None = None,
-           present_hit: np.ndarray | None = None) -> list[Detection]:
-    """The movable objects of one semantic occupancy (``groups``, the mapper's per-voxel risk group)
-    with the semantic layer's ``labels``, in the height band ``k_range`` = [k_lo, k_hi) of z voxels.
-    With the TSDF layer (``tsdf``, ``weight``), observed voxels count by their inside fraction; with
-    its ``hit`` times (and the present layer's), each detection says when it was last seen."""
+@dataclass(frozen=True)
+class MapReading:
+    """All the tracker reads of one map update (``Mapper.reading``), and nothing else of the map:
+    the semantic occupancy and the layers it was made of (the present layer's overlay), the slice's
+    height band, and the map's clocks. Without the TSDF layer (``tsdf``, ``weight``) voxels count
+    whole; without ``hit`` no detection says when it was seen."""
+
+    occupancy: np.ndarray  # per-voxel obstacle risk group
+    band: tuple[int, int]  # z-voxel range [k_lo, k_hi) of the ESDF slice's height band
+    origin: np.ndarray  # the volume's origin (m)
+    voxel_size: float
+    label: np.ndarray  # per-voxel label of the layers read
+    label_to_group: np.ndarray
+    tsdf: np.ndarray | None = None  # their signed distances and weights: a surface voxel is a sighting
+    weight: np.ndarray | None = None
+    min_weight: float = 0.5
+    hit: np.ndarray | None = None  # when each voxel was last seen as a surface (the ``hit`` clock, ms)
+    present_hit: np.ndarray | None = None  # the same for the current frame's layer, if there is one
+    stamp_ns: int = 0  # the map's stamp
+    now_ms: int | None = None  # the map's clock (``Mapper.now_ms``)
+
+
+def detect(reading: MapReading, params: MapperConfig) -> list[Detection]:
+    """The movable objects of one map reading: its semantic occupancy (the mapper's per-voxel risk
+    group) with the semantic layer's labels, in its height band [k_lo, k_hi) of z voxels. With the
+    TSDF layer, observed voxels count by their inside fraction; with its ``hit`` times (and the
+    present layer's), each detection says when it was last seen."""
+    r = reading
+    groups, labels, origin, voxel_size, label_to_group = r.occupancy, r.label, r.origin, r.voxel_size, r.label_to_group
+    tsdf, weight, hit, present_hit = r.tsdf, r.weight, r.hit, r.present_hit
+    k_range = r.band
     movable = np.asarray(params.dynamic_indices, dtype=np.int64)
     k_lo, k_hi = max(0, k_range[0]), min(groups.shape[2], k_range[1])
     if movable.size == 0 or k_hi <= k_lo:
@@ -181,7 +204,7 @@ def detect(groups: np.ndarray, labels: np.ndarray, k_range: tuple[int, int], ori
     body, frac, fz, seeds, col_label, col_seen = _columns(
         groups, labels, tsdf if use_tsdf else dummy, weight if use_tsdf else dummy,
         hit if use_hit else no_hit, present_hit if use_hit and present_hit is not None else no_hit, k_lo, k_hi,
-        group_ok, is_movable, float(min_weight), float(voxel_size), use_tsdf, use_hit,
+        group_ok, is_movable, float(r.min_weight), float(voxel_size), use_tsdf, use_hit,
         use_hit and present_hit is not None)
     if not seeds.any():
         return []
@@ -257,27 +280,6 @@ class Track:
     seen_ms: int | None = None  # the newest sighting of its footprint (``Detection.seen_ms``)
 
 
-@dataclass(frozen=True)
-class MapReading:
-    """All the tracker reads of one map update (``Mapper.reading``), and nothing else of the map:
-    the semantic occupancy and the layers it was made of (the present layer's overlay), the slice's
-    height band, and the map's clocks."""
-
-    occupancy: np.ndarray  # per-voxel obstacle risk group
-    band: tuple[int, int]  # z-voxel range [k_lo, k_hi) of the ESDF slice's height band
-    origin: np.ndarray  # the volume's origin (m)
-    voxel_size: float
-    label: np.ndarray  # per-voxel label of the layers read
-    tsdf: np.ndarray  # their signed distances and weights: a surface voxel is a sighting
-    weight: np.ndarray
-    min_weight: float
-    hit: np.ndarray  # when each voxel was last seen as a surface (the ``hit`` clock, ms)
-    present_hit: np.ndarray | None  # the same for the current frame's layer, if there is one
-    label_to_group: np.ndarray
-    stamp_ns: int  # the map's stamp
-    now_ms: int  # the map's clock (``Mapper.now_ms``)
-
-
 class ObjectTracker:
     """Footprints of movable objects → tracks with velocities, across map updates (module doc)."""
 
@@ -299,8 +301,10 @@ class ObjectTracker:
         lab[1, 1, 0] = 12
         f = np.zeros((3, 3, 1), np.float32)
         lut = np.ones(65536, np.uint8)
-        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, MapperConfig(dynamic_labels=("person",)), f, f)
-        detect(g, lab, (0, 1), np.zeros(3), 0.05, lut, MapperConfig(dynamic_labels=("person",)))
+        bare = MapReading(g, (0, 1), np.zeros(3), 0.05, lab, lut)
+        person = MapperConfig(dynamic_labels=("person",))
+        detect(replace(bare, tsdf=f, weight=f), person)
+        detect(bare, person)
         return cls(params)
 
     def reset(self) -> None:
@@ -315,10 +319,8 @@ class ObjectTracker:
         its height band, tracked, at the map's stamp (or ``stamp_ns``)."""
         if reading is None:
             return []
-        r = reading
-        dets = detect(r.occupancy, r.label, r.band, r.origin, r.voxel_size, r.label_to_group, self.params,
-                      r.tsdf, r.weight, r.min_weight, r.hit, r.present_hit)
-        return self.update(r.stamp_ns if stamp_ns is None else stamp_ns, dets, r.label_to_group, r.now_ms)
+        return self.update(reading.stamp_ns if stamp_ns is None else stamp_ns, detect(reading, self.params),
+                           reading.label_to_group, reading.now_ms)
 
     def update(self, stamp_ns: int, detections: list[Detection], label_to_group: np.ndarray | None = None,
                now_ms: int | None = None) -> list[TrackedObject]:

@@ -16,7 +16,7 @@ from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import DynamicParams, MapperConfig, ObjectParams
 from riskfield.services.mapping.layers import NEVER, NO_LABEL
 from riskfield.services.mapping.mapper import Mapper
-from riskfield.services.mapping.objects import Detection, ObjectTracker, detect
+from riskfield.services.mapping.objects import Detection, MapReading, ObjectTracker, detect
 
 V = 0.05
 SHAPE = (101, 101, 14)
@@ -68,7 +68,7 @@ class Scene:
 
     def detect(self, params: MapperConfig | None = None, lut: np.ndarray = LUT, tsdf: bool = True) -> list[Detection]:
         extra = dict(tsdf=self.tsdf, weight=self.weight, min_weight=0.5, hit=self.hit) if tsdf else {}
-        return detect(self.groups, self.labels, BAND, ORIGIN, V, lut, params or MapperConfig(), **extra)
+        return detect(MapReading(self.groups, BAND, ORIGIN, V, self.labels, lut, **extra), params or MapperConfig())
 
 
 def run(tracker: ObjectTracker, scenes: list[Scene], t0_ns: int = 10**18) -> list[list[TrackedObject]]:
