@@ -225,6 +225,7 @@ _BODY = """\
   }},
   transport: {{
     shared_memory: {{ enabled: false }},  // as router.json5
+    unicast: {{ compression: {{ enabled: true }} }},  // as router.json5: LZ4 between the two sites' routers
     link: {{
       tls: {{
         root_ca_certificate: "/etc/riskfield/tls/ca.pem",

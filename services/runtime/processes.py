@@ -44,6 +44,7 @@ import zenoh
 
 from riskfield.protocol import Keys
 
+from .router import RouterSettings
 from .session import open_session, zenoh_config
 from .settings import NodeSettings
 from .signals import catch_stop_signals
@@ -90,6 +91,12 @@ def endpoint_settings(endpoint: str, mode: str = "client", timeout_s: float = 15
                                         listen=[endpoint] if router else [], connect_timeout_s=timeout_s)
 
 
+def router_settings(endpoint: str, connect: Sequence[str] = (), timeout_s: float = 15.0) -> RouterSettings:
+    """``riskfield run router``'s settings for a router listening on ``endpoint`` and dialling ``connect``,
+    built as ``endpoint_settings`` builds a tool's (no files, no ``RISKFIELD_*`` variables)."""
+    return RouterSettings.model_construct(listen=[endpoint], connect=list(connect), connect_timeout_s=timeout_s)
+
+
 @contextlib.contextmanager
 def client_session(endpoint: str, timeout_s: float = 15.0) -> Iterator[zenoh.Session]:
     """A client session to ``endpoint``, retried while a router process is still starting."""
@@ -128,7 +135,7 @@ class EmbeddedRouter:
         self.session: zenoh.Session | None = None
 
     def __enter__(self) -> EmbeddedRouter:
-        self.session = zenoh.open(zenoh_config(endpoint_settings(self.endpoint, mode="router")))
+        self.session = zenoh.open(zenoh_config(router_settings(self.endpoint)))
         return self
 
     def __exit__(self, *exc: object) -> None:

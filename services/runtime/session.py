@@ -99,7 +99,8 @@ def endpoint_config(mode: str = "client", connect: Sequence[str] = (), listen: S
 
 
 def zenoh_config(s: NodeSettings) -> zenoh.Config:
-    """The Zenoh config of a node: ``endpoint_config`` plus TLS and user/password."""
+    """The Zenoh config of a node: ``endpoint_config`` plus TLS, user/password and the service's own
+    paths (``NodeSettings.zenoh_extra``)."""
     cfg = endpoint_config(s.mode, s.connect, s.listen, multicast_scouting=s.multicast_scouting,
                           base=s.zenoh_config)
 
@@ -122,6 +123,8 @@ def zenoh_config(s: NodeSettings) -> zenoh.Config:
     if s.user is not None and password is not None:
         put("transport/auth/usrpwd/user", s.user)
         put("transport/auth/usrpwd/password", password)
+    for path, value in s.zenoh_extra().items():
+        put(path, value)
     return cfg
 
 

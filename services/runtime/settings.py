@@ -381,6 +381,10 @@ class NodeSettings(BaseSettings):
     def _comma_list(cls, v: Any) -> Any:
         return _split(v)
 
+    def zenoh_extra(self) -> dict[str, object]:
+        """Zenoh config paths this service sets beyond its endpoints and security, after the base file."""
+        return {}
+
     @classmethod
     def settings_customise_sources(
         cls,

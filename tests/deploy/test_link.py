@@ -26,8 +26,8 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
-from deploy.shaped_link import Shape, ShapedLink
 
+from riskfield.experiments.shaped_link import Shape, ShapedLink
 from riskfield.protocol import ENCODING, Keys, NodeStatus, RobotState, SafetyStatus, VelocityCommand, decode
 from riskfield.testing import Collector, ServiceProcess, client_session, free_port, wait_alive, wait_until
 

@@ -16,9 +16,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from deploy.shaped_link import Shape, ShapedLink
 
 from deploy import netns_lab as lab_mod
+from riskfield.experiments.shaped_link import Shape, ShapedLink
 from riskfield.testing import ServiceProcess, free_port, wait_until
 
 pytestmark = pytest.mark.slow  # two routers, the filter and three agents, about half a minute

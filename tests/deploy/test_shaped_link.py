@@ -9,8 +9,8 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from deploy.shaped_link import Shape, ShapedLink
 
+from riskfield.experiments.shaped_link import Shape, ShapedLink
 from riskfield.testing import wait_until
 
 

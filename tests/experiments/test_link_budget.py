@@ -53,3 +53,14 @@ def test_totals_and_budget() -> None:
     assert within_budget(tot) == {UP: True, DOWN: True}
     raw = totals(traffic({"camera/image": (100, 100 * 590_000)}, 10.0))
     assert raw[UP] > BUDGET[UP] and not within_budget(raw)[UP]
+
+
+def test_a_robot_site_in_the_bench_subscribes_to_what_goes_down_and_nothing_else() -> None:
+    from riskfield.experiments.benches.link import down_keys
+
+    keys = down_keys("rf/r1")
+    for rel in ("map/esdf", "map/objects", "cmd/ref", "config/risk", "status/mapping", "status/navigator"):
+        assert f"rf/r1/{rel}" in keys and f"rf/r1/{rel}/**" in keys, rel
+    ups = {k for k in keys if k.split("rf/r1/", 1)[1].removesuffix("/**") in
+           ("camera/image", "state", "perception/frame", "sim/truth", "status/safety-filter", "status/simulator")}
+    assert not ups, ups

@@ -80,6 +80,8 @@ def test_shipped_router_configs_carry_the_link_policy(config: str) -> None:
     assert json.loads(cfg.get_json("connect/retry"))["period_max_ms"] <= 1000  # back within 1 s of the link
     # The payloads cross the link, not a shared-memory segment beside it (two routers on one host).
     assert cfg.get_json("transport/shared_memory/enabled") == "false"
+    # LZ4 between the sites' routers, as riskfield's router has it (RouterSettings.compression)
+    assert cfg.get_json("transport/unicast/compression/enabled") == "true"
 
 
 def test_router_downsamples_the_filter_status_to_10_hz() -> None:
