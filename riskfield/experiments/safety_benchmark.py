@@ -38,7 +38,7 @@ from typing import Literal
 import numpy as np
 
 from riskfield.experiments.metrics import Rollout
-from riskfield.experiments.sampling import Pair, Target, sample_pairs, targets_from_boxes
+from riskfield.experiments.sampling import Pair, PairRule, Target, sample_pairs, targets_from_boxes
 from riskfield.protocol import CERTAIN_CONFIDENCE, RiskConfig
 from riskfield.services.fields import DistanceField, EsdfField, PointCloudField
 from riskfield.services.geometry.transforms import look_at
@@ -293,8 +293,8 @@ def rollout(method: str, pair: Pair, field_: DistanceField, safe: SafeControl, c
 
 def pairs_for(case: SceneCase, n: int, cfg: BenchConfig, first_id: int) -> list[Pair]:
     rng = np.random.default_rng([cfg.seed, first_id, 11])
-    return sample_pairs(case.targets, n, case.clearance, rng, robot_radius=cfg.robot_radius,
-                        bounds_lo=case.lo, bounds_hi=case.hi, min_free=cfg.end_clearance, first_id=first_id)
+    rule = PairRule(cfg.robot_radius, case.lo, case.hi, min_free=cfg.end_clearance)
+    return sample_pairs(case.targets, n, case.clearance, rng, rule, first_id)
 
 
 def uniform_gains(risk: RiskConfig, alpha1: float, alpha2: float) -> RiskConfig:

@@ -62,27 +62,27 @@ def targets_from_boxes(objects: Sequence[tuple[str, int, np.ndarray, np.ndarray]
     return out
 
 
-def sample_pairs(
-    targets: Sequence[Target],
-    n: int,
-    clearance: Callable[[np.ndarray], np.ndarray],
-    rng: np.random.Generator,
-    *,
-    robot_radius: float,
-    bounds_lo: np.ndarray,
-    bounds_hi: np.ndarray,
-    standoff: tuple[float, float] = (0.35, 1.0),
-    lateral: float = 0.5,
-    min_free: float = 0.1,
-    first_id: int = 0,
-    max_tries: int = 2000,
-) -> list[Pair]:
-    """``n`` pairs around ``targets``. ``clearance(points)`` is the ground-truth signed
-    distance to the obstacle set; both ends must keep ``robot_radius + min_free`` of it and
-    lie inside the bounds. ``standoff`` is the gap from the object's footprint circle to each
-    end; ``lateral`` (× radius) offsets the line sideways so some pass through the object and
-    some graze it. The height is inside the object's vertical extent when that leaves room
-    for the robot, so the object blocks the way."""
+@dataclass(frozen=True)
+class PairRule:
+    """Where the ends of a pair may lie: both keep ``robot_radius + min_free`` of ground-truth clearance
+    and lie inside the bounds; ``standoff`` is the gap from the object's footprint circle to each end;
+    ``lateral`` (× radius) offsets the line sideways so some pass through the object and some graze it;
+    ``max_tries`` draws per slot before a group counts as unplaceable."""
+
+    robot_radius: float
+    bounds_lo: np.ndarray
+    bounds_hi: np.ndarray
+    standoff: tuple[float, float] = (0.35, 1.0)
+    lateral: float = 0.5
+    min_free: float = 0.1
+    max_tries: int = 2000
+
+
+def sample_pairs(targets: Sequence[Target], n: int, clearance: Callable[[np.ndarray], np.ndarray],
+                 rng: np.random.Generator, rule: PairRule, first_id: int = 0) -> list[Pair]:
+    """``n`` pairs around ``targets`` that keep ``rule``; ``clearance(points)`` is the ground-truth signed
+    distance to the obstacle set. The height is inside the object's vertical extent when that leaves
+    room for the robot, so the object blocks the way."""
     if not targets:
         return []
     groups = sorted({t.group for t in targets})
@@ -97,9 +97,9 @@ def sample_pairs(
             continue
         # Fill this slot from any target of the group (objects against a wall only admit
         # directions along it); a group with no placeable pair at all is dropped.
-        for _ in range(max_tries):
+        for _ in range(rule.max_tries):
             t = by_group[group][int(rng.integers(len(by_group[group])))]
-            pair = _try_pair(t, rng, robot_radius, bounds_lo, bounds_hi, standoff, lateral, min_free, clearance)
+            pair = _try_pair(t, rng, rule, clearance)
             if pair is not None:
                 start, goal = pair
                 pairs.append(Pair(first_id + len(pairs), t.name, t.group, start, goal))
@@ -109,9 +109,10 @@ def sample_pairs(
     return pairs
 
 
-def _try_pair(t: Target, rng: np.random.Generator, robot_radius: float, lo: np.ndarray, hi: np.ndarray,
-              standoff: tuple[float, float], lateral: float, min_free: float,
+def _try_pair(t: Target, rng: np.random.Generator, rule: PairRule,
               clearance: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    robot_radius, lo, hi, standoff, lateral, min_free = (rule.robot_radius, rule.bounds_lo, rule.bounds_hi,
+                                                         rule.standoff, rule.lateral, rule.min_free)
     theta = rng.uniform(0, 2 * np.pi)
     u = np.array([np.cos(theta), np.sin(theta)])
     off = rng.uniform(-lateral, lateral) * t.radius * np.array([-u[1], u[0]])

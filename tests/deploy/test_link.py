@@ -207,15 +207,14 @@ def test_stack_across_a_shaped_link_keeps_maps_fresh_brakes_on_a_cut_and_resumes
             assert report["stale_map_fraction"]["shaped"] <= 0.02, report
             assert brake_s <= 0.5, report
             assert resume_s <= 2.0, report
-            # State and commands are not held behind a backlog of images or maps: their p99 over the
-            # shaped link is the unshaped one plus the link's own delay (20 ms + 10 ms of jitter), the
-            # time the link takes to carry the one large message that may be ahead of them (the link
-            # is a FIFO, as Wi-Fi's queue is: Zenoh's priorities order only what it has not yet
-            # written; images go up beside the state, maps down beside the commands) and 10 ms.
+            # State and commands are not held behind images or maps: their p99 over the shaped link is
+            # the unshaped one plus the link's own delay (20 ms + 10 ms of jitter) and at most 10 ms. The
+            # link is a FIFO, as Wi-Fi's queue is (Zenoh's priorities order only what it has not yet
+            # written), so one message ahead of them is waited for: a JPEG image going up (~13 KB, 5 ms
+            # at 20 Mbit/s), a map going down, which the routers' LZ4 makes ~17 KB on the wire (88 KB
+            # uncompressed: 35 ms).
             for name, v in p99.items():
-                bulk = transits["camera/image" if name == "state" else "map/esdf"].max_bytes * 8 / WIFI.rate_bps
-                assert v["shaped"] <= v["unshaped"] + (WIFI.delay_s + WIFI.jitter_s + bulk) * 1e3 + 10.0, (
-                    name, report)
+                assert v["shaped"] <= v["unshaped"] + (WIFI.delay_s + WIFI.jitter_s) * 1e3 + 10.0, (name, report)
             for side_name in ("robot", "server"):
                 assert rss1[side_name] - rss0[side_name] < 64.0, report  # no queue grows without bound
         finally:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from riskfield.experiments.benches.filter import _cases, paced_steps_us, scene, variant
-from riskfield.experiments.sampling import sample_pairs, targets_from_boxes
+from riskfield.experiments.sampling import PairRule, sample_pairs, targets_from_boxes
 from riskfield.experiments.tables import table2, table3, write_json
 from riskfield.protocol import RiskConfig, ade20k
 from riskfield.services.fields import to_esdf
@@ -42,8 +42,8 @@ def test_pairs_straddle_their_target_and_are_balanced():
         return np.min([np.linalg.norm(p[:, :2] - t.centre, axis=1) - t.radius for t in targets], axis=0)
 
     rng = np.random.default_rng(0)
-    pairs = sample_pairs(targets, 30, clearance, rng, robot_radius=0.1, bounds_lo=np.array([-2.9, -2.9, 0]),
-                         bounds_hi=np.array([3.0, 3.0, 2.5]))
+    rule = PairRule(0.1, np.array([-2.9, -2.9, 0]), np.array([3.0, 3.0, 2.5]))
+    pairs = sample_pairs(targets, 30, clearance, rng, rule)
     assert len(pairs) == 30
     assert [p.pair for p in pairs] == list(range(30))
     counts = {g: sum(p.group == g for p in pairs) for g in ("high", "mid", "low")}

@@ -24,7 +24,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("riskfield/experiments/benches/mapping.py", "main"): 10,
     ("riskfield/experiments/benches/safety.py", "safety"): 13,
     ("riskfield/experiments/benches/safety_authors.py", "authors_run"): 11,
-    ("riskfield/experiments/sampling.py", "sample_pairs"): 12,
     ("services/mapping/esdf_kernels.py", "combine"): 10,
     ("services/mapping/esdf_wave.py", "wave_update"): 22,
     ("services/mapping/esdf_wave.py", "shift_maps"): 22,
