@@ -97,18 +97,30 @@ def _radius(size: tuple[float, float, float]) -> float:
     return 0.5 * math.hypot(size[0], size[1])
 
 
-def random_placements(seed: int, size_x: float, size_y: float, *, furniture: int = 4, boxes: int = 2,
-                      balls: int = 1, people: int = 1, animals: int = 1, walkers: int = 0,
-                      walker_speed: tuple[float, float] = (0.5, 1.5),
+@dataclass(frozen=True)
+class Furnishing:
+    """What a procedural room holds: pieces of furniture (against the walls), boxes, balls, standing
+    people and animals, and walkers going back and forth at a speed drawn from ``walker_speed`` (m/s)."""
+
+    furniture: int = 4
+    boxes: int = 2
+    balls: int = 1
+    people: int = 1
+    animals: int = 1
+    walkers: int = 0
+    walker_speed: tuple[float, float] = (0.5, 1.5)
+
+
+def random_placements(seed: int, size_x: float, size_y: float, furnishing: Furnishing = Furnishing(), *,
                       keep_clear: tuple[float, float, float] = (0.0, 0.0, 0.8), clearance: float = 0.25,
                       max_tries: int = 400) -> list[Placement]:
-    """Deterministic placements for a room ``size_x × size_y`` centred on the origin.
+    """Deterministic placements of ``furnishing`` for a room ``size_x × size_y`` centred on the origin.
 
     Furniture goes against a random wall (its back to the wall), the rest anywhere on the open
     floor; nothing within ``keep_clear = (x, y, radius)``. Objects that find no free spot after
     ``max_tries`` are skipped (a crowded room gets fewer objects, never overlapping ones). A walker
-    goes back and forth between two free spots at least 1.5 m apart, at a speed drawn from
-    ``walker_speed`` (m/s)."""
+    goes back and forth between two free spots at least 1.5 m apart."""
+    f = furnishing
     rng = np.random.default_rng(seed)
     placed: list[tuple[float, float, float]] = [keep_clear]
     out: list[Placement] = []
@@ -117,8 +129,8 @@ def random_placements(seed: int, size_x: float, size_y: float, *, furniture: int
     def free(x: float, y: float, r: float) -> bool:
         return all(math.hypot(x - px, y - py) >= r + pr + clearance for px, py, pr in placed)
 
-    wanted = ([str(rng.choice(FURNITURE)) for _ in range(furniture)] + ["box"] * boxes + ["ball"] * balls
-              + ["person"] * people + ["animal"] * animals)
+    wanted = ([str(rng.choice(FURNITURE)) for _ in range(f.furniture)] + ["box"] * f.boxes + ["ball"] * f.balls
+              + ["person"] * f.people + ["animal"] * f.animals)
     for name in wanted:
         base = DEFAULT_SIZES[name]
         jitter = rng.uniform(0.85, 1.15, size=3)
@@ -147,12 +159,12 @@ def random_placements(seed: int, size_x: float, size_y: float, *, furniture: int
                 placed.append((x, y, r))
                 out.append(Placement(name, float(x), float(y), float(yaw), size))
                 break
-    for _ in range(walkers):
+    for _ in range(f.walkers):
         base = DEFAULT_SIZES["person"]
         jitter = rng.uniform(0.85, 1.15, size=2)
         size = (base[0] * jitter[0], base[0] * jitter[0], base[2] * jitter[1])
         r = size[0] / 2  # a walker's footprint: its capsule's circle
-        speed = float(rng.uniform(*walker_speed))
+        speed = float(rng.uniform(*f.walker_speed))
         for _ in range(max_tries):
             a = [rng.uniform(-hx + r + 0.05, hx - r - 0.05), rng.uniform(-hy + r + 0.05, hy - r - 0.05)]
             b = [rng.uniform(-hx + r + 0.05, hx - r - 0.05), rng.uniform(-hy + r + 0.05, hy - r - 0.05)]
@@ -186,4 +198,4 @@ def random_room(seed: int, size: tuple[float, float] | None = None, height: floa
     """A whole procedural room: size drawn from the seed (4–8 m × 4–7 m) unless given."""
     rng = np.random.default_rng([seed, 7])
     sx, sy = size if size is not None else (float(rng.uniform(4.0, 8.0)), float(rng.uniform(4.0, 7.0)))
-    return room(sx, sy, height) + build_objects(random_placements(seed, sx, sy, **counts))
+    return room(sx, sy, height) + build_objects(random_placements(seed, sx, sy, Furnishing(**counts)))

@@ -287,10 +287,9 @@ def build_scene(scenario: Scenario) -> Scene:
         size = None
     if proc is not None and size is not None:
         sx, sy, _ = scenario.robot.start
-        placements = procedural.random_placements(
-            proc.seed, size[0], size[1], furniture=proc.furniture, boxes=proc.boxes, balls=proc.balls,
-            people=proc.people, animals=proc.animals, walkers=proc.walkers, walker_speed=proc.walker_speed,
-            keep_clear=(sx, sy, 0.8))
+        furnishing = procedural.Furnishing(proc.furniture, proc.boxes, proc.balls, proc.people, proc.animals,
+                                           proc.walkers, proc.walker_speed)
+        placements = procedural.random_placements(proc.seed, size[0], size[1], furnishing, keep_clear=(sx, sy, 0.8))
         objects += procedural.build_objects(placements, prefix="proc_")
     counts: dict[str, int] = {}
     for spec in scenario.objects:

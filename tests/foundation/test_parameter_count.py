@@ -59,7 +59,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/safety_filter/model.py", "object_course"): 10,
     ("services/safety_filter/model.py", "object_sample"): 10,
     ("services/simulator/kernels.py", "shade_kernel"): 21,
-    ("services/simulator/procedural.py", "random_placements"): 13,
 }
 
 

@@ -145,10 +145,13 @@ def test_scene_rejects_bad_objects():
         s.add(SceneObject("a", 1, (v, t)))
 
 
+FULL = procedural.Furnishing(furniture=5, boxes=3, balls=2, people=2, animals=2)
+
+
 def test_procedural_room_is_deterministic_and_objects_do_not_overlap():
-    a = procedural.random_placements(42, 6.0, 5.0, furniture=5, boxes=3, balls=2, people=2, animals=2)
-    b = procedural.random_placements(42, 6.0, 5.0, furniture=5, boxes=3, balls=2, people=2, animals=2)
-    c = procedural.random_placements(43, 6.0, 5.0, furniture=5, boxes=3, balls=2, people=2, animals=2)
+    a = procedural.random_placements(42, 6.0, 5.0, FULL)
+    b = procedural.random_placements(42, 6.0, 5.0, FULL)
+    c = procedural.random_placements(43, 6.0, 5.0, FULL)
     assert a == b and a != c
     assert len(a) >= 10
     objs = procedural.build_objects(a)

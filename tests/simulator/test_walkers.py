@@ -75,13 +75,13 @@ def test_a_walker_moves_continuously_at_its_speed_and_reports_that_velocity(path
 
 def test_walkers_in_a_random_room_leave_the_other_objects_as_they_were():
     base = procedural.random_placements(5, 7.0, 6.0, keep_clear=(-2.0, 0.0, 0.8))
-    more = procedural.random_placements(5, 7.0, 6.0, walkers=3, walker_speed=(1.0, 1.5), keep_clear=(-2.0, 0.0, 0.8))
+    walking = procedural.Furnishing(walkers=3, walker_speed=(1.0, 1.5))
+    more = procedural.random_placements(5, 7.0, 6.0, walking, keep_clear=(-2.0, 0.0, 0.8))
     assert more[:len(base)] == base
     walkers = more[len(base):]
     assert len(walkers) == 3 and all(w.class_name == "person" and w.waypoints for w in walkers)
     assert all(1.0 <= w.speed <= 1.5 for w in walkers)
-    assert more == procedural.random_placements(5, 7.0, 6.0, walkers=3, walker_speed=(1.0, 1.5),
-                                                keep_clear=(-2.0, 0.0, 0.8))
+    assert more == procedural.random_placements(5, 7.0, 6.0, walking, keep_clear=(-2.0, 0.0, 0.8))
     fixed = [(p.x, p.y, 0.5 * math.hypot(p.size[0], p.size[1])) for p in base] + [(-2.0, 0.0, 0.8)]
     for w in walkers:
         (ax, ay), (bx, by) = w.waypoints
