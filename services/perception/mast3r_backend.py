@@ -69,6 +69,20 @@ from .fusion import Q_CONF, match_confidence, transfer_labels, vote_fuse
 C_CONF = 1.5
 """Threshold on the average confidence C/N: MASt3R-SLAM's ``WindowMsg.C_conf_threshold``
 (``mast3r_slam/visualization.py``), applied to ``get_average_conf()`` in ``evaluate.save_reconstruction``."""
+
+
+@dataclass(frozen=True)
+class SlamParams:
+    """How the SLAM loop runs and what it publishes: the torch device, the match quality a pixel
+    needs to be fused into its keyframe (MASt3R-SLAM's Q_conf), the average confidence below which a
+    published point gets confidence 0, a refined keyframe re-sent every ``update_every`` tracked
+    frames, and the frame its poses are in."""
+
+    device: str = "cuda:0"
+    q_conf: float = Q_CONF
+    c_conf: float = C_CONF
+    update_every: int = 5
+    frame_id: str = "map"
 AUTHORS_OVERRIDES: dict[str, Any] = {"dataset": {"subsample": 10}}
 """What the authors' ``base_subsample10`` run changes in upstream's ``config/base.yaml``."""
 REQUIRED_CONFIG = ("use_calib", "single_thread", "dataset", "tracking", "local_opt", "retrieval", "reloc")
@@ -304,14 +318,15 @@ class Mast3rSlam:
     ``load_retriever`` return.
     """
 
-    def __init__(self, m: dict[str, Any], model: Any, retriever: Any, labeller: Labeller, device: str = "cuda:0",
-                 Q_conf: float = Q_CONF, c_conf: float = C_CONF, update_every: int = 5, frame_id: str = "map",
-                 T_map_slam: np.ndarray | None = None, anchor: Callable[[int], np.ndarray] | None = None):
+    def __init__(self, m: dict[str, Any], model: Any, retriever: Any, labeller: Labeller,
+                 params: SlamParams = SlamParams(), T_map_slam: np.ndarray | None = None,
+                 anchor: Callable[[int], np.ndarray] | None = None):
         self.m, self.model, self.retriever, self.labeller = m, model, retriever, labeller
         self.anchor = anchor
         self.cfg: dict[str, Any] = m["mast3r_slam.config"].config
-        self.device, self.Q_conf, self.c_conf, self.frame_id = device, Q_conf, c_conf, frame_id
-        self.update_every = max(1, int(update_every))
+        self.device, self.Q_conf, self.c_conf = params.device, params.q_conf, params.c_conf
+        self.frame_id = params.frame_id
+        self.update_every = max(1, int(params.update_every))
         self.T_map_slam = T_map_slam
         self.subsample = max(1, int(self.cfg["dataset"]["subsample"]))
         self.keyframes: Any = None
@@ -487,9 +502,9 @@ class Mast3rBackend:
     needs_truth = False
 
     def __init__(self, labeller: Labeller, checkpoint_dir: str | Path = "checkpoints", config: str | Path | None = None,
-                 device: str = "cuda:0", Q_conf: float = Q_CONF, frame_id: str = "map", c_conf: float = C_CONF,
-                 overrides: dict[str, Any] | None = None, update_every: int = 5,
+                 params: SlamParams = SlamParams(), overrides: dict[str, Any] | None = None,
                  T_map_slam: np.ndarray | None = None, anchor: Callable[[int], np.ndarray] | None = None):
+        device = params.device
         m, cfg_path = startup_check(checkpoint_dir, config, device)
         assert cfg_path is not None
         load_config(m["mast3r_slam.config"], cfg_path, AUTHORS_OVERRIDES if overrides is None else overrides)
@@ -497,8 +512,7 @@ class Mast3rBackend:
         utils = m["mast3r_slam.mast3r_utils"]
         model = utils.load_mast3r(str(ckpt / CHECKPOINT), device=device)
         retriever = utils.load_retriever(model, str(ckpt / RETRIEVER), device=device)
-        self.slam = Mast3rSlam(m, model, retriever, labeller, device, Q_conf, c_conf, update_every, frame_id,
-                               T_map_slam, anchor)
+        self.slam = Mast3rSlam(m, model, retriever, labeller, params, T_map_slam, anchor)
 
     def process(self, image: Image | None, truth: PerceptionFrame | None, stamp_ns: int) -> list[PerceptionFrame]:
         return self.slam.process(image, truth, stamp_ns)

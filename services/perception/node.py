@@ -187,7 +187,7 @@ def build_backend(s: PerceptionSettings) -> PerceptionBackend:
 
         labeller = EfficientVitLabeller(s.efficientvit_checkpoint, s.efficientvit_model, s.device)
     if s.geometry == "mast3r":
-        from .mast3r_backend import C_CONF, Mast3rBackend
+        from .mast3r_backend import C_CONF, Mast3rBackend, SlamParams
 
         if labeller is None:
             raise MissingBackend("geometry=mast3r needs labels=efficientvit (a real camera has no ground truth)")
@@ -204,9 +204,9 @@ def build_backend(s: PerceptionSettings) -> PerceptionBackend:
             except ValueError:
                 return T_BC
 
-        backend = Mast3rBackend(labeller, s.mast3r_checkpoints, s.mast3r_config, s.mast3r_device, s.q_conf,
-                                c_conf=c_conf, overrides={"dataset": {"subsample": s.mast3r_subsample}},
-                                update_every=s.update_every, anchor=anchor)
+        params = SlamParams(s.mast3r_device, s.q_conf, c_conf, s.update_every)
+        backend = Mast3rBackend(labeller, s.mast3r_checkpoints, s.mast3r_config, params,
+                                overrides={"dataset": {"subsample": s.mast3r_subsample}}, anchor=anchor)
         backend.odometry = odometry  # type: ignore[attr-defined]  # fed from the state key by setup()
         return backend
     if s.geometry == "rgbd":

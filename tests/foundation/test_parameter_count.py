@@ -48,8 +48,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/perception/kernels.py", "depth_noise_kernel"): 11,
     ("services/perception/kernels.py", "current_frame_kernel"): 10,
     ("services/perception/mast3r_backend.py", "keyframe_message"): 12,
-    ("services/perception/mast3r_backend.py", "Mast3rBackend.__init__"): 11,
-    ("services/perception/mast3r_backend.py", "Mast3rSlam.__init__"): 11,
     ("services/safety_filter/barriers.py", "DoubleIntegrator.__init__"): 10,
     ("services/safety_filter/compiled.py", "CompiledStep.__init__"): 12,
     ("services/safety_filter/model.py", "flow"): 15,

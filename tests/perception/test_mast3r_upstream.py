@@ -26,6 +26,7 @@ from riskfield.services.perception.mast3r_backend import (
     REQUIRED,
     RETRIEVER,
     Mast3rSlam,
+    SlamParams,
     checkout_config,
     keyframe_message,
     load_config,
@@ -265,8 +266,8 @@ def make_slam(script: list[str], subsample: int = 1, update_every: int = 2) -> t
         "mast3r_slam.global_opt": types.SimpleNamespace(FactorGraph=FactorGraph),
     }
     retriever = Retriever()
-    slam = Mast3rSlam(m, "model", retriever, lambda rgb: np.full(rgb.shape[:2], 7, np.uint16), "cpu",
-                      update_every=update_every)
+    slam = Mast3rSlam(m, "model", retriever, lambda rgb: np.full(rgb.shape[:2], 7, np.uint16),
+                      SlamParams(device="cpu", update_every=update_every))
     return slam, {"created": created, "retriever": retriever}
 
 
