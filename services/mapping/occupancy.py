@@ -131,9 +131,10 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
            sparse: bool = True) -> None:
     """Fill ``groups`` (all zero on entry) with the solid semantic occupancy; see the module docstring.
 
-    ``sparse``: the support pass visits only the (i, j) columns holding an observed obstacle voxel
-    and the final pass only the voxels the wavefront reached (when ``unknown_group`` is 0) — the
-    only ones either pass can change; ``False`` scans the whole volume (the reference, same result)."""
+    ``sparse``: the support pass visits only the (i, j) columns holding an observed obstacle voxel,
+    the second pinhole pass only the neighbours of the voxels the first one closed, and the final
+    pass only the voxels the wavefront reached (when ``unknown_group`` is 0) — the only ones these
+    passes can change; ``False`` scans all of them (the reference, same result)."""
     nx, ny, nz = tsdf.shape
     n = nx * ny * nz
     t = tsdf.reshape(n)
@@ -278,21 +279,27 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
                             run = 0
         # Close the pinholes the diverging marches leave: twice, a never-observed voxel between
         # two obstacle voxels (filled or observed interior) along an axis. Only neighbours of
-        # filled voxels can qualify.
+        # filled voxels can qualify, and a voxel a pass does not close has the same neighbours
+        # at the next pass unless one of them was closed: so the second pass (``sparse``) looks
+        # only around the voxels the first one closed.
         n_filled = n_marked
+        first = 0
         for _ in range(2):
             n_old = n_filled
-            for m in range(n_old):
+            for m in range(first, n_old):
                 f0 = cand[m]
-                for a in range(6):
-                    f = f0 + (sx, -sx, sy, -sy, 1, -1)[a]
-                    if f < 0 or f >= n or state[f] != 2 or filled[f]:
+                k0 = f0 % nz
+                j0 = (f0 // nz) % ny
+                i0 = f0 // sx
+                for a in range(6):  # +i, -i, +j, -j, +k, -k
+                    i = i0 + (1 if a == 0 else -1 if a == 1 else 0)
+                    j = j0 + (1 if a == 2 else -1 if a == 3 else 0)
+                    k = k0 + (1 if a == 4 else -1 if a == 5 else 0)
+                    if i < 0 or i >= nx or j < 0 or j >= ny or k < 0 or k >= nz:
                         continue
-                    k = f % nz
-                    j = (f // nz) % ny
-                    i = f // sx
-                    if abs(i - f0 // sx) + abs(j - (f0 // nz) % ny) + abs(k - f0 % nz) != 1:
-                        continue  # wrapped around a grid edge
+                    f = (i * ny + j) * nz + k
+                    if state[f] != 2 or filled[f]:
+                        continue
                     if 0 < i < nx - 1 and _solid_at(f - sx, state, filled, g) and _solid_at(f + sx, state, filled, g):
                         g[f] = g[f - sx]
                     elif 0 < j < ny - 1 and _solid_at(f - sy, state, filled, g) and _solid_at(f + sy, state, filled, g):
@@ -307,6 +314,8 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
             for m in range(n_old, n_filled):
                 filled[cand[m]] = True
                 state[cand[m]] = 2
+            if sparse:
+                first = n_old
         for m in range(n_filled):
             state[cand[m]] = 3
     if sparse and unknown_group <= 0:
