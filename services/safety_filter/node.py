@@ -80,6 +80,8 @@ from .filter import SafetyFilter
 from .settings import FilterSettings
 from .supervisor import FilterSupervisor
 
+#: References the plain cmd/ref key queues: a few per source of a deployment's usual two or three.
+PLAIN_REF_BACKLOG = 8
 
 class FilterNode:
     """Glue between the runtime node and the supervisor (decode → core → encode → publish)."""
@@ -117,7 +119,13 @@ class FilterNode:
         node.subscribe(k.esdf, None, self._on_map, queue="latest")
         node.subscribe(k.state, None, self._on_state, queue="latest")
         node.subscribe(k.state_relocalise, None, self._on_relocalise, queue="fifo", maxlen=4)
-        node.subscribe(k.cmd_ref_any, None, self._on_ref, queue="latest")
+        # Each source's key keeps its own newest reference (a wildcard latest subscription has a slot
+        # per key); the plain key, which several sources may share, keeps the last few in order, so
+        # on a busy machine one source's newest does not displace another's before the arbitration
+        # has seen it (a navigator's lost claims would time its input out, a joystick's would hand
+        # the robot to the navigator while the dead-man is held).
+        node.subscribe(k.cmd_ref, None, self._on_ref, queue="fifo", maxlen=PLAIN_REF_BACKLOG)
+        node.subscribe(k.key("cmd/ref/*/**"), None, self._on_ref, queue="latest")
         node.subscribe(k.cmd_lock_any, None, self._on_lock, queue="fifo", maxlen=64)
         node.subscribe(k.risk_config, RiskConfig, self._on_risk, queue="latest")
         node.subscribe(k.objects, None, self._on_objects, queue="latest")

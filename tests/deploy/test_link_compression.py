@@ -59,11 +59,14 @@ def carried(robot_compression: bool) -> tuple[int, int]:
                     sub = filt.declare_subscriber(KEY, lambda _s: got.release())
                     assert wait_matched(server, KEY, 30)
                     payloads = [encode(room_esdf(i)) for i in range(N)]
+                    # Blocking, not map/esdf's drop: a burst of maps on a busy machine would drop some.
+                    pub = server.declare_publisher(KEY, congestion_control=zenoh.CongestionControl.BLOCK)
                     before = link.down.bytes
                     for p in payloads:
-                        server.put(KEY, p)
+                        pub.put(p)
                     assert all(got.acquire(timeout=10) for _ in payloads)
                     assert query_barrier(server, filt)
+                    pub.undeclare()
                     sub.undeclare()
                     return sum(map(len, payloads)), link.down.bytes - before
             finally:

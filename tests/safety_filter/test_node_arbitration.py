@@ -10,7 +10,16 @@ import msgpack
 from safety_filter.test_node import grid, latest, state, wait_fallback
 
 from riskfield.protocol import CommandLock, RiskConfig, RiskGroup, SafetyStatus, VelocityCommand, to_map
-from riskfield.testing import Collector, ServiceProcess, StatusWatch, client_session, put, wait_alive, wait_until
+from riskfield.testing import (
+    Collector,
+    ServiceProcess,
+    StatusWatch,
+    client_session,
+    put,
+    wait_alive,
+    wait_matched,
+    wait_until,
+)
 
 
 class Sources:
@@ -183,3 +192,29 @@ def test_a_wire_risk_config_is_versioned_kept_across_a_restart_and_one_naming_no
         assert (latest(status).risk_version, latest(status).risk_hash) == (1, bolder.digest())
         status.close()
         assert proc.stop() == 0, proc.output
+
+
+def test_on_the_plain_key_no_sources_reference_displaces_anothers_before_the_arbitration_sees_it(router_endpoint):
+    """Two sources on the plain cmd/ref, faster than the node's loop takes them (here: not at all until
+    the burst is in): every reference waits its turn, where one newest-value slot kept the joystick's
+    alone and the navigator's claims were lost (its input timed out on a busy machine)."""
+    from riskfield.services.runtime import Node
+    from riskfield.services.safety_filter.node import PLAIN_REF_BACKLOG, SERVICE
+
+    robot = "t_sf_plain"
+    settings = SERVICE.settings(connect=[router_endpoint], robot=robot)
+    node = Node(SERVICE.name, settings)
+    try:
+        SERVICE.setup(node, settings)  # subscribed; the loop (node.run) is not running
+        (sub,) = [s for s in node._subs if s.key == node.keys.cmd_ref]
+        with client_session(router_endpoint) as session:
+            assert wait_matched(session, node.keys.cmd_ref)
+            burst = [VelocityCommand(linear=(0.3, 0, 0), angular=(0, 0, 0), source="navigator"),
+                     stick(0.1, engaged=True)] * (PLAIN_REF_BACKLOG // 2)
+            for m in burst:
+                put(session, node.keys.cmd_ref, m)
+            assert wait_until(lambda: sub.slot.received == len(burst), 5), sub.slot.received
+        sources = [msgpack.unpackb(item[2])["source"] for item, _ in sub.slot.items]
+        assert sources == [m.source for m in burst] and sub.slot.dropped == 0
+    finally:
+        node.close()
