@@ -47,12 +47,16 @@ def sweep() -> Sweep:
     K = (cam.fx, cam.fy, cam.cx, cam.cy)
 
     def run(mappers: list[Mapper], scene: list, angles: np.ndarray, sway: float) -> Iterator[list[EsdfGrid]]:
-        for a in angles:
+        for i, a in enumerate(angles):
             T = look_at(np.array([0.0, sway * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
             pts, conf, lab = render(scene, T, cam)
+            # Stamped at 10 Hz: every mapper sees the same clock. Unstamped, each would read the wall
+            # clock, and the people's voxels would decay at different frames in each (their 0.1 s
+            # cadence), whatever the machine's speed makes of the sweep.
+            stamp = 10**18 + i * 100_000_000
             grids = []
             for m in mappers:
-                m.integrate(pts, conf, lab, T, intrinsics=K)
+                m.integrate(pts, conf, lab, T, stamp_ns=stamp, intrinsics=K)
                 u = m.update_esdf()
                 assert u is not None and u.grid3d is not None
                 grids.append(u.grid3d)
