@@ -1,8 +1,8 @@
 """The routers' link is compressed: two routers built as riskfield's router builds its session
 (``RouterSettings`` → ``zenoh_config``), joined by the loopback relay of
-``riskfield.experiments.shaped_link`` (unshaped: it only counts the bytes), carry a map/esdf stream
-in a fraction of its bytes; with one end's compression off, Zenoh does not compress at all (both
-ends must enable it), and the wire carries at least the payload."""
+``riskfield.experiments.shaped_link`` (unshaped: it only counts the bytes) as ``riskfield bench link``
+joins them, carry a map/esdf stream in a fraction of its bytes; with one end's compression off, Zenoh
+does not compress at all (both ends must enable it), and the wire carries at least the payload."""
 
 from __future__ import annotations
 
@@ -13,14 +13,15 @@ import pytest
 import zenoh
 from scipy import ndimage
 
-from riskfield.experiments.shaped_link import ShapedLink
+from riskfield.experiments.benches.link import robot_site
 from riskfield.protocol import EsdfGrid, Header, encode
 from riskfield.services.runtime.processes import router_settings
 from riskfield.services.runtime.router import RouterSettings
 from riskfield.services.runtime.session import zenoh_config
-from riskfield.testing import client_session, free_port, query_barrier, wait_matched
+from riskfield.testing import free_port, wait_matched
 
-KEY = "rf/t_lz/map/esdf"
+ROOT = "rf/t_lz"
+KEY = f"{ROOT}/map/esdf"
 N = 12
 
 
@@ -45,32 +46,23 @@ def room_esdf(seq: int) -> EsdfGrid:
 
 
 def carried(robot_compression: bool) -> tuple[int, int]:
-    """(payload bytes, bytes the relay carried from the server's router to the robot's) for N maps."""
+    """(payload bytes, bytes the relay carried from the server's router to the robot's) for N maps,
+    the robot's site as ``riskfield bench link`` builds it."""
     server_port = free_port()
     server = zenoh.open(zenoh_config(router_settings(f"tcp/127.0.0.1:{server_port}")))
     try:
-        with ShapedLink(server_port) as link:
-            robot_ep = f"tcp/127.0.0.1:{free_port()}"
-            settings = router_settings(robot_ep, [link.endpoint]).model_copy(update={"compression": robot_compression})
-            robot = zenoh.open(zenoh_config(settings))
-            try:
-                with client_session(robot_ep) as filt:
-                    got = threading.Semaphore(0)
-                    sub = filt.declare_subscriber(KEY, lambda _s: got.release())
-                    assert wait_matched(server, KEY, 30)
-                    payloads = [encode(room_esdf(i)) for i in range(N)]
-                    # Blocking, not map/esdf's drop: a burst of maps on a busy machine would drop some.
-                    pub = server.declare_publisher(KEY, congestion_control=zenoh.CongestionControl.BLOCK)
-                    before = link.down.bytes
-                    for p in payloads:
-                        pub.put(p)
-                    assert all(got.acquire(timeout=10) for _ in payloads)
-                    assert query_barrier(server, filt)
-                    pub.undeclare()
-                    sub.undeclare()
-                    return sum(map(len, payloads)), link.down.bytes - before
-            finally:
-                robot.close()
+        got = threading.Semaphore(0)
+        with robot_site(server_port, ROOT, robot_compression, lambda _s: got.release()) as link:
+            assert wait_matched(server, KEY, 30)
+            payloads = [encode(room_esdf(i)) for i in range(N)]
+            # Blocking, not map/esdf's drop: a burst of maps on a busy machine would drop some.
+            pub = server.declare_publisher(KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+            before = link.down.bytes
+            for p in payloads:
+                pub.put(p)
+            assert all(got.acquire(timeout=10) for _ in payloads)
+            pub.undeclare()
+            return sum(map(len, payloads)), link.down.bytes - before
     finally:
         server.close()
 

@@ -26,7 +26,7 @@ import contextlib
 import json
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -63,14 +63,16 @@ def down_keys(root: str) -> list[str]:
     """Key expressions of what goes server → robot (``experiments.link``): what a robot site subscribes to."""
     rels = [rel for rel, d in DIRECTION.items() if d == DOWN]
     rels += [f"status/{label}" for label, _ in SERVICES if direction(f"status/{label}") == DOWN]
-    return [f"{root}/{rel}{tail}" for rel in rels for tail in ("", "/**")]
+    return [f"{root}/{rel}/**" for rel in rels]  # ``**`` matches no chunk too: the key itself
 
 
 @contextlib.contextmanager
-def robot_site(router_port: int, root: str, compression: bool) -> Iterator[ShapedLink]:
-    """A robot site's router dialling the stack's router through a loopback relay that counts the
-    bytes (``shaped_link``, unshaped), and a session on it subscribed to the server → robot keys, so
-    Zenoh routes them across that link as it would to a robot: its bytes are what the link carries."""
+def robot_site(router_port: int, root: str, compression: bool,
+               on_sample: Callable[[zenoh.Sample], None] = lambda _s: None) -> Iterator[ShapedLink]:
+    """A robot site's router dialling the router on ``router_port`` through a loopback relay that
+    counts the bytes (``shaped_link``, unshaped), and a session on it subscribed to the server →
+    robot keys (``on_sample``), so Zenoh routes them across that link as it would to a robot: its
+    bytes are what the link carries."""
     from riskfield.services.runtime.processes import client_session, free_port, router_settings
     from riskfield.services.runtime.session import zenoh_config
 
@@ -80,7 +82,7 @@ def robot_site(router_port: int, root: str, compression: bool) -> Iterator[Shape
         router = zenoh.open(zenoh_config(settings))
         try:
             with client_session(endpoint) as session:
-                subs = [session.declare_subscriber(k, lambda _s: None) for k in down_keys(root)]
+                subs = [session.declare_subscriber(k, on_sample) for k in down_keys(root)]
                 yield link
                 for sub in subs:
                     sub.undeclare()
