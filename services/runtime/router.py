@@ -24,7 +24,7 @@ class RouterSettings(NodeSettings):
     """Other routers to mesh with (e.g. the robot's router dialling the server's)."""
     compression: bool = True
     """LZ4 on the links to other routers (Zenoh's transport compression): the robot ↔ server link then
-    carries a map/esdf message in about a fifth of its bytes. Zenoh compresses a link only when both
+    carries a map/esdf message in about a quarter of its bytes. Zenoh compresses a link only when both
     of its ends enable it, and nodes never do, so the links to this site's nodes stay as they are."""
 
     def zenoh_extra(self) -> dict[str, object]:

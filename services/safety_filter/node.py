@@ -83,6 +83,7 @@ from .supervisor import FilterSupervisor
 #: References the plain cmd/ref key queues: a few per source of a deployment's usual two or three.
 PLAIN_REF_BACKLOG = 8
 
+
 class FilterNode:
     """Glue between the runtime node and the supervisor (decode → core → encode → publish)."""
 
