@@ -29,8 +29,10 @@ import math
 
 import numpy as np
 
-from ..fields.compiled import HAVE_NUMBA, QUERY_SCRATCH_SIZE, Layout, jit, kernel_view, query_point, view1, view2, view3
+from ..fields.compiled import QUERY_SCRATCH_SIZE, kernel_view, query_point
 from ..fields.grid import EsdfField
+from ..runtime.jit import HAVE_NUMBA
+from ..runtime.kernels import Layout, jit, view1, view2, view3
 from . import model as mdl
 from .model import GAIN_COLUMNS, OBJECT_COLUMNS, YIELD, DescInts
 from .qp import FEASIBILITY_TOL

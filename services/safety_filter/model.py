@@ -52,7 +52,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from ..fields.compiled import Layout, jit, view1, view2
+from ..runtime.kernels import Layout, jit, view1, view2
 
 # How the body points turn with the robot (ModelSpec.attitude).
 NO_ATTITUDE, YAW, FULL = 0, 1, 2

@@ -11,8 +11,9 @@ from riskfield.protocol import EsdfGrid, decode, encode
 from riskfield.services.fields import AnalyticField, EsdfField, to_esdf, to_grid_message
 from riskfield.services.fields import compiled as fc
 from riskfield.services.geometry.shapes import Plane, Sphere
+from riskfield.services.runtime import kernels
 
-pytestmark = pytest.mark.skipif(not fc.HAVE_NUMBA, reason="numba is not installed")
+pytestmark = pytest.mark.skipif(not kernels.HAVE_NUMBA, reason="numba is not installed")
 
 INTERPOLATIONS = ["trilinear", "catmull_rom", "bspline", "bspline_smooth"]
 
@@ -61,14 +62,14 @@ def test_a_decoded_message_gives_the_same_kernel_arrays():
     assert b[0].dtype == np.float64 and b[0].flags.writeable and b[1].dtype == np.uint8 and b[1].flags.writeable
 
 
-if fc.HAVE_NUMBA:
-    @fc.numba.njit  # no on-disk cache: a test leaves nothing behind
+if kernels.HAVE_NUMBA:
+    @kernels.numba.njit  # no on-disk cache: a test leaves nothing behind
     def _stamp_slots(fbuf, ftab, ibuf, itab, k1, k2, k3):
         """Through the compiled views: slot k1 (1-D) += 1, k2 (2-D) [i, j] += 10 i + j, k3 (3-D)
         [i, j, l] -= 100 i + 10 j + l on the float buffer, and the int slot 0 (1-D) += its index.
         Returns the sum read back through the same views."""
-        a, b, c, d = fc.view1(fbuf, ftab, k1), fc.view2(fbuf, ftab, k2), fc.view3(fbuf, ftab, k3), \
-            fc.view1(ibuf, itab, 0)
+        a, b, c, d = kernels.view1(fbuf, ftab, k1), kernels.view2(fbuf, ftab, k2), kernels.view3(fbuf, ftab, k3), \
+            kernels.view1(ibuf, itab, 0)
         for i in range(a.shape[0]):
             a[i] += 1.0
         for i in range(b.shape[0]):
@@ -90,13 +91,13 @@ def test_compiled_views_are_the_layouts_slots(dims, order, n_int):
     """``view1``-``view3`` (``fields.compiled.carve`` in machine code) address exactly the slot
     ``Layout.view`` gives, in any order of slots and sizes, and write through to the buffer."""
     shapes = {"one": ("a",), "two": ("b", "c"), "three": ("d", "e", "f")}
-    layout = fc.Layout("Probe", [("pad", (3,)), *[(name, shapes[name]) for name in
+    layout = kernels.Layout("Probe", [("pad", (3,)), *[(name, shapes[name]) for name in
                                                    (["one", "two", "three"][i] for i in order)], ("tail", (2,))])
-    ints = fc.Layout("ProbeInts", [("counts", ("g",)), ("after", (1,))])
+    ints = kernels.Layout("ProbeInts", [("counts", ("g",)), ("after", (1,))])
     ftab = layout.table(**dict(zip("abcdef", dims, strict=True)))
     itab = ints.table(g=n_int)
     rng = np.random.default_rng(sum(dims))
-    fbuf, ibuf = rng.normal(size=fc.Layout.size(ftab)), np.zeros(fc.Layout.size(itab), np.int64)
+    fbuf, ibuf = rng.normal(size=kernels.Layout.size(ftab)), np.zeros(kernels.Layout.size(itab), np.int64)
     want = fbuf.copy()
     one, two, three = (layout.view(want, ftab, name) for name in ("one", "two", "three"))
     one += 1.0
