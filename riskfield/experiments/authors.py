@@ -27,7 +27,7 @@ written here in our own code:
   Hessian term included (:func:`field_barrier`) — for every barrier row
   ``ḧ + (α+β)ḣ + αβh ≥ 0`` i.e. ``∇hᵀu + vᵀ∇²h v + (α+β)∇hᵀv + αβ h ≥ 0`` with α = 5, β = 1, the QP
   ``min ‖u − u_ref‖²`` over those rows (no input bounds, as SaferSplat's ``cbf/cbf_utils.py``
-  ``CBF.solve_QP``) solved by the filter's QP solver (``safety_filter.qp``), and the reference passed
+  ``CBF.solve_QP``) solved by the filter's exact QP (``safety_filter.compiled.ExactQP``), and the reference passed
   through unchanged when the solver fails. Period 0.05 s, at most 500 steps; the nominal input is the
   goal-seeking PD law (``nominal_mode=goal``).
 * **Metrics** (:class:`AuthorsRollout` + ``metrics``): progress is ``max_t ‖p_t − s‖ / ‖g − s‖`` (not
@@ -56,7 +56,7 @@ from riskfield.protocol import RiskConfig, ade20k
 from riskfield.protocol.risk import RiskGroup
 from riskfield.services.fields import DistanceField
 from riskfield.services.navigator.clf import PointMassCLF
-from riskfield.services.safety_filter.qp import ActiveSetSolver, OsqpSolver
+from riskfield.services.safety_filter.compiled import ExactQP
 
 #: The authors' six ScanNet++ scenes (run them with ``--scannetpp DATA/<id>`` each, or ``--scannetpp DATA``).
 AUTHORS_SCENES = ("281bc17764", "689fec23d7", "7cd2ac43b4", "8a20d62ac0", "b26e64c4b0", "bc03d88fc3")
@@ -262,8 +262,7 @@ class Hocbf:
 
     def __init__(self, alpha: float = 5.0, beta: float = 1.0):
         self.alpha, self.beta = alpha, beta
-        self.active = ActiveSetSolver()
-        self._osqp: dict[int, OsqpSolver] = {}
+        self._qp: dict[int, ExactQP] = {}  # per row count
         self.failed = 0
         self.relaxed = False  # the last step passed the reference through
         self._w = np.ones(3)
@@ -276,17 +275,15 @@ class Hocbf:
     def __call__(self, barrier: Barrier, p: np.ndarray, v: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
         h, g, hess = barrier(p)
         a, b = self.rows(h, g, hess, v)
-        res = self.active.solve(self._w, u_ref, a, b, self._lo, self._hi)
-        if res.status == "failed":
-            m = a.shape[0]
-            if m not in self._osqp:
-                self._osqp[m] = OsqpSolver(3, m)
-            res = self._osqp[m].solve(self._w, u_ref, a, b, self._lo, self._hi)
-        self.relaxed = not res.ok
-        if not res.ok:
+        m = a.shape[0]
+        if m not in self._qp:
+            self._qp[m] = ExactQP(self._w, self._lo, self._hi, m)
+        status, u = self._qp[m].solve(np.asarray(u_ref, np.float64), a, b)
+        self.relaxed = status != "solved"
+        if self.relaxed:
             self.failed += 1
             return np.asarray(u_ref, dtype=float)
-        return res.u
+        return u
 
 
 def field_barrier(field: DistanceField, radius: float, hessian: bool = True) -> Barrier:

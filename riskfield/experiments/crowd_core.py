@@ -914,8 +914,8 @@ def section_body(summary: dict[str, Any]) -> list[str]:
     missed = missed_lines(summary)
     return [table(summary), "",
             f"`{summary['command']}`: {summary['wall_time_s']:.0f} s wall for {summary['sim_time_s']:.0f} s simulated; "
-            f"the filter core (FilterConfig({'evade=True' if summary.get('evade') else ''}), backend "
-            f"`{summary['backend']}`) in closed loop at 50 Hz, ESDF (5 cm, planar) rebuilt at 10 Hz from the world "
+            f"the filter core (FilterConfig({'evade=True' if summary.get('evade') else ''})) in closed loop at "
+            "50 Hz, ESDF (5 cm, planar) rebuilt at 10 Hz from the world "
             "0.1 s before, tracks 0.1 s old with N(0, σ) velocity noise (σ 0.15 m/s; `noise`: the tracker's "
             "measured 0.09–0.29), the LIMO's "
             "acceleration limits and a 0.04 s command delay (`riskfield/experiments/crowd_core.py` defines each "

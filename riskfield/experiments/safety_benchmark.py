@@ -19,7 +19,8 @@ Per scene:
    field's distance minus the robot radius minus the filter's *extra margin*: the sampled-data
    δ = v_max T (2.5 cm) plus half the field's cell, ``voxel_size`` (the ESDF's 5 cm voxel, the point
    cloud's 2.5 cm downsampling cell): one rule for every method. Every method is reported with that
-   margin (``margin_m``) and the filter backend it ran on, and each ESDF variant is also driven with
+   margin (``margin_m``); every method runs the same compiled step (the point cloud answers its
+   own query between its two kernels), and each ESDF variant is also driven with
    no extra margin (``variants``): by the default filter, by the other barrier where it can differ
    (``barriers_differ``), and by the paper's filter (the HOCBF of its eq. 14 on the trilinear
    field) — so the margin's share in the result is in the open. The per-step filter
@@ -366,10 +367,6 @@ class _FilterStep:
         """The extra margin beyond the robot radius on ``field_``: δ + ``map_margin_voxels`` voxels
         of a gridded field (the filter's ``hb``)."""
         return float(self.filt.delta + self.filt.config.map_margin_voxels * getattr(field_, "voxel_size", 0.0))
-
-    def backend_on(self, field_: DistanceField) -> str:
-        """What a step on ``field_`` runs on: compiled only on a grid ESDF (``SafetyFilter.filter``)."""
-        return self.filt.backend if isinstance(self.filt.field_for(field_), EsdfField) else "numpy"
 
     @property
     def barrier(self) -> str:

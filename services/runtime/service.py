@@ -71,11 +71,10 @@ MODULE_EXTRAS: dict[str, str] = {
     "foxglove_schemas_protobuf": "tools",
     "foxglove": "foxglove",
     "matplotlib": "tools",
-    "osqp": "robot",
     "serial": "robot",
     "pymavlink": "robot",
     "evdev": "robot",
-    "numba": "mapping",
+    "numba": "robot",
     "edt": "dev",  # the mapping's reference transform only (esdf_edt = "edt"): tests and benches
     "open3d": "sim",
     "PIL": "sim",

@@ -204,7 +204,7 @@ def warm_up(services: Sequence[str] | None = None, *, force: bool = False,
     from .service import SERVICES, ServiceUnavailable, load_service
 
     if not HAVE_NUMBA:
-        say("warmup: numba is not installed: the nodes run their numpy paths, nothing to compile")
+        say("warmup: numba is not installed: nothing to compile")
         return 0
     wanted = list(services) if services else list(KERNEL_SERVICES)
     unknown = [s for s in wanted if s not in SERVICES]

@@ -15,9 +15,9 @@ Pure core (no I/O, no zenoh), usable directly by a simulation::
 The field it reads (ESDF grid, analytic or point-cloud) is ``riskfield.services.fields``; the
 filter reads an ESDF grid with the smoothing cubic B-spline of ``fields.spline`` by default.
 Modules, one concept each: ``state`` (robot state), ``barriers`` (dynamics, h, CBF rows per
-model, footprint disc cover), ``qp`` (exact active-set path and OSQP), ``filter`` (one filter
-step, gains per risk group, slack-relaxed fallback), ``compiled`` (the same step as one numba
-call on an ESDF grid; ``backend`` auto|numba|numpy, a core parameter), ``config`` (the core's settings),
+model, footprint disc cover), ``filter`` (one filter step, gains per risk group, slack-relaxed
+fallback), ``compiled`` (the step itself: field query, rows and the exact QP as numba kernels),
+``config`` (the core's settings),
 ``supervisor`` (timeouts and fail-safe reasons → messages). Node side: ``settings``,
 ``node`` (the runtime holds the risk file); the bench is ``riskfield bench filter``.
 """
@@ -25,12 +25,10 @@ call on an ESDF grid; ``backend`` auto|numba|numpy, a core parameter), ``config`
 from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
 from .config import FilterConfig, Footprint
 from .filter import FilterResult, GainTable, SafetyFilter
-from .qp import ActiveSetSolver, OsqpSolver, QPResult
 from .state import FilterState
 from .supervisor import FilterSupervisor
 
 __all__ = [
-    "ActiveSetSolver",
     "BarrierModel",
     "DoubleIntegrator",
     "FilterConfig",
@@ -39,8 +37,6 @@ __all__ = [
     "FilterSupervisor",
     "Footprint",
     "GainTable",
-    "OsqpSolver",
-    "QPResult",
     "SafetyFilter",
     "SingleIntegrator",
     "UnicycleLookahead",

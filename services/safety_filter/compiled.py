@@ -1,26 +1,39 @@
-"""The filter step as one compiled call (numba): field query, barrier rows and the exact QP.
+"""The filter step as compiled code (numba): field query, barrier rows and the exact QP.
 
-:class:`CompiledStep` runs what :meth:`SafetyFilter.filter <.filter.SafetyFilter>` does with
-numpy — the same barrier points (and their predicted positions), the same query of an
-:class:`~riskfield.services.fields.grid.EsdfField` (stencil, border extrapolation, trilinear or
-cubic kernel of ``fields.spline``), the same CBF rows per model, the same dropping of rows that
-hold on the whole box, the same dual active-set QP (``qp.ActiveSetSolver``), the soft
-predictive rows and the slack relaxation — in a single ``numba.njit`` function over
-preallocated buffers, so a step allocates nothing in Python but its result.
+:class:`CompiledStep` is the step of :class:`SafetyFilter <.filter.SafetyFilter>`: the barrier
+points now and one period ahead, the query of an :class:`~riskfield.services.fields.grid.EsdfField`
+(``fields.compiled.query_point``: stencil, border extrapolation, trilinear or cubic kernel), the
+CBF rows per model, the dropping of rows that hold on the whole box, the dual active-set QP, the
+soft predictive rows and the slack relaxation, in one ``numba.njit`` call over preallocated
+buffers, so a step allocates nothing in Python but its result. Any other ``DistanceField`` (an
+analytic field, a point cloud) is queried by its own ``query`` between the two kernels
+(:func:`points_kernel`, then :func:`step_kernel`), and everything else is the same code.
 
-It is an accelerator, not a second definition: the model (its points, motion, barrier values and
-rows) comes from its one description through the functions of ``model``, which the numpy path
-calls too; wherever the compiled step would leave the numpy path's well-trodden cases it hands
-the step back (:data:`HANDBACK`) and the numpy path decides — a non-finite state, an active-set
-failure that the numpy path sends to OSQP. Results agree with the numpy path to rounding (sums
-run in another order than BLAS's), which the property test in
-``tests/safety_filter/test_compiled.py`` checks on random states, fields and references for
-every model.
+The model (its points, motion, barrier values and rows) comes from its one description through
+the functions of ``model``. ``tests/oracles/filter_step.py`` is a numpy rendering of the same
+step that ``tests/safety_filter/test_compiled.py`` compares against on random states, fields and
+references for every model, and OSQP is the oracle of the QP.
 
-The buffers are laid out once (:data:`FLOATS`, :data:`INTS`: ``fields.compiled.Layout``), and
-each phase of the step carves the views it needs by slot name. The field is queried by
-``fields.compiled.query_point``. The kernel is compiled (or loaded from numba's on-disk cache)
-when the filter is built — in the node's setup — never in the control loop.
+The QP, in the model's input u ∈ Rⁿ::
+
+    minimise   ½ (u - u_ref)ᵀ W (u - u_ref)        W = diag(w), w > 0   (λv, λω of the paper)
+    subject to A u ≥ b                              one row per barrier point
+               lo ≤ u ≤ hi                          input bounds
+
+With z = W^½ (u - u_ref) it is the projection of the origin onto a polytope {z : C z ≥ d}
+(general rows and bound rows alike), solved exactly by the Goldfarb–Idnani dual active-set
+method: start at the unconstrained optimum z = 0, repeatedly add the most violated row and take
+the step that keeps the current rows active and their multipliers non-negative (dropping a row
+whose multiplier would turn negative). Each iteration solves a system of at most the active rows;
+it ends with the exact optimum, or proves infeasibility when a violated row can be satisfied
+neither by a primal step nor by releasing an active row. A single row is solved in closed form
+along its breakpoints (:func:`_one_row`). Numerical trouble (a singular system, the iteration
+limit) is reported as ``solver_failed`` and the step brakes.
+
+The buffers are laid out once (:data:`FLOATS`, :data:`INTS`: ``runtime.kernels.Layout``), and
+each phase of the step carves the views it needs by slot name. The kernels are compiled (or
+loaded from numba's on-disk cache) when the filter is built, in the node's setup, never in the
+control loop.
 """
 
 from __future__ import annotations
@@ -35,17 +48,23 @@ from ..runtime.jit import HAVE_NUMBA
 from ..runtime.kernels import Layout, jit, view1, view2, view3
 from . import model as mdl
 from .model import GAIN_COLUMNS, OBJECT_COLUMNS, YIELD, DescInts
-from .qp import FEASIBILITY_TOL
+from .state import FilterState
 
 # Outcome codes of the kernel (INTS "out"[0]).
-OK, SLACK, OUTSIDE_MAP, NON_FINITE, INFEASIBLE, HANDBACK = 0, 1, 2, 3, 4, 9
+OK, SLACK, OUTSIDE_MAP, NON_FINITE, INFEASIBLE, SOLVER_FAILED = 0, 1, 2, 3, 4, 5
 FALLBACK = {OK: None, SLACK: "slack", OUTSIDE_MAP: "outside_map", NON_FINITE: "non_finite",
-            INFEASIBLE: "infeasible"}
+            INFEASIBLE: "infeasible", SOLVER_FAILED: "solver_failed"}
+#: The solver's name in a step's result.
+SOLVER = "active_set"
+#: Rows of A u ≥ b may be violated by at most this much (absolute) in an accepted solution.
+FEASIBILITY_TOL = 1e-6
 #: Moving objects one step takes at most (``motion.object_table`` keeps the nearest), and the
 #: most of them on a collision course that get a row (``max_object_rows``).
 MAX_OBJECTS = 16
 
-_MAX_ITER, _TOL = 50, 1e-12  # as qp.ActiveSetSolver's defaults
+#: Iterations of the dual active-set method before it reports failure (INTS "max_iter").
+QP_MAX_ITER = 50
+_TOL = 1e-12
 
 #: The float workspace of one filter's step. Dimensions: n inputs, m body points, q = 2m field
 #: samples (the points now and one period ahead), K objects with rows (two each), s = q + 2K
@@ -71,12 +90,13 @@ FLOATS = Layout("Floats", [
     ("rc", ("rows", "n")), ("rd", ("rows",)), ("norms", ("rows",)), ("gram", (8, 8)), ("aug", (8, 9)),
     ("z", ("n",)), ("rhs", (8,)), ("rr", (8,)), ("step", ("n",)), ("lam", (8,)), ("marks", ("n2",)), ("sw", ("n",)),
 ])
-#: The integer workspace: the description's integers, the filter's switches, the object count, the
-#: outputs [code, risk group, rows, intervening, yielding, object rows] and scratch (per row: its
+#: The integer workspace: the description's integers, the filter's switches, the object count,
+#: whether the caller queried the field itself (:meth:`CompiledStep.run`), the QP's iteration limit,
+#: the outputs [code, risk group, rows, intervening, yielding, object rows] and scratch (per row: its
 #: sample, whether it yields).
 INTS = Layout("Ints", [
     ("desc", (len(DescInts),)), ("predictive", (1,)), ("margins", (1,)), ("slack", (1,)), ("first_order", (1,)),
-    ("nobj", (1,)), ("max_rows", (1,)), ("out", (6,)),
+    ("nobj", (1,)), ("max_rows", (1,)), ("queried", (1,)), ("max_iter", (1,)), ("out", (6,)),
     ("rgq", ("q",)), ("inside", ("q",)), ("active", (8,)), ("rsrc", ("r",)), ("rsrc2", ("r",)), ("seen", ("r",)),
     ("ryield", ("r",)), ("ryield2", ("r",)),
 ])
@@ -93,12 +113,13 @@ def workspace(m: int, n: int, k_rows: int = MAX_OBJECTS) -> tuple[np.ndarray, np
             INTS.table(q=q, r=r))
 
 
-# --------------------------------------------------------------------------- the QP (qp.ActiveSetSolver)
+# --------------------------------------------------------------------------- the QP
 
 
 @jit
 def _one_row(w, r, a, b, lo, hi, n, u, marks):
-    """qp.ActiveSetSolver._one_row: status 0 solved, 1 infeasible."""
+    """One row and the box: the multiplier μ of the row found along its breakpoints, where a bound
+    starts or stops binding; status 0 solved, 1 infeasible."""
     g = 0.0
     for j in range(n):
         u[j] = min(max(r[j], lo[j]), hi[j])
@@ -155,7 +176,7 @@ def _one_row(w, r, a, b, lo, hi, n, u, marks):
 
 @jit
 def _solve_small(gram, rhs, q, aug, x):
-    """qp._solve_small: Gaussian elimination with partial pivoting; False if singular."""
+    """Gaussian elimination with partial pivoting; False if singular."""
     scale = 0.0
     for i in range(q):
         for c in range(q):
@@ -190,8 +211,8 @@ def _solve_small(gram, rhs, q, aug, x):
 
 @jit
 def _dual_active_set(wf, wi, lf, li, nr, n):
-    """qp.ActiveSetSolver._dual_active_set on the scaled rows (FLOATS rc, rd) into z: status 0
-    solved, 1 infeasible, 2 failed."""
+    """The dual active-set iteration (module docstring) on the scaled rows (FLOATS rc, rd) into z:
+    status 0 solved, 1 infeasible, 2 failed."""
     rc, rd, z, norms = view2(wf, lf, F.rc), view1(wf, lf, F.rd), view1(wf, lf, F.z), view1(wf, lf, F.norms)
     lam, gram, rhs, rr = view1(wf, lf, F.lam), view2(wf, lf, F.gram), view1(wf, lf, F.rhs), view1(wf, lf, F.rr)
     step, aug, active = view1(wf, lf, F.step), view2(wf, lf, F.aug), view1(wi, li, I.active)
@@ -204,7 +225,8 @@ def _dual_active_set(wf, wi, lf, li, nr, n):
         z[j] = 0.0
     na = 0
     it = 0
-    while it < _MAX_ITER:
+    max_iter = view1(wi, li, I.max_iter)[0]
+    while it < max_iter:
         p, worst = -1, -FEASIBILITY_TOL
         for i in range(nr):
             s = 0.0
@@ -216,7 +238,7 @@ def _dual_active_set(wf, wi, lf, li, nr, n):
         if p < 0:
             return 0
         lam_p = 0.0
-        while it < _MAX_ITER:
+        while it < max_iter:
             it += 1
             if na > 0:
                 if na >= gram.shape[0]:
@@ -275,7 +297,7 @@ def _dual_active_set(wf, wi, lf, li, nr, n):
 
 @jit
 def _active_set(wf, wi, lf, li, dl, n, nrow):
-    """The exact QP (qp.ActiveSetSolver.solve): into u the input closest to u_ref (the description's
+    """The exact QP (module docstring): into u the input closest to u_ref (the description's
     weights) in the box (FLOATS lo, hi) that keeps the live rows A2[:nrow], B2; status 0 solved,
     1 infeasible, 2 failed."""
     w, r = view1(view1(wf, lf, F.desc), dl, D.weights), view1(wf, lf, F.u_ref)
@@ -347,6 +369,44 @@ def _worst_row(A, B, nrows, n, u):
 
 
 
+@jit
+def qp_kernel(wf, wi, lf, li, dl, n, nrow):
+    """The exact QP alone, on rows a caller wrote (FLOATS A2[:nrow], B2, u_ref, lo, hi): the status."""
+    return _active_set(wf, wi, lf, li, dl, n, nrow)
+
+
+class ExactQP:
+    """The filter's exact QP for a caller with rows of its own (the authors' protocol's HOCBF):
+    min ½ (u - u_ref)ᵀ diag(weights) (u - u_ref) s.t. A u ≥ b, lo ≤ u ≤ hi, at most ``max_rows`` rows."""
+
+    STATUS = ("solved", "infeasible", "failed")
+
+    def __init__(self, weights: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_rows: int):
+        if not HAVE_NUMBA:
+            raise ModuleNotFoundError("No module named 'numba' (the filter's QP is compiled)", name="numba")
+        self.n = n = len(weights)
+        self.dl = mdl.DESC.table(n=n, m=1)
+        self.lf, self.li = workspace(1, n, max(1, -(-(max_rows - 2) // 2)))
+        self.max_rows = int(self.lf[F.B2, 1])
+        self.wf, self.wi = np.zeros(Layout.size(self.lf)), np.zeros(Layout.size(self.li), np.int64)
+        desc = FLOATS.view(self.wf, self.lf, "desc")
+        mdl.DESC.view(desc, self.dl, "weights")[:] = weights
+        FLOATS.view(self.wf, self.lf, "lo")[:], FLOATS.view(self.wf, self.lf, "hi")[:] = lo, hi
+        self.u_ref, self.u = FLOATS.view(self.wf, self.lf, "u_ref"), FLOATS.view(self.wf, self.lf, "u")
+        self.a, self.b = FLOATS.view(self.wf, self.lf, "A2"), FLOATS.view(self.wf, self.lf, "B2")
+        INTS.view(self.wi, self.li, "max_iter")[0] = QP_MAX_ITER
+
+    def solve(self, u_ref: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[str, np.ndarray]:
+        """(status: solved, infeasible or failed, u)."""
+        rows = len(b)
+        if rows > self.max_rows:
+            raise ValueError(f"{rows} rows: this QP holds at most {self.max_rows}")
+        self.u_ref[:] = u_ref
+        self.a[:rows], self.b[:rows] = a, b
+        status = qp_kernel(self.wf, self.wi, self.lf, self.li, self.dl, self.n, rows)
+        return self.STATUS[status], self.u.copy()
+
+
 # --------------------------------------------------------------------------- the step, in phases
 
 
@@ -357,8 +417,8 @@ def _scalar(wf, lf, k):
 
 @jit
 def _begin(wf, lf, dl, n):
-    """Inputs finite (a non-finite reference brakes; a non-finite state goes to the numpy path) and
-    the reference clipped into the box (u_box). Returns the outcome code, or -1 to go on."""
+    """Inputs finite (anything non-finite brakes) and the reference clipped into the box (u_box).
+    Returns the outcome code, or -1 to go on."""
     u_ref, ang = view1(wf, lf, F.u_ref), view1(wf, lf, F.ang)
     for j in range(n):
         if not math.isfinite(u_ref[j]):
@@ -369,10 +429,10 @@ def _begin(wf, lf, dl, n):
     pos, rot, vel = view1(wf, lf, F.position), view2(wf, lf, F.rotation), view1(wf, lf, F.velocity)
     for a in range(3):
         if not (math.isfinite(pos[a]) and math.isfinite(vel[a])):
-            return HANDBACK  # the numpy path decides what a non-finite state means
+            return NON_FINITE
         for b in range(3):
             if not math.isfinite(rot[a, b]):
-                return HANDBACK
+                return NON_FINITE
     df = view1(wf, lf, F.desc)
     lo, hi, u_box = view1(df, dl, D.lo), view1(df, dl, D.hi), view1(wf, lf, F.u_box)
     for j in range(n):
@@ -407,18 +467,35 @@ def _points(wf, wi, lf, li, dl, predictive):
 
 
 @jit
+def points_kernel(wf, wi, lf, li, dl):
+    """The step up to the field query: the inputs checked, u_box, and the barrier points now
+    (samples 0..m-1) and, with predictive rows, one period ahead (m..2m-1). Returns the outcome
+    code, or -1 to go on."""
+    di = view1(wi, li, I.desc)
+    code = _begin(wf, lf, dl, di[DescInts.N])
+    if code >= 0:
+        return code
+    predictive = view1(wi, li, I.predictive)[0] != 0
+    _points(wf, wi, lf, li, dl, predictive)
+    pts = view2(wf, lf, F.pts)
+    for i in range(2 * di[DescInts.M] if predictive else di[DescInts.M]):
+        for a in range(3):
+            if not math.isfinite(pts[i, a]):
+                return NON_FINITE
+    return -1
+
+
+@jit
 def _sample(wf, wi, lf, li, field, table, npts, order):
-    """Field query at every sample and the gains of their groups (capped for first-order models).
-    False when a point is not finite (the numpy path decides)."""
+    """The field at every sample (unless the caller queried it: INTS "queried") and the gains of
+    their groups (capped for first-order models)."""
     pts, dist, grad, hess = view2(wf, lf, F.pts), view1(wf, lf, F.dist), view2(wf, lf, F.grad), view3(wf, lf, F.hess)
     rgq, inside, gains = view1(wi, li, I.rgq), view1(wi, li, I.inside), view2(wf, lf, F.gains)
     out, scratch = (dist, grad, hess, rgq, inside), view1(wf, lf, F.query)
-    k = 3 if order == 2 else 2
-    for i in range(npts):
-        for a in range(3):
-            if not math.isfinite(pts[i, a]):
-                return False
-        query_point(field, k, pts[i], i, out, scratch)
+    if view1(wi, li, I.queried)[0] == 0:
+        k = 3 if order == 2 else 2
+        for i in range(npts):
+            query_point(field, k, pts[i], i, out, scratch)
     nt = table.shape[0]
     cap = _scalar(wf, lf, F.alpha_cap)
     first_order = view1(wi, li, I.first_order)[0]
@@ -428,7 +505,6 @@ def _sample(wf, wi, lf, li, field, table, npts, order):
             gains[i, c] = table[g, c]
         if first_order:
             gains[i, 0] = min(gains[i, 0], cap)
-    return True
 
 
 @jit
@@ -571,7 +647,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
     """An infeasible QP with the slack relaxation on (filter's module docstring): the backup u_bk —
     of the braking input and the maximal braking along each live row's (distinct) gradient, the
     one whose worst row does best — then the soft predictive rows, then every row relaxed to what
-    u_bk achieves. Returns (status, code) as the numpy path ends."""
+    u_bk achieves. Returns (status, outcome code)."""
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     vel, dt = view1(wf, lf, F.velocity), _scalar(wf, lf, F.dt)
     grad, A2, B2, B = view2(wf, lf, F.grad), view2(wf, lf, F.A2), view1(wf, lf, F.B2), view1(wf, lf, F.B)
@@ -617,7 +693,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
     if soft:
         status = _active_set(wf, wi, lf, li, dl, n, nlive)
         if status == 2:
-            return 2, HANDBACK
+            return 2, SOLVER_FAILED
         for i in range(nlive):
             B2[i] = B[i]
     blind = False
@@ -633,7 +709,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
     if status == 1 and not blind:
         status = _active_set(wf, wi, lf, li, dl, n, nlive)
         if status == 2:
-            return 2, HANDBACK
+            return 2, SOLVER_FAILED
         if status != 0:
             u = view1(wf, lf, F.u)
             for j in range(n):
@@ -657,14 +733,12 @@ def step_kernel(wf, wi, lf, li, dl, field, table):
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     n, m, order = di[DescInts.N], di[DescInts.M], di[DescInts.ORDER]
     predictive = view1(wi, li, I.predictive)[0] != 0
-    code = _begin(wf, lf, dl, n)
-    if code >= 0:
-        out_i[0] = code
-        return
-    _points(wf, wi, lf, li, dl, predictive)
-    if not _sample(wf, wi, lf, li, field, table, 2 * m if predictive else m, order):
-        out_i[0] = HANDBACK
-        return
+    if view1(wi, li, I.queried)[0] == 0:
+        code = points_kernel(wf, wi, lf, li, dl)
+        if code >= 0:
+            out_i[0] = code
+            return
+    _sample(wf, wi, lf, li, field, table, 2 * m if predictive else m, order)
     dist, grad, hb = view1(wf, lf, F.dist), view2(wf, lf, F.grad), view1(wf, lf, F.hb)
     rgq, inside = view1(wi, li, I.rgq), view1(wi, li, I.inside)
     kc = mdl.barriers(di, df, dl, dist, grad, view1(wf, lf, F.velocity), view2(wf, lf, F.gains),
@@ -690,17 +764,17 @@ def step_kernel(wf, wi, lf, li, dl, field, table):
     status = _active_set(wf, wi, lf, li, dl, n, nlive)
     if status == 1 and boxed:
         # The static rows ask more than slowing (recovery from inside a static margin): the full
-        # box, the yielding rows still clipped (filter's numpy path).
+        # box, the yielding rows still clipped.
         _full_box(wf, lf, dl, n)
         status = _active_set(wf, wi, lf, li, dl, n, nlive)
     code = OK
     if status == 2:
-        out_i[0] = HANDBACK  # the numpy path takes it to OSQP
+        out_i[0] = SOLVER_FAILED
         return
     if status == 1 and view1(wi, li, I.slack)[0] != 0:
         status, code = _relax(wf, wi, lf, li, dl, m, n, nlive)
-        if code == HANDBACK:
-            out_i[0] = HANDBACK
+        if code == SOLVER_FAILED:
+            out_i[0] = SOLVER_FAILED
             return
     if status != 0:
         out_i[0] = INFEASIBLE
@@ -723,19 +797,20 @@ def step_kernel(wf, wi, lf, li, dl, field, table):
 class CompiledStep:
     """Preallocated buffers and constants of one filter's compiled step.
 
-    ``run`` fills the input slots, calls :func:`step_kernel` once and leaves the outcome in ``u``,
-    ``out_f`` and ``out_i``; :meth:`SafetyFilter.filter <.filter.SafetyFilter.filter>` turns it
-    into a ``FilterResult``. Built (and the kernel compiled or loaded from numba's cache) once per
-    filter: :meth:`warm_up` runs it on a small grid.
+    ``run`` fills the input slots, calls the kernels and leaves the outcome in ``u``, ``out_f`` and
+    ``out_i`` (:func:`step_kernel`); :meth:`SafetyFilter.filter <.filter.SafetyFilter.filter>`
+    turns it into a ``FilterResult``. Built (and the kernels compiled or loaded from numba's
+    cache) once per filter: :meth:`warm_up` runs it on a small grid.
     """
 
-    def __init__(self, model, delta: float, alpha_cap: float, dt: float, predictive: bool,
-                 margins_in_filter: bool, slack: bool, map_margin_voxels: float = 0.0, max_object_rows: int = 8,
-                 horizon: float = 1.5, a_stop: float = 1.5, sweep: float = 1.0):
+    def __init__(self, model, config, delta: float, alpha_cap: float):
+        """``config`` is the filter's ``FilterConfig``; ``delta`` its sampled-data margin and
+        ``alpha_cap`` the first-order models' gain cap (``SafetyFilter``)."""
         if not HAVE_NUMBA:
-            raise RuntimeError("the compiled filter step needs numba (pip install '.[robot]')")
+            raise ModuleNotFoundError("No module named 'numba' (the safety filter's step is compiled)", name="numba")
         m, n = model.m, model.n
-        self.m, self.n = m, n
+        self.m, self.n, self.order = m, n, model.spec.order
+        max_object_rows = max(config.max_object_rows if config.object_motion else 0, 1)
         self.lf, self.li = workspace(m, n, max_object_rows)
         self.dl = model.dl
         self.wf, self.wi = np.zeros(Layout.size(self.lf)), np.zeros(Layout.size(self.li), np.int64)
@@ -744,19 +819,25 @@ class CompiledStep:
         fv("desc")[:] = df
         iv("desc")[:] = di
         # δ of the kernel = δ + map_margin_voxels · the voxel size of the field in hand (``prepare``).
-        self.delta, self.map_margin_voxels = delta, map_margin_voxels
+        self.delta, self.map_margin_voxels = delta, config.map_margin_voxels
         fv("delta")[0] = delta
         fv("alpha_cap")[0] = alpha_cap if math.isfinite(alpha_cap) else 1e300
-        fv("dt")[0], fv("horizon")[0], fv("a_stop")[0], fv("sweep")[0] = dt, horizon, a_stop, sweep
-        iv("max_rows")[0] = max_object_rows
-        iv("predictive")[0], iv("margins")[0], iv("slack")[0] = predictive, margins_in_filter, slack
+        fv("dt")[0], fv("horizon")[0] = config.dt, config.collision_horizon_s
+        fv("a_stop")[0], fv("sweep")[0] = config.a_max, config.object_sweep_s
+        iv("max_rows")[0], iv("max_iter")[0] = max_object_rows, QP_MAX_ITER
+        iv("predictive")[0], iv("margins")[0] = config.predictive_rows, config.margins_in_filter
+        iv("slack")[0] = config.slack
         iv("first_order")[0] = model.spec.order == 1
         self.position, self.rotation, self.velocity = fv("position"), fv("rotation"), fv("velocity")
         self.u_ref, self.ang, self.objects = fv("u_ref"), fv("ang"), fv("objects")
-        self.nobj = iv("nobj")
-        # Views of the outputs (step_kernel's docstring).
+        self.nobj, self.queried = iv("nobj"), iv("queried")
+        # Views of the outputs (step_kernel's docstring) and of the samples a caller's query fills.
         self.out_f, self.u, self.out_i = fv("out"), fv("u"), iv("out")
+        self.pts, self.dist, self.grad, self.hess = fv("pts"), fv("dist"), fv("grad"), fv("hess")
+        self.rgq, self.inside = iv("rgq"), iv("inside")
         self._field: tuple | None = None
+        # The kernel's field argument when the caller queries the field itself: never read.
+        self._unread = kernel_view(EsdfField(np.ones((2, 2, 2), np.float32), (0.0, 0.0, 0.0), 1.0))
 
     def _f(self, name: str) -> np.ndarray:
         return FLOATS.view(self.wf, self.lf, name)
@@ -773,26 +854,46 @@ class CompiledStep:
         self._f("delta")[0] = self.delta + self.map_margin_voxels * field.voxel_size
         return view
 
-    def run(self, position: np.ndarray, rotation: np.ndarray, velocity: np.ndarray, u_ref: np.ndarray,
-            ang: np.ndarray, field: EsdfField, table: np.ndarray, objects: np.ndarray | None = None) -> None:
-        """One step; ``objects`` (k × ``model.OBJECT_COLUMNS``, at most :data:`MAX_OBJECTS`) are the
-        moving objects predicted to the instant the command takes effect (``motion.object_table``)."""
-        self.position[:] = position
-        self.rotation[:] = rotation
-        self.velocity[:] = velocity
+    def run(self, state: FilterState, u_ref: np.ndarray, ang: np.ndarray, field, table: np.ndarray,
+            objects: np.ndarray | None = None) -> None:
+        """One step on ``state`` (a ``FilterState``). An ``EsdfField`` is queried inside the kernel;
+        any other ``DistanceField`` (an analytic field, a point cloud) by its own ``query`` between
+        :func:`points_kernel` and :func:`step_kernel`. ``objects`` (k × ``model.OBJECT_COLUMNS``, at
+        most :data:`MAX_OBJECTS`) are the moving objects predicted to the instant the command takes
+        effect (``motion.object_table``)."""
+        self.position[:] = state.position
+        self.rotation[:] = state.rotation
+        self.velocity[:] = state.velocity
         self.u_ref[:] = u_ref
         self.ang[:] = ang
         k = 0 if objects is None else min(len(objects), MAX_OBJECTS)
         if k:
             self.objects[:k] = objects[:k]
         self.nobj[0] = k
-        step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, self.prepare(field), table)
+        if isinstance(field, EsdfField):
+            self.queried[0] = 0
+            step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, self.prepare(field), table)
+            return
+        self._field = None
+        self.queried[0] = 1
+        self.out_i[:] = 0
+        code = points_kernel(self.wf, self.wi, self.lf, self.li, self.dl)
+        if code >= 0:
+            self.out_i[0] = code
+            return
+        npts = 2 * self.m if self._i("predictive")[0] else self.m
+        sample = field.query(self.pts[:npts], hessian=self.order == 2)
+        self.dist[:npts], self.grad[:npts] = sample.distance, sample.gradient
+        self.hess[:npts] = 0.0 if sample.hessian is None else sample.hessian
+        self.rgq[:npts], self.inside[:npts] = sample.risk_group, sample.inside
+        self._f("delta")[0] = self.delta + self.map_margin_voxels * getattr(field, "voxel_size", 0.0)
+        step_kernel(self.wf, self.wi, self.lf, self.li, self.dl, self._unread, table)
 
     def warm_up(self, table: np.ndarray) -> None:
         """Compile (or load from the on-disk cache) with the argument types of the control loop."""
         for planar in (True, False):
             shape = (4, 4, 1) if planar else (4, 4, 4)
             field = EsdfField(np.ones(shape, np.float32), (0.0, 0.0, 0.0), 0.1, interpolation="bspline_smooth")
-            self.run(np.array([0.15, 0.15, 0.0 if planar else 0.15]), np.eye(3), np.zeros(3), np.zeros(self.n),
-                     np.zeros(3), field, table)
+            state = FilterState(np.array([0.15, 0.15, 0.0 if planar else 0.15]))
+            self.run(state, np.zeros(self.n), np.zeros(3), field, table)
         self._field = None

@@ -161,7 +161,7 @@ class BoundsParams(BaseModel):
 
 
 class QpParams(BaseModel):
-    """The sampled-data QP: control rate, margin δ, predictive rows, solver.
+    """The sampled-data QP: control rate, margin δ, predictive rows, the field's interpolation.
 
     ``sampled_data_margin`` δ (m) tightens the barrier to h - δ so that h = d - r stays
     non-negative between control instants; ``None`` picks the largest barrier-point speed
@@ -186,10 +186,6 @@ class QpParams(BaseModel):
     clearance ≥ one voxel.
     ``slack``: when the QP is infeasible, solve it with every row relaxed to what the backup
     (maximal braking along the gradient) achieves, instead of braking blindly (``filter``).
-    ``backend``: ``numba`` runs each step on an ``EsdfField`` as one compiled call
-    (``compiled``: same results), ``numpy`` the plain path, ``auto`` the compiled one when numba
-    is installed and the active-set QP is in use. A core parameter, not a node setting
-    (``REFERENCE_IMPLEMENTATIONS``): the node always runs ``auto``.
     """
 
     model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
@@ -208,26 +204,22 @@ class QpParams(BaseModel):
     predictive_rows: bool = True
     """Add per point the CBF row with the gradient one period ahead under the reference (no sliding across the
     field's kinks)."""
-    solver: Literal["auto", "active_set", "osqp"] = "auto"
-    """auto: the active-set QP when the rows fit it, else OSQP; active_set or osqp force one."""
     interpolation: Interpolation = "bspline_smooth"
     """How the ESDF grid is read: bspline_smooth (C2, exact derivatives), bspline, catmull_rom, or the paper's
     trilinear with finite differences."""
     slack: bool = True
     """An infeasible QP is solved with every row relaxed to what maximal braking along the gradient achieves,
     instead of braking blindly."""
-    backend: Literal["auto", "numba", "numpy"] = "auto"
 
 
-#: ``FilterConfig`` fields that choose a reference implementation, kept so the tests and the bench
-#: can compare against it: core parameters (``FilterConfig(backend="numpy")``), not node settings
-#: (``FilterSettings.REFERENCE_ONLY``: setting one is an error saying this), as the mapping's are.
+#: Settings the filter no longer has → what replaced them: setting one is an error saying this.
 REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
     "object_match_m": "removed: a moving object is no longer matched to the field's distance; each one on a "
                       "collision course is its own row (collision_horizon_s, object_speed_sigma, max_object_rows)",
-    "backend": "the numpy step is the compiled step's test reference and the bench's comparison "
-               "(FilterConfig(backend='numpy')); the node runs the compiled step whenever numba is installed "
-               "and the active-set QP is in use (solver), the numpy one otherwise",
+    "backend": "removed: the filter's step is compiled (numba, in riskfield[robot]); its numpy rendering is a "
+               "test oracle",
+    "solver": "removed: the compiled step solves its QP exactly with the dual active-set method; OSQP is its "
+              "test oracle",
 }
 
 

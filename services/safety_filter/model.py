@@ -1,12 +1,12 @@
-"""One description per robot model, and everything the filter derives from it, for both backends.
+"""One description per robot model, and everything the filter derives from it.
 
 A model is declared once, as data (:class:`ModelSpec`): how its body moves under the input, its
-body points (offsets and radii), its input box and QP weights. The numpy path (``barriers``,
-``filter``) and the compiled step (``compiled``) both consume the description packed into two
-flat arrays (:meth:`ModelSpec.pack`, carved by :data:`DESC`), and both call the functions below
-for the points, the motion over one period, the barrier values and the CBF rows, so each formula
-is written here and nowhere else. The functions are ``numba.njit`` where numba is installed (the
-compiled step inlines them; the numpy path calls them once per step) and plain Python otherwise.
+body points (offsets and radii), its input box and QP weights. The compiled step (``compiled``)
+and the model's Python methods (``barriers``: the supervisor's braking input and barrier, the
+simulators) consume the description packed into two flat arrays (:meth:`ModelSpec.pack`, carved
+by :data:`DESC`), and all call the functions below for the points, the motion over one period,
+the barrier values and the CBF rows, so each formula is written here and nowhere else. The
+functions are ``numba.njit`` (the compiled step inlines them; Python callers call them once).
 
 The dynamics, as cbfpy declares them (``cbfpy/cbfs/cbf.py``: ``f``, ``g`` and ``h`` declared once,
 the rows from the Lie derivatives L_f h and L_g h, there a JVP of h along f and along g's

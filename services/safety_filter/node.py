@@ -136,8 +136,7 @@ class FilterNode:
         # subscribing, so that what arrives meanwhile waits in the inbox for the loop.
         t0 = time.perf_counter()
         self.supervisor.filter.warm_up()
-        node.log.info("safety filter: %s step ready in %.2f s", self.supervisor.filter.backend,
-                      time.perf_counter() - t0)
+        node.log.info("safety filter: step ready in %.2f s", time.perf_counter() - t0)
         node.on_close(self._brake_on_close)
         model = self.supervisor.filter.model
         node.log.info("safety filter: model %s, %d barrier row(s), δ = %.3f m, %.0f Hz", model.name, model.m,
@@ -329,9 +328,6 @@ class FilterNode:
         self._last_pub = now
         st = self.node.stats
         st["steps"] += 1
-        last = self.supervisor.last
-        if last is not None and status.fallback in (None, "slack"):  # which step computed it: compiled or numpy
-            st["steps_" + last.backend] = st.get("steps_" + last.backend, 0) + 1
         st["object_rows"] = status.object_rows
         st["yielding"] += status.yielding
         st["brakes"] += status.fallback is not None and status.fallback != "slack"

@@ -155,11 +155,11 @@ def _up_seconds(container: str, line: str, timeout_s: float) -> float | None:
 
 @pytest.mark.timeout(3600)
 def test_robot_image_is_light_and_its_filter_starts_warm(images: str) -> None:
-    """No torch, no open3d; the filter's first start in a fresh container loads the compiled step
-    from the image's cache (cold it compiles for 25-60 s) and is up within 5 s of `docker run`."""
+    """No torch, no open3d, no osqp (a test oracle); the filter's first start in a fresh container loads
+    the compiled step from the image's cache (cold it compiles for 25-60 s) and is up within 5 s of `docker run`."""
     robot = f"{PREFIX}-robot:{TAG}"
     shown = docker("run", "--rm", "--entrypoint", "pip", robot, "list", "--format=freeze").stdout.lower()
-    assert "numba==" in shown and "osqp==" in shown
+    assert "numba==" in shown and "osqp==" not in shown
     assert not re.search(r"^(torch|open3d)==", shown, re.M), shown
     name = f"rftest-router-{uuid.uuid4().hex[:6]}"
     port = free_port()

@@ -105,7 +105,7 @@ def test_scannetpp_loader(tmp_path):
 def test_paced_filter_steps_are_timed_one_by_one() -> None:
     """``riskfield bench filter``'s paced table: every step and every wake-up probe is timed."""
     grid = to_esdf(scene(True), [-1.0, -1.0, 0.0], [3.0, 2.0, 0.0], 0.05, planar=True)
-    filt = SafetyFilter(variant("unicycle", "after", "auto"))
+    filt = SafetyFilter(variant("unicycle", "after"))
     cases = _cases(filt, grid, True, 5, np.random.default_rng(1))
     r = paced_steps_us(filt, grid, cases, 0.001)
     assert set(r) == {"step_p50", "step_p99", "wake_p50", "wake_p99", "wake_back_to_back_p50"}

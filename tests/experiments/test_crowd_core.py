@@ -105,7 +105,7 @@ def test_one_short_episode_per_family_runs():
 def test_the_results_section_is_rewritten_between_its_markers(tmp_path):
     rows = [C.episode_metrics(ep, C.run_episode(ep, max_s=1.0)) for ep in [C.episode("runners", 0)]]
     summary = {"command": "riskfield bench crowd --mode core --episodes 1", "episodes_per_family": 1,
-               "backend": "numba", "wall_time_s": 1.0, "sim_time_s": 1.0,
+               "wall_time_s": 1.0, "sim_time_s": 1.0,
                "families": {"runners": C.summarise(rows, 1.0)}}
     path = tmp_path / "RESULTS.md"
     path.write_text("# Results\n\n## Other\n\nkept\n")

@@ -118,5 +118,5 @@ def test_the_script_runs_a_section_stamps_it_and_rewrites_the_document(tmp_path:
     assert stamp["commit"].startswith(head) and stamp["exit"] == 0
     assert stamp["command"] == f"riskfield bench filter --steps 20 --paced-hz 0 --out {tmp_path / 'out' / 'filter'}"
     doc = results.read_text()
-    assert f"*Measured at commit `{stamp['commit']}`" in doc and "compiled_vs_numpy" in doc
+    assert f"*Measured at commit `{stamp['commit']}`" in doc and "after_vs_before" in doc
     assert "<!-- scale:begin -->\n\nkept\n\n<!-- scale:end -->" in doc

@@ -121,7 +121,6 @@ def test_bench_cli_end_to_end(tmp_path):
     assert s["methods"]["Ours (ESDF)"]["margin_m"] == pytest.approx(0.025 + 0.5 * 0.05)  # δ = v_max T, ½ voxel
     # The same rule on the cloud: δ and half its downsampling cell (half the ESDF's voxel).
     assert s["methods"]["Point cloud"]["margin_m"] == pytest.approx(0.025 + 0.5 * 0.025)
-    assert s["methods"]["Ours (ESDF)"]["backend"] == "numba"
     for name in extra:
         assert s["methods"][name]["margin_m"] == 0.0 == s["no_extra_margin"][name]["margin_m"]
     assert {s["methods"][f"Ours (ESDF), {v.suffix}"]["barrier"] for v in variants(BenchConfig())} == {"braking",

@@ -25,7 +25,7 @@ NEEDS: dict[str, tuple[str, str]] = {
     # Sample.source_info is Optional from 1.7.0 (src/sample.rs), which runtime/node.py relies on.
     "eclipse-zenoh": ("1.7", "the advanced subscriber (ros2_bridge) and an optional Sample.source_info"),
     "setuptools": ("77", "the PEP 639 license expression `license = \"Apache-2.0\"`"),
-    "osqp": ("1.0.2", "osqp.SolverStatus (safety_filter's OSQP backend)"),
+    "osqp": ("1.0.2", "osqp.SolverStatus (the filter QP's oracle, tests/oracles/qp.py)"),
     "typer": ("0.16.1", "Click 8.2, which pip installs beside any typer"),
     "plyfile": ("1.1", "numpy 2 (simulator/mesh_io.py)"),
     # .ci/lowest (wheels only) found these: an older floor does not install at all.

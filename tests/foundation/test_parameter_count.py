@@ -49,7 +49,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/perception/kernels.py", "current_frame_kernel"): 10,
     ("services/perception/mast3r_backend.py", "keyframe_message"): 12,
     ("services/safety_filter/barriers.py", "DoubleIntegrator.__init__"): 10,
-    ("services/safety_filter/compiled.py", "CompiledStep.__init__"): 12,
     ("services/safety_filter/model.py", "flow"): 15,
     ("services/safety_filter/model.py", "point_row"): 13,
     ("services/safety_filter/model.py", "point_rows"): 13,

@@ -274,16 +274,23 @@ def test_a_reference_implementation_is_no_setting_and_the_error_says_what_to_use
     assert MappingSettings(esdf_incremental="wave").mapper_config().esdf_kernel == "numba"  # a real option stays
 
 
-def test_the_filters_numpy_step_is_no_setting_and_the_error_says_what_runs(env, tmp_path):
-    """The filter's ``backend`` chose an oracle: a core parameter now; the node runs ``auto``."""
+def test_the_filters_removed_settings_fail_naming_what_replaced_them(env, tmp_path):
+    """``backend`` and ``solver`` chose the numpy step and OSQP, test oracles now: setting either is an
+    error that names the compiled step, from keyword, file and environment alike."""
+    from pydantic import ValidationError
+
     from riskfield.services.safety_filter.config import FilterConfig
 
-    assert FilterConfig(backend="numpy").backend == "numpy"
-    assert FilterSettings().filter_config().backend == "auto"
-    with pytest.raises(UnknownSetting, match=r"'backend' is not a setting of safety-filter: the numpy step .*"
-                                             r"FilterConfig\(backend='numpy'\).*compiled step whenever numba"):
+    with pytest.raises(ValidationError):
+        FilterConfig(backend="numpy")  # type: ignore[call-arg]
+    with pytest.raises(UnknownSetting, match=r"'backend' is not a setting of safety-filter: removed: the filter's "
+                                             r"step is compiled"):
         FilterSettings(backend="numpy")
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text("safety-filter:\n  backend: numba\n")
-    with pytest.raises(UnknownSetting, match=r"'backend' \(section 'safety-filter' .*\) is not a setting"):
+    cfg.write_text("safety-filter:\n  solver: osqp\n")
+    with pytest.raises(UnknownSetting, match=r"'solver' \(section 'safety-filter' .*\) is not a setting.*dual "
+                                             r"active-set.*OSQP is its test oracle"):
         FilterSettings(config=cfg)
+    env.setenv("RISKFIELD_SOLVER", "osqp")
+    with pytest.raises(UnknownSetting, match=r"RISKFIELD_SOLVER.*not a setting.*removed"):
+        FilterSettings()

@@ -1,4 +1,5 @@
-"""The compiled filter step (``safety_filter.compiled``) against the numpy step and OSQP.
+"""The filter's compiled step (``safety_filter.compiled``) against its numpy rendering
+(``oracles.filter_step``) and OSQP.
 
 Tolerance: the compiled kernel sums in another order than numpy's BLAS calls, so floats agree
 to rounding (1e-9 here), and every discrete outcome (fallback, risk group, rows, intervening) is
@@ -16,6 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.filter_step import ReferenceFilter
 from riskfield.protocol import EsdfGrid, decode, encode
 from riskfield.services.fields import AnalyticField, EsdfField, to_esdf
 from riskfield.services.fields.analytic import to_grid_message
@@ -46,7 +48,7 @@ def random_field(rng: np.random.Generator, planar: bool, interpolation: str) -> 
     return grid.with_interpolation(interpolation)  # type: ignore[arg-type]
 
 
-def random_config(rng: np.random.Generator, model: str, backend: str) -> FilterConfig:
+def random_config(rng: np.random.Generator, model: str) -> FilterConfig:
     kw: dict = {"interpolation": INTERPOLATIONS[int(rng.integers(0, 4))],
                 "predictive_rows": bool(rng.random() < 0.8), "margins_in_filter": bool(rng.random() < 0.3),
                 "slack": bool(rng.random() < 0.8)}
@@ -63,7 +65,7 @@ def random_config(rng: np.random.Generator, model: str, backend: str) -> FilterC
             kw["footprint"] = Footprint(shape=shape, discs=int(rng.integers(1, 5)))  # type: ignore[arg-type]
     if rng.random() < 0.3:
         kw["extra_points"] = [tuple(rng.uniform(-0.2, 0.2, 3))]
-    return FilterConfig(model=model, backend=backend, **kw)  # type: ignore[arg-type]
+    return FilterConfig(model=model, **kw)  # type: ignore[arg-type]
 
 
 def random_state(rng: np.random.Generator, planar: bool) -> FilterState:
@@ -94,10 +96,8 @@ def test_compiled_step_equals_the_numpy_step(model, seed):
     rng = np.random.default_rng(seed)
     planar = model in ("unicycle", "single2d")
     field = random_field(rng, planar, "trilinear")
-    cfg_seed = int(rng.integers(0, 2**31))
-    fast = SafetyFilter(random_config(np.random.default_rng(cfg_seed), model, "numba"))
-    slow = SafetyFilter(random_config(np.random.default_rng(cfg_seed), model, "numpy"))
-    assert fast.backend == "numba" and slow.backend == "numpy"
+    fast = SafetyFilter(random_config(np.random.default_rng(int(rng.integers(0, 2**31))), model))
+    slow = ReferenceFilter(fast)
     lo, hi = fast.model.lo, fast.model.hi
     for _ in range(25):
         s = random_state(rng, planar)
@@ -113,7 +113,7 @@ def test_the_compiled_step_intervenes_and_relaxes_like_the_numpy_step(model):
     planar = model in ("unicycle", "single2d")
     field = random_field(rng, planar, "bspline_smooth")
     fast = SafetyFilter(FilterConfig(model=model))  # type: ignore[arg-type]
-    slow = SafetyFilter(FilterConfig(model=model, backend="numpy"))  # type: ignore[arg-type]
+    slow = ReferenceFilter(fast)
     seen = set()
     for _ in range(400):
         s = random_state(rng, planar)
@@ -126,18 +126,21 @@ def test_the_compiled_step_intervenes_and_relaxes_like_the_numpy_step(model):
 
 def test_bad_inputs_brake_the_same_way():
     field = random_field(np.random.default_rng(1), True, "bspline_smooth")
-    fast, slow = SafetyFilter(FilterConfig()), SafetyFilter(FilterConfig(backend="numpy"))
+    fast = SafetyFilter(FilterConfig())
+    slow = ReferenceFilter(fast)
     s = FilterState.planar(0.0, 0.0, 0.3)
     for u_ref, ang in [((math.nan, 0.0), None), ((0.5, 0.0), (0.0, 0.0, math.inf)), ((0.5,), None)]:
         a = fast.filter(s, np.array(u_ref), field, None if ang is None else np.array(ang))
         b = slow.filter(s, np.array(u_ref), field, None if ang is None else np.array(ang))
         assert a.fallback == b.fallback == "non_finite"
         np.testing.assert_array_equal(a.u, b.u)
-    # A non-finite state is handed back to the numpy path: the same answer by construction.
+    # A non-finite state brakes before the field is read, on any field.
     bad = FilterState(np.array([math.nan, 0.0, 0.0]))
-    with np.errstate(invalid="ignore"):  # the grid query casts the NaN point (and flags it outside)
-        a, b = fast.filter(bad, np.array([0.5, 0.0]), field), slow.filter(bad, np.array([0.5, 0.0]), field)
-    assert a.fallback == b.fallback and a.fallback is not None
+    analytic = AnalyticField(Sphere((1.0, 0.0, 0.0), 0.3, label=1, planar=True), groups=GROUPS)
+    for f in (field, analytic):
+        res = fast.filter(bad, np.array([0.5, 0.0]), f)
+        assert res.fallback == "non_finite" and res.solver == ""
+        np.testing.assert_array_equal(res.u, fast.model.brake(bad))
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -146,8 +149,7 @@ def test_compiled_step_agrees_with_osqp(model):
     planar = model in ("unicycle", "single2d")
     field = random_field(rng, planar, "bspline_smooth")
     fast = SafetyFilter(FilterConfig(model=model))  # type: ignore[arg-type]
-    osqp = SafetyFilter(FilterConfig(model=model, solver="osqp"))  # type: ignore[arg-type]
-    assert fast.backend == "numba" and osqp.backend == "numpy"
+    osqp = ReferenceFilter(fast, solver="osqp")
     compared = 0
     for _ in range(300):
         s = random_state(rng, planar)
@@ -159,25 +161,34 @@ def test_compiled_step_agrees_with_osqp(model):
     assert compared > 10
 
 
-def test_backend_selection(monkeypatch):
-    assert SafetyFilter(FilterConfig()).backend == "numba"
-    assert SafetyFilter(FilterConfig(backend="numpy")).backend == "numpy"
-    assert SafetyFilter(FilterConfig(solver="osqp")).backend == "numpy"
-    with pytest.raises(ValueError, match="active-set"):
-        SafetyFilter(FilterConfig(solver="osqp", backend="numba"))
+def test_without_numba_the_filter_names_what_to_install(monkeypatch):
     monkeypatch.setattr(compiled, "HAVE_NUMBA", False)  # an install without numba
-    assert SafetyFilter(FilterConfig()).backend == "numpy"
-    with pytest.raises(ValueError, match="numba"):
-        SafetyFilter(FilterConfig(backend="numba"))
+    with pytest.raises(ModuleNotFoundError) as info:
+        SafetyFilter(FilterConfig())
+    assert info.value.name == "numba"
 
 
-def test_analytic_fields_take_the_numpy_path():
-    field = AnalyticField(Sphere((1.0, 0.0, 0.0), 0.3, label=1, planar=True), groups=GROUPS)
-    fast, slow = SafetyFilter(FilterConfig()), SafetyFilter(FilterConfig(backend="numpy"))
-    s = FilterState.planar(0.3, 0.0, 0.0)
-    a, b = fast.filter(s, np.array([1.0, 0.0]), field), slow.filter(s, np.array([1.0, 0.0]), field)
-    assert a.intervening and a.qp_us > 0  # measured apart: the numpy path ran
-    assert_same(a, b)
+@pytest.mark.parametrize("model", MODELS)
+def test_analytic_fields_are_queried_by_the_caller_and_stepped_alike(model):
+    """A field without a compiled query (analytic, point cloud) is read by its own ``query`` between
+    the two kernels; the rest of the step is the same code."""
+    rng = np.random.default_rng(13)
+    planar = model in ("unicycle", "single2d")
+    shapes = [Sphere(tuple(rng.uniform([0.4, -0.4, -0.1], [1.2, 0.4, 0.1])), 0.25, label=1, planar=planar),
+              Plane.through((0.0, -0.8, 0.0), (math.sin(0.3), math.cos(0.3), 0.0), label=2)]
+    field = AnalyticField(shapes, groups=GROUPS)
+    fast = SafetyFilter(FilterConfig(model=model))  # type: ignore[arg-type]
+    slow = ReferenceFilter(fast)
+    before = len(compiled.points_kernel.signatures)
+    seen = set()
+    for _ in range(200):
+        s = random_state(rng, planar)
+        u_ref = rng.uniform(fast.model.lo, fast.model.hi)
+        a, b = fast.filter(s, u_ref, field), slow.filter(s, u_ref, field)
+        assert_same(a, b)
+        seen.add("intervening" if a.intervening and a.fallback is None else a.fallback)
+    assert "intervening" in seen, seen
+    assert len(compiled.points_kernel.signatures) == before  # loaded at construction
 
 
 def test_no_compilation_in_the_control_loop():
@@ -196,7 +207,7 @@ def test_no_compilation_in_the_control_loop():
 
 
 def toy_model() -> BarrierModel:
-    """A model neither backend has heard of, in one description: an omnidirectional base that
+    """A model the filter has not heard of, in one description: an omnidirectional base that
     drives x, y and turns (three inputs, one of them angular), nothing passed through, with a
     triangular footprint of three unequal discs off the body's axis."""
     return BarrierModel(ModelSpec(
@@ -208,13 +219,13 @@ def toy_model() -> BarrierModel:
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31))
-def test_a_new_model_is_one_description_and_both_backends_agree(seed):
+def test_a_new_model_is_one_description_and_the_oracle_agrees(seed):
     rng = np.random.default_rng(seed)
     field = random_field(rng, True, "trilinear")
-    cfg_seed = int(rng.integers(0, 2**31))
-    cfgs = [random_config(np.random.default_rng(cfg_seed), "unicycle", b) for b in ("numba", "numpy")]
-    fast, slow = (SafetyFilter(c, model=toy_model()) for c in cfgs)
-    assert fast.backend == "numba" and slow.backend == "numpy" and fast.model.m == 3
+    fast = SafetyFilter(random_config(np.random.default_rng(int(rng.integers(0, 2**31))), "unicycle"),
+                        model=toy_model())
+    slow = ReferenceFilter(fast)
+    assert fast.model.m == 3
     for _ in range(25):
         s = random_state(rng, True)
         u_ref = rng.uniform(1.3 * fast.model.lo, 1.3 * fast.model.hi)
@@ -223,7 +234,7 @@ def test_a_new_model_is_one_description_and_both_backends_agree(seed):
 
 def test_the_new_model_intervenes_and_its_rows_are_its_barrier_rates():
     """Not vacuous: the toy filter intervenes, and each row is ḣ_i(u) + α h_i by differences of the
-    exact motion (so both backends agree on the right thing)."""
+    exact motion (so the step and its oracle agree on the right thing)."""
     rng = np.random.default_rng(11)
     field = random_field(rng, True, "bspline_smooth")
     filt = SafetyFilter(FilterConfig(), model=toy_model())

@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
+from oracles.filter_step import ReferenceFilter
 from riskfield.protocol import RiskConfig, RiskGroup
 from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
 from riskfield.services.safety_filter.config import FilterConfig, Footprint
 from riskfield.services.safety_filter.filter import GainTable, SafetyFilter, hocbf_gains
 from riskfield.services.safety_filter.model import YIELD
-from riskfield.services.safety_filter.qp import OsqpSolver
 from riskfield.services.safety_filter.state import FilterState
 
 GROUPS = ["high", "mid", "low"]
@@ -165,11 +165,13 @@ def test_double_integrator_slack_is_at_least_as_good_as_braking_along_the_gradie
 
 
 def test_solver_failure_brakes():
-    filt = SafetyFilter(FilterConfig(solver="osqp"))
-    filt._osqp = OsqpSolver(filt.model.n, filt.rows_max, max_iter=1)  # a real OSQP that cannot converge
+    filt = SafetyFilter(FilterConfig())
     field = AnalyticField(Plane.through([0.5, 0, 0], [-1.0, 0, 0], label=3), groups=GROUPS)
-    res = filt.filter(FilterState.planar(0.0, 0.0, 0.3), np.array([1.0, 0.5]), field)
-    assert res.fallback == "solver_failed" and not res.u.any()
+    s, u_ref = FilterState.planar(0.0, 0.0, 0.3), np.array([1.0, 0.5])
+    assert filt.filter(s, u_ref, field).fallback is None and filt.filter(s, u_ref, field).intervening
+    filt._step._i("max_iter")[0] = 0  # an active-set QP that cannot take a step
+    res = filt.filter(s, u_ref, field)
+    assert (res.fallback, res.solver) == ("solver_failed", "active_set") and not res.u.any()
 
 
 @pytest.mark.parametrize("model", ["unicycle", "single2d", "single3d", "double3d"])
@@ -177,7 +179,7 @@ def test_osqp_and_the_active_set_path_agree_in_the_loop(model):
     planar = model in ("unicycle", "single2d")
     field = AnalyticField(Sphere([1.0, 0.2, 0.0], 0.3, planar=planar, label=1), groups=GROUPS)
     fast = SafetyFilter(FilterConfig(model=model))
-    slow = SafetyFilter(FilterConfig(model=model, solver="osqp"))
+    slow = ReferenceFilter(fast, solver="osqp")
     rng = np.random.default_rng(3)
     agree = 0
     # The braking barrier is active only when stopping gets close: approach the ball faster.

@@ -1,4 +1,4 @@
-"""Moving objects and yielding (``motion``, ``model``), both backends.
+"""Moving objects and yielding (``motion``, ``model``), in the step and its numpy oracle.
 
 A person-sized obstacle (radius 0.22 m, inflated by the high group's 0.15 m margin as the mapper
 does) in a planar ESDF, with a ``TrackedObject`` entry for it. Checks, against the behaviour the
@@ -21,10 +21,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.filter_step import ReferenceFilter
 from riskfield.protocol import Header, TrackedObject, TrackedObjects, VelocityCommand
 from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
-from riskfield.services.safety_filter import compiled
 from riskfield.services.safety_filter import model as mdl
 from riskfield.services.safety_filter.config import FilterConfig, MotionParams
 from riskfield.services.safety_filter.filter import SafetyFilter
@@ -40,7 +40,13 @@ P = MotionParams()
 #: ``people.tracker_errors``): 0.09 m/s from the median error, 0.29 m/s RMS with the lag at a
 #: walker's stops and turns; and the filter's own ``object_speed_sigma`` between them.
 TRACKER_SIGMAS = (0.09, 0.15, 0.29)
-BACKENDS = ("numba", "numpy") if compiled.HAVE_NUMBA else ("numpy",)
+#: The filter's step, and its numpy rendering (``oracles.filter_step``) held to the same behaviour.
+BACKENDS = ("step", "oracle")
+
+
+def make(backend: str, **cfg) -> SafetyFilter | ReferenceFilter:
+    filt = SafetyFilter(FilterConfig(**cfg))
+    return filt if backend == "step" else ReferenceFilter(filt)
 
 
 def person(x: float, y: float = 0.0, vx: float = 0.0, vy: float = 0.0, tracked_ms: float = 2000.0,
@@ -70,8 +76,8 @@ def table(*objs: TrackedObject, p: MotionParams = P) -> np.ndarray:
     return object_table(list(objs), p.model_copy(update={"command_delay_s": 0.0}), 0, 0)
 
 
-def filters(**cfg) -> list[SafetyFilter]:
-    return [SafetyFilter(FilterConfig(backend=b, **cfg)) for b in BACKENDS]
+def filters(**cfg) -> list[SafetyFilter | ReferenceFilter]:
+    return [make(b, **cfg) for b in BACKENDS]
 
 
 # --------------------------------------------------------------------------- the velocity estimate
@@ -194,7 +200,7 @@ def course(filt: SafetyFilter, s: FilterState, u: np.ndarray, obj: TrackedObject
 
 
 def test_only_an_object_on_a_collision_course_constrains():
-    filt = SafetyFilter(FilterConfig(backend="numpy"))
+    filt = SafetyFilter(FilterConfig())
     s, go = FilterState.planar(0.0, 0.0, 0.0, velocity=(0.5, 0.0, 0.0)), np.array([0.5, 0.0])
     # Head-on at 1.2 m/s from 2 m: contact within the horizon.
     assert course(filt, s, go, person(2.0, vx=-1.2)) < 1.5
@@ -213,7 +219,7 @@ def test_only_an_object_on_a_collision_course_constrains():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_someone_walking_past_or_behind_changes_nothing(backend):
-    filt = SafetyFilter(FilterConfig(backend=backend))
+    filt = make(backend)
     u = np.array([0.5, 0.0])
     for s, who in [(FilterState.planar(0.0, 0.0, 0.0), person(1.0, 0.83, vx=-1.2)),
                    (FilterState.planar(0.0, 0.0, 0.0), person(-0.9, -1.2, vy=1.2))]:
@@ -229,13 +235,13 @@ def test_each_object_is_its_own_row_and_a_nearer_wall_hides_no_one(backend):
     wall = ((0.0, 0.36, 0.0), (0.0, -1.0, 0.0))
     field = grid((1.6, 0.0), walls=(wall,))
     s, u = FilterState.planar(0.0, 0.0, 0.0, velocity=(0.5, 0.0, 0.0)), np.array([0.5, 0.0])
-    filt = SafetyFilter(FilterConfig(backend=backend))
+    filt = make(backend)
     assert filt.filter(s, u, field).u[0] == pytest.approx(0.5)  # the field alone: drive on along the wall
     res = filt.filter(s, u, field, None, table(person(1.6, vx=-2.5)))
     assert res.object_rows == 1 and res.u[0] < 0.3 and res.fallback is None
     # The soonest max_object_rows of many get a row.
     crowd = table(*[person(1.2 + 0.4 * k, vx=-1.5) for k in range(12)])
-    many = SafetyFilter(FilterConfig(backend=backend, max_object_rows=3)).filter(s, u, field, None, crowd)
+    many = make(backend, max_object_rows=3).filter(s, u, field, None, crowd)
     assert many.object_rows == 3
 
 
@@ -270,7 +276,7 @@ def object_h(m, s: FilterState, c: np.ndarray, delta: float, sweep: np.ndarray) 
 def test_an_object_row_is_its_barriers_rate_when_the_object_moves(model, seed):
     """a·u - b = ḣ + α h for h(x, t) = |p - c - w t| - R - r - δ - margin (σ = 0, no yield clip)."""
     rng = np.random.default_rng(seed)
-    filt = SafetyFilter(FilterConfig(model=model, footprint={"shape": "none"}, backend="numpy"))
+    filt = SafetyFilter(FilterConfig(model=model, footprint={"shape": "none"}))
     m = filt.model
     c = np.array([1.0, rng.uniform(-0.3, 0.3), 0.0])
     w = np.array([rng.uniform(-1.5, -0.3), rng.uniform(-0.5, 0.5), 0.0])
@@ -298,7 +304,7 @@ def test_the_order_2_row_uses_the_relative_velocity(seed):
     """The paper's HOCBF on an object: a·u - b = ḧ + α₁ ḣ + α₂ h with ḧ from the relative motion,
     (v - w)ᵀ∇²d (v - w) — the robot's own velocity alone would miss a walker's curvature."""
     rng = np.random.default_rng(seed)
-    filt = SafetyFilter(FilterConfig(model="double3d", barrier="hocbf", backend="numpy"))
+    filt = SafetyFilter(FilterConfig(model="double3d", barrier="hocbf"))
     m = filt.model
     c = np.array([1.2, rng.uniform(-0.4, 0.4), 0.0])
     w = np.array([rng.uniform(-1.2, -0.2), rng.uniform(-0.8, 0.8), 0.0])
@@ -336,7 +342,7 @@ def test_a_moving_object_only_slows_stops_or_turns_the_robot_less(backend, seed)
     """Whatever the people do (anywhere, any velocity, inside the robot's margin too), with the
     field's walls low-risk: each input of the safe command lies between zero and the reference's."""
     rng = np.random.default_rng(seed)
-    filt = SafetyFilter(FilterConfig(backend=backend))
+    filt = make(backend)
     people = [tuple(rng.uniform([-0.8, -0.8], [1.5, 0.8])) for _ in range(int(rng.integers(1, 4)))]
     field = grid(*people)
     objs = table(*[person(x, y, *rng.normal(0, 1.5, 2)) for x, y in people])
@@ -354,7 +360,7 @@ def test_a_moving_object_only_slows_stops_or_turns_the_robot_less(backend, seed)
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_someone_walking_into_a_stopped_robot_leaves_it_stopped_and_says_yielding(backend):
-    filt = SafetyFilter(FilterConfig(backend=backend))
+    filt = make(backend)
     s = FilterState.planar(0.0, 0.0, 0.0)
     field = grid((0.55, 0.0))  # the inflated person already overlaps the front of the body
     res = filt.filter(s, np.array([0.3, 0.0]), field, None, table(person(0.55, vx=-1.0)))
@@ -370,10 +376,10 @@ def test_static_obstacles_keep_their_recovery_from_inside_a_margin(backend):
     yield); inside a person's margin it stops instead."""
     wall = ((0.35, 0.0, 0.0), (-1.0, 0.0, 0.0))
     s, u = FilterState.planar(0.0, 0.0, 0.0), np.array([0.2, 0.0])
-    inside_wall = SafetyFilter(FilterConfig(backend=backend)).filter(s, u, grid(walls=(wall,)))
-    today = SafetyFilter(FilterConfig(backend=backend, yield_labels=[])).filter(s, u, grid(walls=(wall,)))
+    inside_wall = make(backend).filter(s, u, grid(walls=(wall,)))
+    today = make(backend, yield_labels=[]).filter(s, u, grid(walls=(wall,)))
     assert inside_wall.u[0] < -0.05 and inside_wall.u.tolist() == today.u.tolist()
-    near_person = SafetyFilter(FilterConfig(backend=backend)).filter(s, u, grid((0.5, 0.0)))
+    near_person = make(backend).filter(s, u, grid((0.5, 0.0)))
     assert near_person.u[0] == pytest.approx(0.0, abs=1e-6) and near_person.yielding
 
 
@@ -383,8 +389,8 @@ def test_static_scenes_give_the_same_command_with_and_without_yielding():
                     [-3.0, -1.5, 0.0], [4.5, 1.5, 0.0], 0.05, planar=True)
     rng = np.random.default_rng(5)
     for backend in BACKENDS:
-        a = SafetyFilter(FilterConfig(backend=backend))
-        b = SafetyFilter(FilterConfig(backend=backend, yield_labels=[], object_motion=False))
+        a = make(backend)
+        b = make(backend, yield_labels=[], object_motion=False)
         for _ in range(40):
             s = FilterState.planar(*rng.uniform([-0.5, -0.4], [0.6, 0.4]), rng.uniform(-3, 3))
             u = rng.uniform(a.model.lo, a.model.hi)
@@ -476,7 +482,7 @@ def test_the_trackers_noise_near_the_barrier_makes_no_chatter_and_no_self_motion
     a standing person, one edging in, one walking into the robot. The operator drives forward
     slowly, or holds the stick centred: the commanded speed never changes sign, and at a zero
     reference the robot never moves."""
-    filt = SafetyFilter(FilterConfig(backend=backend))
+    filt = make(backend)
     for seed in range(3):
         for walk in ((0.0, 0.0), (-0.3, 0.0), (-1.0, 0.0)):
             # The person's inflated cylinder 0.3 m from the front disc's barrier at the start.
@@ -500,13 +506,12 @@ def test_head_on_the_robot_stops_before_the_person_arrives_and_never_backs_off()
     assert contact.any() and (moving["v"][contact] <= 1e-6).all()  # stopped when the person arrives
 
 
-# --------------------------------------------------------------------------- both backends
+# --------------------------------------------------------------------------- the step and its oracle
 
 
 MODELS = ["unicycle", "single2d", "single3d", "double3d"]
 
 
-@pytest.mark.skipif(not compiled.HAVE_NUMBA, reason="numba is not installed")
 @pytest.mark.parametrize("model", MODELS)
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31))
@@ -517,7 +522,8 @@ def test_compiled_and_numpy_agree_with_moving_objects(model, seed):
     field = grid(*people, planar=planar)
     cfg = {"model": model, "predictive_rows": bool(rng.random() < 0.8), "margins_in_filter": bool(rng.random() < 0.3),
            "max_object_rows": int(rng.integers(1, 5))}
-    fast, slow = SafetyFilter(FilterConfig(**cfg, backend="numba")), SafetyFilter(FilterConfig(**cfg, backend="numpy"))
+    fast = SafetyFilter(FilterConfig(**cfg))
+    slow = ReferenceFilter(fast)
     objs = table(*[person(x, y, *rng.normal(-0.5, 1.0, 2)) for x, y in people],
                  person(*rng.uniform(-1, 3, 2), *rng.normal(0, 1, 2)))
     rows = 0
@@ -530,7 +536,6 @@ def test_compiled_and_numpy_agree_with_moving_objects(model, seed):
         ang = rng.normal(0, 1.0, 3)
         a, b = fast.filter(s, u_ref, field, ang, objs), slow.filter(s, u_ref, field, ang, objs)
         assert_same(a, b)
-        assert a.backend == "numba" and b.backend == "numpy"
         rows += a.object_rows
     assert rows > 0 or len(objs) == 0  # the dynamic rows were exercised
 

@@ -559,7 +559,7 @@ def core(families: str, episodes: int, seed: int, out: Path, results: Path | Non
         f" --seed {seed}" if seed else "") + (" --evade" if evade else "")
     summary = {"benchmark": "crowd", "mode": "core", "command": command, "evade": evade,
                "episodes_per_family": episodes,
-               "first_seed": seed, "backend": filt.backend, "wall_time_s": time.perf_counter() - t0,
+               "first_seed": seed, "wall_time_s": time.perf_counter() - t0,
                "sim_time_s": sum(s["sim_s"] for s in fams.values()), "families": fams, "episodes": rows}
     (out / "tables.md").write_text(C.markdown(summary))
     write_json(out / "summary.json", summary)

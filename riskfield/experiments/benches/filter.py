@@ -1,24 +1,23 @@
-"""``riskfield bench filter``: per-step cost of the safety filter, per model and QP solver.
+"""``riskfield bench filter``: per-step cost of the safety filter, per model.
 
 For each barrier model a grid ESDF of a small scene (a high-risk and a low-risk obstacle and a
 wall; a 2-D slice for the ground models, 3-D otherwise) is queried from random states close to
 the obstacles with random references, so that most steps intervene. A step is the whole
 ``SafetyFilter.filter`` call: field query (distance, gradient, Hessian for the HOCBF) at the
-barrier points and their predicted positions, CBF rows, and the QP — once with the exact
-active-set path and once with OSQP. Reports median and p99 (µs; each step's fastest of three
-passes over the same cases) and writes ``summary.json``.
+barrier points and their predicted positions, CBF rows and the exact QP, in the compiled step.
+Reports median and p99 (µs; each step's fastest of three passes over the same cases) and writes
+``summary.json``.
 
-Each model runs twice on the same cases: ``before`` is the paper's filter (trilinear field with
-finite-difference derivatives, control points only, the HOCBF for the double integrator, a
-blind brake on infeasibility) and ``after`` the default configuration (B-spline field, the
-footprint's disc cover, the braking-distance barrier, the slack-relaxed QP), each compiled (and
-with numpy beside it). A second table compares, per model, the compiled step (``backend: numba``,
-``safety_filter.compiled``: one numba call per step) with the numpy step of the same configuration
-and with ``before`` on the same compiled backend (so the ratio is the configuration's, not the
-backend's), as ratios measured in this run (the target: p99 ≤ 30 µs for every model). A third table
+Each model runs on the same cases as ``before``, the paper's filter (trilinear field with
+finite-difference derivatives, control points only, the HOCBF for the double integrator, a blind
+brake on infeasibility), ``after``, the default configuration (B-spline field, the footprint's
+disc cover, the braking-distance barrier, the slack-relaxed QP), and ``after`` with people
+walking at the robot. A second table gives, per model, what the default configuration costs over
+the paper's on the same step (the target: p99 ≤ 30 µs for every model, with the people). A third
 shows the norms of the field's Hessian at the double integrator's query points for each
 interpolation against the analytic geometry's own (finite-difference Hessians of the trilinear
-field reach tens of m⁻¹ on 5 cm voxels).
+field reach tens of m⁻¹ on 5 cm voxels). A comparison with another commit is
+``BEFORE=<rev> SECTIONS=filter bash benchmarks/regenerate.sh``.
 """
 
 from __future__ import annotations
@@ -38,7 +37,6 @@ from rich.table import Table
 from riskfield.experiments.timing import timing_stats
 from riskfield.services.fields import AnalyticField, to_esdf
 from riskfield.services.geometry.shapes import Plane, Sphere
-from riskfield.services.safety_filter.compiled import HAVE_NUMBA
 from riskfield.services.safety_filter.config import FilterConfig, Footprint
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.model import OBJ_GROUP, OBJ_RADIUS, OBJ_SIGMA, OBJ_VX, OBJ_X, OBJECT_COLUMNS
@@ -50,18 +48,16 @@ MODELS = ("unicycle", "single2d", "single3d", "double3d")
 INTERPOLATIONS = ("trilinear", "catmull_rom", "bspline", "bspline_smooth")
 
 
-def variant(name: str, which: str, solver: str, backend: str = "numpy") -> FilterConfig:
-    """``before``: the paper's filter; ``after``: today's defaults; both on ``backend``."""
+def variant(name: str, which: str) -> FilterConfig:
+    """``before``: the paper's filter; ``after``: the defaults."""
     if which == "before":
-        return FilterConfig(model=name, solver=solver, footprint=Footprint(shape="none"),  # type: ignore[arg-type]
-                            interpolation="trilinear", barrier="hocbf", slack=False, backend=backend)
-    return FilterConfig(model=name, solver=solver, backend=backend)  # type: ignore[arg-type]
+        return FilterConfig(model=name, footprint=Footprint(shape="none"),  # type: ignore[arg-type]
+                            interpolation="trilinear", barrier="hocbf", slack=False)
+    return FilterConfig(model=name)  # type: ignore[arg-type]
 
 
-#: (variant, solver, backend) timed per model; the compiled step runs only with the exact QP.
-RUNS = (("before", "active_set", "numba", 0), ("before", "osqp", "numpy", 0), ("after", "active_set", "numpy", 0),
-        ("after", "active_set", "numba", 0), ("after", "osqp", "numpy", 0), ("after", "active_set", "numba", 8),
-        ("after", "active_set", "numpy", 8))
+#: (variant, moving objects) timed per model.
+RUNS = (("before", 0), ("after", 0), ("after", 8))
 #: Moving objects per step in the runs with objects: people walking at the robot from 0.6-2 m, every
 #: one on a collision course, so each is its own row (``max_object_rows`` = 8, the default).
 OBJECTS = 8
@@ -158,37 +154,34 @@ def paced_steps_us(filt: SafetyFilter, grid, cases: list, period_s: float) -> di
 
 
 def speed_ratios(results: dict[str, dict]) -> dict[str, dict[str, float]]:
-    """Per model: step p50/p99 (µs) of the compiled step, the numpy step (both today's defaults,
-    exact QP) and the paper's filter on the compiled backend, and the speed-ups (×: the other's time
-    over the compiled one's)."""
+    """Per model: step p50/p99 (µs) of the default filter (alone and with people), of the paper's,
+    and the ratios (the default's time over the paper's)."""
     out = {}
     for name in MODELS:
-        runs = {k: results.get(f"{name}/{k}") for k in ("after/active_set/numba", "after/active_set/numpy",
-                                                          "before/active_set/numba")}
-        if any(v is None for v in runs.values()):
+        after, before = results.get(f"{name}/after"), results.get(f"{name}/before")
+        if after is None or before is None:
             continue
-        fast, slow, before = (runs[k]["step_us"] for k in runs)  # type: ignore[index]
-        objs = results.get(f"{name}/after+{OBJECTS} objects/active_set/numba")
-        out[name] = {"numba p50": fast["median"], "numba p99": fast["p99"],
+        a, b = after["step_us"], before["step_us"]
+        objs = results.get(f"{name}/after+{OBJECTS} objects")
+        out[name] = {"after p50": a["median"], "after p99": a["p99"],
                      f"+{OBJECTS} obj p50": objs["step_us"]["median"] if objs else math.nan,
-                     f"+{OBJECTS} obj p99": objs["step_us"]["p99"] if objs else math.nan, "numpy p50": slow["median"],
-                     "numpy p99": slow["p99"], "before p50": before["median"], "before p99": before["p99"],
-                     "×numpy p50": slow["median"] / fast["median"], "×numpy p99": slow["p99"] / fast["p99"],
-                     "×before p50": before["median"] / fast["median"], "×before p99": before["p99"] / fast["p99"]}
+                     f"+{OBJECTS} obj p99": objs["step_us"]["p99"] if objs else math.nan,
+                     "before p50": b["median"], "before p99": b["p99"],
+                     "after/before p50": a["median"] / b["median"], "after/before p99": a["p99"] / b["p99"]}
     return out
 
 
 @app.command()
 def main(
     out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-filter"),
-    steps: Annotated[int, typer.Option(help="Filter steps per model and solver.")] = 3000,
+    steps: Annotated[int, typer.Option(help="Filter steps per model and variant.")] = 3000,
     voxel: Annotated[float, typer.Option(help="ESDF voxel size (m).")] = 0.05,
     seed: Annotated[int, typer.Option()] = 0,
     paced_hz: Annotated[float, typer.Option(help="Also time single steps paced at this rate, as the node runs "
                                                  "them (0: off).")] = 50.0,
     paced_steps: Annotated[int, typer.Option(help="Paced steps per model.")] = 300,
 ) -> None:
-    """Time the safety filter per step (field query + QP) for each model, OSQP vs the exact path."""
+    """Time the safety filter per step (field query, rows and QP) for each model."""
     console = Console(width=140)
     rng = np.random.default_rng(seed)
     results: dict[str, dict] = {}
@@ -198,7 +191,7 @@ def main(
         planar = name in ("unicycle", "single2d")
         grid = to_esdf(scene(planar), [-1.0, -1.0, 0.0 if planar else -0.6], [3.0, 2.0, 0.0 if planar else 0.6],
                        voxel, planar=planar)
-        probe = SafetyFilter(variant(name, "before", "auto"))
+        probe = SafetyFilter(variant(name, "before"))
         truth = scene(planar)
         cases = _cases(probe, grid, planar, steps, rng)
         pts = [probe.model.points(s) for s, _, _ in cases]
@@ -211,75 +204,66 @@ def main(
             grid.query(p, hessian=hess)
             query_us.append((time.perf_counter() - t0) * 1e6)
         tables = object_tables(cases, OBJECTS, rng)
-        for which, solver, backend, k in RUNS:
-            if backend == "numba" and not HAVE_NUMBA:
-                continue
+        for which, k in RUNS:
             per_case = tables if k else [None] * len(cases)
-            filt = SafetyFilter(variant(name, which, "auto" if solver == "active_set" else solver, backend))
+            filt = SafetyFilter(variant(name, which))
             # Three passes over the same cases; each step's time is its fastest pass. The first
-            # pass warms caches and OSQP's warm start, and on a shared machine the minimum drops
-            # the steps that were merely preempted (the p99 is otherwise the scheduler's).
+            # pass warms the caches, and on a shared machine the minimum drops the steps that were
+            # merely preempted (the p99 is otherwise the scheduler's).
             passes = []
             for _ in range(3):
-                step_us, qp_us, hits, fallbacks, slack, rows, obj_rows = [], [], 0, 0, 0, [], []
+                step_us, hits, fallbacks, slack, rows, obj_rows = [], 0, 0, 0, [], []
                 for (s, u_ref, ang), objs in zip(cases, per_case, strict=True):
                     t0 = time.perf_counter()
                     res = filt.filter(s, u_ref, grid, ang, objs)
                     step_us.append((time.perf_counter() - t0) * 1e6)
-                    qp_us.append(res.qp_us)
                     rows.append(res.rows)
                     obj_rows.append(res.object_rows)
                     hits += res.intervening and res.fallback is None
                     fallbacks += res.fallback not in (None, "slack")
                     slack += res.fallback == "slack"
-                passes.append((step_us, qp_us))
-            step_us = np.min([p[0] for p in passes], axis=0).tolist()
-            qp_us = np.min([p[1] for p in passes], axis=0).tolist()
+                passes.append(step_us)
+            step_us = np.min(passes, axis=0).tolist()
             label = f"{which}+{k} objects" if k else which
-            results[f"{name}/{label}/{solver}/{backend}"] = {
-                "model": name, "variant": label, "solver": solver, "backend": backend, "steps": len(cases),
+            results[f"{name}/{label}"] = {
+                "model": name, "variant": label, "steps": len(cases),
                 "objects": k, "object_rows_mean": float(np.mean(obj_rows)),
                 "points": filt.model.m, "rows_mean": float(np.mean(rows)), "step_us": timing_stats(step_us),
-                "qp_us": timing_stats(qp_us), "field_query_us": timing_stats(query_us),
+                "field_query_us": timing_stats(query_us),
                 "intervening_fraction": hits / len(cases), "fallback_fraction": fallbacks / len(cases),
                 "slack_fraction": slack / len(cases),
             }
-            if paced_hz > 0 and not k and which == "after" and solver == "active_set" and (
-                    backend == "numba" or not HAVE_NUMBA):
-                paced[f"{name}/{backend}"] = paced_steps_us(filt, grid, cases[:paced_steps], 1.0 / paced_hz)
+            if paced_hz > 0 and not k and which == "after":
+                paced[name] = paced_steps_us(filt, grid, cases[:paced_steps], 1.0 / paced_hz)
     table = Table(title=f"safety filter per step (µs), {steps} steps per row, voxel {voxel} m")
-    for col in ("model", "variant", "solver", "backend", "points", "rows", "step p50", "step p99", "QP p50",
-                "QP p99", "intervening", "brake", "slack"):
-        table.add_column(col, justify="right" if col not in ("model", "variant", "solver", "backend") else "left")
+    for col in ("model", "variant", "points", "rows", "step p50", "step p99", "intervening", "brake", "slack"):
+        table.add_column(col, justify="right" if col not in ("model", "variant") else "left")
     for r in results.values():
-        # The compiled step does not time its QP apart (one call): no QP columns for it.
-        qp = ("–", "–") if r["backend"] == "numba" else (f"{r['qp_us']['median']:.1f}", f"{r['qp_us']['p99']:.1f}")
-        table.add_row(r["model"], r["variant"], r["solver"], r["backend"], str(r["points"]), f"{r['rows_mean']:.1f}",
-                      f"{r['step_us']['median']:.1f}", f"{r['step_us']['p99']:.1f}", *qp,
+        table.add_row(r["model"], r["variant"], str(r["points"]), f"{r['rows_mean']:.1f}",
+                      f"{r['step_us']['median']:.1f}", f"{r['step_us']['p99']:.1f}",
                       f"{100 * r['intervening_fraction']:.0f} %", f"{100 * r['fallback_fraction']:.1f} %",
                       f"{100 * r['slack_fraction']:.1f} %")
     console.print(table)
     ratios = speed_ratios(results)
     if ratios:
-        rtable = Table(title="compiled step (numba) vs the numpy step and the paper's filter (before), same run")
-        cols = ("numba p50", "numba p99", f"+{OBJECTS} obj p50", f"+{OBJECTS} obj p99", "numpy p50", "numpy p99",
-                "before p50", "before p99", "×numpy p50", "×numpy p99", "×before p50", "×before p99", "p99 ≤ 30 µs")
+        rtable = Table(title="the default filter (after) against the paper's (before) on the same step, same run")
+        cols = ("after p50", "after p99", f"+{OBJECTS} obj p50", f"+{OBJECTS} obj p99", "before p50", "before p99",
+                "after/before p50", "after/before p99", "p99 ≤ 30 µs")
         rtable.add_column("model")
         for col in cols:
             rtable.add_column(col, justify="right")
         for name, r in ratios.items():
-            worst = max(r["numba p99"], r[f"+{OBJECTS} obj p99"])
+            worst = max(r["after p99"], r[f"+{OBJECTS} obj p99"])
             rtable.add_row(name, *(f"{r[k]:.1f}" for k in cols[:-1]), "yes" if worst <= 30.0 else "NO")
         console.print(rtable)
     if paced:
         ptable = Table(title=f"steps paced at {paced_hz:g} Hz (the node's loop sleeps between them), one pass each, "
                              "µs; 'wake-up' is a fixed 50-iteration Python loop timed the same way")
-        for col in ("model", "backend", "step p50", "step p99", "wake-up p50", "wake-up p99", "wake-up back-to-back"):
-            ptable.add_column(col, justify="left" if col in ("model", "backend") else "right")
-        for k, r in paced.items():
-            m, b = k.split("/")
-            ptable.add_row(m, b, *(f"{r[q]:.1f}" for q in ("step_p50", "step_p99", "wake_p50", "wake_p99",
-                                                          "wake_back_to_back_p50")))
+        for col in ("model", "step p50", "step p99", "wake-up p50", "wake-up p99", "wake-up back-to-back"):
+            ptable.add_column(col, justify="left" if col == "model" else "right")
+        for m, r in paced.items():
+            ptable.add_row(m, *(f"{r[q]:.1f}" for q in ("step_p50", "step_p99", "wake_p50", "wake_p99",
+                                                       "wake_back_to_back_p50")))
         console.print(ptable)
     htable = Table(title="‖∇²d‖₂ at the double integrator's barrier points (m⁻¹), 3-D grid")
     cols = ("p50", "p99", "p99.9", "max", "off_ridge_max", "over_estimate_mm")
@@ -291,7 +275,7 @@ def main(
     console.print(htable)
     out.mkdir(parents=True, exist_ok=True)
     summary = {"benchmark": "filter", "python": platform.python_version(), "machine": platform.machine(),
-               "steps": steps, "voxel_size": voxel, "results": results, "compiled_vs_numpy": ratios,
+               "steps": steps, "voxel_size": voxel, "results": results, "after_vs_before": ratios,
                "hessian_norm": hessians, "paced": paced, "paced_hz": paced_hz}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"wrote {out / 'summary.json'}")

@@ -109,7 +109,6 @@ def safety(
     extra_methods = [f"{m}, {v.suffix}" for m in (ESDF, SEMANTIC) for v in extra]
     per_pair = len(METHODS) + len(extra_methods)
     margins: dict[str, float] = {}
-    backends: dict[str, str] = {}
 
     rollouts: list[Rollout] = []
     maps_info: list[dict] = []
@@ -135,7 +134,6 @@ def safety(
             progress.update(task, description=f"{case.name}: roll-outs")
             for b in built:
                 margins[b.method] = safe.margin_m(b.field)
-                backends[b.method] = safe.backend_on(b.field)
                 if b.method in (ESDF, SEMANTIC):
                     margins.update({f"{b.method}, {k}": c.margin_m(b.field) for k, c in extra_safe.items()})
             for pair in pairs:
@@ -162,7 +160,7 @@ def safety(
     methods_info = {m: dict(margin_m=margins[m],
                             barrier=(extra_safe[m.split(", ", 1)[1]] if m in counterpart else safe).barrier,
                             interpolation=(extra_safe[m.split(", ", 1)[1]] if m in counterpart else safe).interpolation,
-                            field=counterpart.get(m, m), backend=backends[counterpart.get(m, m)])
+                            field=counterpart.get(m, m))
                     for m in (*METHODS, *extra_methods)}
     groups = [g.name for g in risk.groups]
     t3 = {g: {"esdf": summarise(rollouts, mp_esdf, ESDF, g).as_dict(),
@@ -176,9 +174,7 @@ def safety(
           f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), "",
           safety_table({**t2, **t_extra, **{f"{m} – {g}": {**t3[g][k], "margin_m": margins[m]} for g in groups
                                             for m, k in ((ESDF, "esdf"), (SEMANTIC, "semantic"))}}, n_pairs,
-                       barrier=safe.barrier), "",
-          "Filter backend per method (the computation time depends on it): "
-          + ", ".join(f"{m} `{backends[m]}`" for m in METHODS) + ".", ""]
+                       barrier=safe.barrier), ""]
     (out / "tables.md").write_text("\n".join(md))
     per_traj = [dict(pair=r.pair, scene=r.scene, method=r.method, group=r.group, progress=r.progress,
                      reached=r.reached,
