@@ -1,4 +1,5 @@
-"""The safety filter's quadratic program and its two solvers.
+"""The safety filter's quadratic program in numpy and OSQP: the oracles of its compiled QP
+(``services/safety_filter/compiled.py``).
 
 Every barrier model leads to the same small problem in its input u ∈ Rⁿ (n ≤ 3):
 
@@ -18,7 +19,7 @@ Two solvers return the same answer:
   satisfied neither by a primal step nor by releasing an active row.
 * :class:`OsqpSolver` — OSQP, set up once with a fixed sparsity pattern for (n, m) and then
   only updated (values of P, q, A, l, u), warm started, silent, with solution polishing so
-  that active rows hold to solver precision. It is the general solver and the fallback.
+  that active rows hold to solver precision.
 
 Both report ``infeasible`` (no u satisfies the rows within the bounds) or ``failed``
 (numerical trouble) instead of returning a doubtful u; the caller then brakes.
