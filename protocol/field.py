@@ -24,10 +24,9 @@ z-gradient and the z rows of the Hessian are zero.
 *inside* when it lies within the hull of voxel centres, ``origin ≤ p ≤ origin + voxel_size ·
 (shape − 1)`` per axis (x and y only for a slice), with a 1e-9 voxel tolerance. That is the
 region where the distance is an *interpolation* of stored voxels. In the half voxel beyond the
-outer centres (the rest of the outer voxels' cubes, which the query service used to count as
-map) the interpolant has no data on the far side: a value there would be the border layer
-clamped or extrapolated — and the 4-point stencil already has to invent its outer layer for the
-derivatives at the border. So the conservative rule is kept: nothing invented is called map,
+outer centres (the rest of the outer voxels' cubes) the interpolant has no data on the far side:
+a value there would be the border layer clamped or extrapolated — and the 4-point stencil already
+has to invent its outer layer for the derivatives at the border. So nothing invented is called map,
 and a client is never told "in map" where the filter brakes. Outside points are evaluated at
 the nearest point of the hull and flagged; the filter brakes on them and the query service
 answers them with the value of unknown space (:func:`answer_query`).

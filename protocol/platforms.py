@@ -10,26 +10,25 @@ because the simulator and the bridge both steer with it. It lives in the wire-co
 because both ``edge/`` and ``services/`` may import it, and an
 external client modelling the robot can too (pydantic only).
 
-Sources, and which value won where the copies disagreed:
+Sources, and which value is used where they disagree:
 
-* body 0.322 × 0.220 m: the safety filter's footprint so far. Trossen's copy of the LIMO
-  documentation (``TrossenRobotics/agilex_limo_docs``, ``specifications/limo.rst``) lists
-  322 × 215 × 247 mm; the wider figure stays, the conservative one for a barrier.
+* body 0.322 × 0.220 m. Trossen's copy of the LIMO documentation
+  (``TrossenRobotics/agilex_limo_docs``, ``specifications/limo.rst``) lists 322 × 215 × 247 mm;
+  the wider figure is the conservative one for a barrier.
 * wheelbase 0.2 m, track 0.172 m, inner-wheel steering ±0.488 rad (central ~0.408 rad, minimum
   turning radius ~0.46 m; AgileX's pylimo has 0.48869), about 1 m/s no-load:
   ``shared/reference/hardware_and_zenoh.md``. (AgileX's ROS driver, ``agilexrobotics/
   limo_ros`` ``limo_base/include/limo_base/limo_params.h``, has track 0.176 m and a 1.5 m/s
-  ``max_linear_speed`` that its ``limo_driver.cpp`` never applies; the reference's figures stay.)
+  ``max_linear_speed`` that its ``limo_driver.cpp`` never applies; the reference's figures are used.)
 * yaw rate 2.0 rad/s: no datasheet gives one (the chassis itself only bounds wheel speed, so
-  differential ω could reach 2·1.0/0.172 ≈ 11.6 rad/s). The bridge's 2.0 wins over the
-  simulator's 2.5: it is what the real robot obeys, and the filter plans with 2.0 too.
+  differential ω could reach 2·1.0/0.172 ≈ 11.6 rad/s); the bridge, the simulator and the filter
+  all use this one figure.
 * camera mount 0.15 m forward, 0.1 m up, looking ahead (``CameraMount``): the simulator's LIMO
   camera (scenarios default to this one); no datasheet gives the real unit's, so a bring-up
   measures it (docs/deployment.md) and sets ``camera`` in the platform description.
 * acceleration 1.5 m/s², yaw acceleration 6 rad/s²: no datasheet figure either; the simulator's
   gentle first-order actuator for a 4.2 kg robot. A real unit should be measured. The filter's
-  unicycle assumed 3.0 m/s² of deceleration; it now plans with these 1.5 (its gain cap 2 a / v
-  halves, still above every default risk group's gain).
+  unicycle plans with these 1.5 m/s² (its gain cap 2 a / v stays above every default risk group's gain).
 """
 
 from __future__ import annotations

@@ -81,7 +81,7 @@ class JoystickSettings(NodeSettings, GatewayConfig):
     @field_validator("deadman")
     @classmethod
     def _deadman(cls, v: str) -> str:
-        # An empty value once meant "no dead-man": a blank in a config file must not disable it.
+        # Refused, not read as "no dead-man": a blank in a config file must not disable it.
         v = v.strip()
         if not v:
             raise ValueError(f"deadman is empty: name the dead-man button (e.g. BTN_TRIGGER), or {NO_DEADMAN!r} "

@@ -295,9 +295,7 @@ def field_barrier(field: DistanceField, radius: float, hessian: bool = True) -> 
     ``repro/table_metrics/README_success6_final_experiment.md`` § 5 and 6) is not in their release.
 
     ``hessian=False`` sets ∇²h = 0: a named variant (``authors_bench.ESDF_NO_HESSIAN``) reported
-    beside the paper's, never instead of it. It was once the default here because the curvature
-    term on the grid's ridges looked like it flung robots out of the room; over 6 scenes no QP
-    failed and no robot left the room with it, and it lowered the full-run collision rate."""
+    beside the paper's, never instead of it."""
 
     def barrier(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         s = field.query(p[None], hessian=hessian)

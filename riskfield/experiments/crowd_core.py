@@ -101,7 +101,7 @@ FREEZE_SPEED = 0.02
 CAMERA_HFOV_DEG = 90.0  # the crowd bench's camera (scenarios.CROWD_HFOV_DEG)
 SEEN_RANGE = 4.0
 SEEN_RAYS = 91
-#: targets of the issue (``summarise``: which episodes miss them)
+#: the families' targets (``summarise``: which episodes miss them)
 SUCCESS_TARGET = 0.95
 RESULTS_BEGIN, RESULTS_END = "<!-- crowd-core:begin -->", "<!-- crowd-core:end -->"
 

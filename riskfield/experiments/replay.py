@@ -4,12 +4,12 @@ and perception's backend competing for the CPU.
 
 **Recording** (``record``, in this process, before any service starts): the demo's room, the robot
 turning on the spot at 10 Hz frames, rendered once per frame. Each render feeds two ``sim``
-perception backends: today's (a full-size truth, full-size frames of HxWx3 float32 points) and
-the compact one (the simulator's ``sim/truth`` at ``truth_stride``, frames sent as
-``perception.compact`` makes them). The compact frames are what is replayed; today's give the
-message size before, and the reconstruction error of the compact form against today's frame
-(``compact`` of today's frame, rebuilt by ``PerceptionFrame.pointmap``, against today's points at
-the same pixels: the float16 rounding and the points a fused keyframe put off their pixel's ray).
+perception backends: the full-size one (a full-size truth, full-size frames of HxWx3 float32 points)
+and the compact one (the simulator's ``sim/truth`` at ``truth_stride``, frames sent as
+``perception.compact`` makes them). The compact frames are what is replayed; the full-size ones give
+the full message size and the reconstruction error of the compact form (``compact`` of a full-size
+frame, rebuilt by ``PerceptionFrame.pointmap``, against its points at the same pixels: the float16
+rounding and the points a fused keyframe put off their pixel's ray).
 
 **Replay** (``replay``): mapping and the safety filter as the demo runs them, each in its own
 process over a loopback router; this process publishes the recorded frames at the camera rate,
@@ -64,18 +64,18 @@ class Recording:
     states: list[RobotState]
     """The robot's state at each frame."""
     full_bytes: list[int] = field(default_factory=list)
-    """Today's frame, encoded."""
+    """The full-size frame, encoded."""
     compact_bytes: list[int] = field(default_factory=list)
     errors_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    """Per pixel at 1–4 m: |compact(today's frame) rebuilt − today's point| (m)."""
+    """Per pixel at 1–4 m: |compact(full-size frame) rebuilt − full-size point| (m)."""
     truth_bytes: tuple[int, int] = (0, 0)
     """``sim/truth`` encoded: full size, and at ``truth_stride``."""
     process_ms: dict[str, list[float]] = field(default_factory=lambda: {"full": [], "compact": []})
-    """The ``sim`` backend's ``process`` of today's full-size truth, and of the strided one (+ ``compact``)."""
+    """The ``sim`` backend's ``process`` of the full-size truth, and of the strided one (+ ``compact``)."""
     codec_ms: dict[str, list[float]] = field(default_factory=lambda: {"full": [], "compact": []})
-    """Encode + decode (the receiver's validation included) of today's frame and of the compact one."""
+    """Encode + decode (the receiver's validation included) of the full-size frame and of the compact one."""
     maps: dict[str, Any] = field(default_factory=dict)
-    """The ESDF slice built from today's frames against those built from their compact form and from
+    """The ESDF slice built from the full-size frames against those built from their compact form and from
     the compact pipeline's frames (``map_agreement``)."""
 
     def summary(self) -> dict[str, Any]:
@@ -94,7 +94,7 @@ class Recording:
 
 def record(n: int, camera_hz: float = 10.0, turn_rad_s: float = 0.4, fmt: str = "float16", seed: int = 0,
            compare: bool = True) -> Recording:
-    """``n`` frames of the demo's room (module doc); ``compare``: also today's path, for the sizes and errors."""
+    """``n`` frames of the demo's room (module doc); ``compare``: also the full-size path, for the sizes and errors."""
     from riskfield.services.perception.compact import compact, frame_stride
     from riskfield.services.perception.node import PerceptionSettings
     from riskfield.services.perception.sim_backend import SimBackend, SimBackendConfig

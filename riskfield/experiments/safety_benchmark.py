@@ -152,10 +152,10 @@ def camera_poses(case: SceneCase, n: int, height: float = 1.3, high: float = 2.1
 
     Every other frame of each ring is taken at ``high`` instead of ``height``: the pairs fly up
     to 5 cm below the top of their object (``sampling``), and from 1.3 m with the 31° tilt and a
-    73° vertical field of view no frame sees above ≈ 1.7 m near an object — the top of a 1.94 m
-    person was never observed, so every map (and the robot flying over it) had it 0.12 m too
-    low. A stream that never looks at the space the robot is sent into tests exploration, not
-    the field or the filter; the higher frames see the tops and keep the same frame count."""
+    73° vertical field of view no frame sees above ≈ 1.7 m near an object, so the top of a 1.94 m
+    person would never be observed and every map would hold it 0.12 m too low. A stream that never
+    looks at the space the robot is sent into tests exploration, not the field or the filter; the
+    higher frames see the tops and keep the same frame count."""
     centre = (case.lo + case.hi) / 2
     half = (case.hi - case.lo) / 2
     poses = []

@@ -10,7 +10,7 @@ the speed cap of ``scale_guard``) with the default unicycle filter.
 **The world.** A floor (z = 0) and a wall across the lane whose face is ``distance`` metres ahead of
 the camera at the start. The LIMO starts at the origin facing it, its camera where the platform
 description mounts it (``protocol.platforms.LIMO.camera``); the operator's reference is 0.4 m/s
-straight ahead (the issue's check).
+straight ahead.
 
 **Perception** at 12.5 Hz: a 64×48 pinhole camera (90° field of view) ray-casts floor and wall
 (labels ``floor`` and ``wall``), ``Degrader`` adds range-growing depth noise, confidence and label
@@ -19,8 +19,8 @@ similarity, plus ``POSE_NOISE`` of tracking jitter per axis), and the aligner mo
 odometry frame. **The map** is the wall where the newest aligned frame's wall points in the lane put
 it (their median x): the mapper's present layer with the newest frame only. Two ways to align:
 ``aligned`` (the product: the online estimate, its uncertainty to the filter on
-``perception/alignment``) and ``anchored`` (the former behaviour: SLAM's world placed once at the
-first image, never rescaled; no alignment reaches the filter).
+``perception/alignment``) and ``anchored`` (perception with ``align`` off: SLAM's world placed once
+at the first image, never rescaled; no alignment reaches the filter).
 
 **The robot**: the filter's command after two steps of delay, the LIMO's acceleration limits
 (``crowd_core``'s actuator), integrated by the filter's own model; the filter and the aligner see
@@ -359,7 +359,7 @@ def stack_run(stack: Any, scenario: Path, face: float, scale: float, mode: str, 
               max_s: float = 30.0) -> dict[str, Any]:
     """One drive through simulator → perception (``sim``, SLAM errors on) → mapping → safety filter.
     ``aligned`` runs perception with ``align=true``; ``anchored`` without (its world is then the SLAM
-    world anchored at the first camera, as before). Odometry slip is off here: the simulator's state
+    world anchored at the first camera). Odometry slip is off here: the simulator's state
     is both the odometry perception aligns to and the filter's."""
     from riskfield.experiments.stack import FAST_FILTER, recording
     from riskfield.protocol import Alignment, SafetyStatus

@@ -74,7 +74,7 @@ def quat_mul(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) -
 
 def wrap_angle(a: float) -> float:
     """The angle in [−π, π) equal to ``a`` modulo 2π: the one wrap every heading error and
-    integrated yaw uses (the navigator's atan2 form gave (−π, π], the others this range)."""
+    integrated yaw uses."""
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
@@ -139,7 +139,7 @@ def transform_points(T: np.ndarray, P: np.ndarray, dtype: type = np.float64) -> 
     """``R·p + t`` for every row p of ``P`` (..., 3), with ``T`` a 4x4 (or 3x4) transform.
 
     Not ``P @ R.T``: that calls a multi-threaded BLAS gemm whose threads spin-wait; on a small
-    machine shared with other processes it turned a 1 ms product into 50–100 ms. Three fused
+    machine shared with other processes a 1 ms product can take 50–100 ms. Three fused
     multiply-adds per output column are as fast unloaded and never stall.
     """
     P = np.asarray(P)

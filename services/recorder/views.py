@@ -9,11 +9,10 @@ files of https://docs.foxglove.dev/docs/visualization/message-schemas/introducti
 registered with ``mcap_protobuf.schema.build_file_descriptor_set`` (mcap-protobuf-support,
 https://mcap.dev/guides/python/protobuf): schema name = the message's full protobuf name
 (``foxglove.Grid``), schema encoding ``protobuf``, data = a serialized ``FileDescriptorSet``.
-Picked over ``foxglove-sdk`` by measurement (a 20,000-point cloud): both give the same protobuf
-bytes (400,088 vs 400,090 B) at the same encode cost (44 vs 42 µs), but the SDK is a 54 MB native
-wheel whose writer owns the file, while these two packages are about 3 MB with protobuf and write
-through the ``mcap`` Writer the raw channels use (one file, one chunking and CRC policy), and
-``mcap_protobuf.decoder.DecoderFactory`` reads the views back.
+Not ``foxglove-sdk`` here: it gives the same protobuf bytes at the same encode cost, but it is a
+54 MB native wheel whose writer owns the file, while these two packages are about 3 MB with
+protobuf and write through the ``mcap`` Writer the raw channels use (one file, one chunking and
+CRC policy), and ``mcap_protobuf.decoder.DecoderFactory`` reads the views back.
 Messages without a Foxglove counterpart become schemaless JSON (message encoding ``json``,
 schema id 0, as https://docs.foxglove.dev/docs/sdk/schemas describes).
 

@@ -3,25 +3,23 @@
 Why: glibc's malloc keeps freed memory in its arenas and returns it to the kernel only from the top
 of the main heap. A node that handles large messages from many sessions over its life (the router
 forwards every perception frame, and a restarted perception is a new session with new transport
-buffers) frees megabytes that sit between live blocks and stay resident. The soak
-(``tests/deploy/test_soak.py``) measured the router growing 5.6-10.4 % over 10 minutes of
-perception restarts, flat between restarts: fragmentation, not a leak.
+buffers) frees megabytes that sit between live blocks and stay resident: the router's RSS grows
+with each perception restart and stays flat between them (``tests/deploy/test_soak.py``):
+fragmentation, not a leak.
 
 ``malloc_trim(0)`` (glibc >= 2.8) returns every whole free page of every arena with
-``madvise(MADV_DONTNEED)``; measured 0.02 ms median, 0.6 ms worst on a fragmented 1 GB heap here,
-so a node calls it every second on its loop (``NodeSettings.heap_trim_s``). On other C libraries (musl, macOS) there is
-no such call and ``HeapTrimmer.available`` is False: trimming is a no-op there.
+``madvise(MADV_DONTNEED)``; it costs ~0.02 ms median, 0.6 ms worst on a fragmented 1 GB heap, so a
+node calls it every second on its loop (``NodeSettings.heap_trim_s``). On other C libraries (musl,
+macOS) there is no such call and ``HeapTrimmer.available`` is False: trimming is a no-op there.
 
 The opposite need: a node that allocates and frees the same large arrays many times a second
 (the mapping node's 3-D ESDF: about 25 MB of arrays of 0.5-4 MB per update) should *keep* them
 between updates. glibc returns the top of the heap to the kernel at every ``free`` once more than
 ``M_TRIM_THRESHOLD`` is free there (dynamically twice the mmap threshold, here 8 MB), so each
-update took 5200 fresh pages from the kernel (page faults and zeroing): 9.7 ms per 3-D ESDF
-against 7.4 ms with ``keep_freed_heap`` (``riskfield bench mapping``, the bench room, one process,
-same run). It raises the
-trim threshold and pins the mmap threshold (setting either turns glibc's dynamic thresholds
-off): freed arrays stay in the heap for the next update; the periodic ``malloc_trim`` still
-gives everything back once a second.
+update would take ~5200 fresh pages from the kernel (page faults and zeroing: about a quarter of a
+3-D ESDF update). ``keep_freed_heap`` raises the trim threshold and pins the mmap threshold
+(setting either turns glibc's dynamic thresholds off): freed arrays stay in the heap for the next
+update; the periodic ``malloc_trim`` still gives everything back once a second.
 """
 
 from __future__ import annotations
@@ -57,7 +55,7 @@ _MMAP_THRESHOLD_MAX = 32 << 20  # glibc's ceiling for M_MMAP_THRESHOLD on 64-bit
 
 def keep_freed_heap(keep_mb: int) -> bool:
     """Let this process keep up to ``keep_mb`` MB of freed heap for reuse (see the module
-    docstring): arrays up to 32 MB come from the heap and freeing them no longer trims it. False
+    docstring): arrays up to 32 MB come from the heap and freeing them does not trim it. False
     (nothing changed) for 0 or where there is no glibc ``mallopt``."""
     mallopt = _libc("mallopt", [ctypes.c_int, ctypes.c_int], ctypes.c_int) if keep_mb > 0 else None
     if mallopt is None:

@@ -374,7 +374,7 @@ class Node:
         d = np.asarray(self._durations, dtype=float) * 1e3 if self._durations else np.zeros(1)
         def per_key(counts: Iterable[tuple[str, int]]) -> dict[str, int]:
             # Counted per contract key: cmd/ref/<source>, and a subscription on cmd/ref/**, count as
-            # cmd/ref (protocol.keys.base_of), as they did before sources had keys of their own.
+            # cmd/ref (protocol.keys.base_of).
             out: dict[str, int] = {}
             for key, n in counts:
                 relative = self.keys.relative(key)

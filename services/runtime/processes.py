@@ -172,7 +172,7 @@ class RestartPolicy:
         return min(self.backoff_max_s, self.backoff_s * 2.0 ** max(0, attempt - 1))
 
 
-#: Today's fail-fast behaviour: no restarts, the stack stops when a required child exits.
+#: Fail-fast: no restarts, the stack stops when a required child exits.
 NO_RESTART = RestartPolicy(enabled=False)
 
 

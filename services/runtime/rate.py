@@ -2,9 +2,9 @@ r"""A token bucket: an average-rate cap that does not lock onto a timer's phase.
 
 A cap of "at most one every :math:`1/r` s since the last" refuses an event that comes a little
 early (jitter upstream) and defers it to whatever fires next, typically a node timer; from then
-on the events follow that timer's phase, each late by up to a timer period. The mapping node
-had exactly this: at a 10 Hz camera and a 10 Hz ESDF cap, a third of the frames never reached
-an ESDF (``MappingSettings.esdf_rate_hz``).
+on the events follow that timer's phase, each late by up to a timer period: with a 10 Hz camera
+and a 10 Hz ESDF cap (``MappingSettings.esdf_rate_hz``) about a third of the frames would reach no
+ESDF.
 
 The bucket holds up to :math:`b` tokens and refills at :math:`r` per second; an event is allowed
 when it can take a whole token. Over any interval of length :math:`T` at most :math:`rT + b`

@@ -82,7 +82,7 @@ def endpoint_config(mode: str = "client", connect: Sequence[str] = (), listen: S
         # Zenoh's default (zenoh-python 1.x: transport/shared_memory enabled with
         # transport_optimization, a 16 MiB pool per session for messages over 3 KB) makes every
         # same-host peer keep the pool of each session it ever talked to: a router or a mapper
-        # grew ~20 MB per perception restart in the soak (tests/deploy/test_soak.py). Loopback
+        # grows ~20 MB per perception restart (tests/deploy/test_soak.py). Loopback
         # TCP carries our images well, and containers do not share /dev/shm anyway; a user's
         # own Zenoh config file decides for itself.
         cfg.insert_json5("transport/shared_memory/enabled", "false")
