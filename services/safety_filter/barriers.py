@@ -49,6 +49,7 @@ braking-distance barrier (:class:`DoubleIntegrator`, default) instead of the pap
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -111,6 +112,7 @@ class BarrierModel:
                                                                      spec.lo, spec.hi)
         self.di, self.df = spec.packed
         self.dl = spec.layout
+        self.desc = (self.di, self.df, self.dl)  # the packed description as model's functions take it
 
     @property
     def n(self) -> int:
@@ -138,8 +140,8 @@ class BarrierModel:
     def _flow(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None):
         ang = np.zeros(3) if angular is None else _f64(angular)
         pos1, rot1, vel1, w1 = np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3)
-        mdl.flow(self.di, self.df, self.dl, _f64(s.position), _f64(s.rotation), _f64(s.velocity), _f64(u), ang,
-                 float(dt), pos1, rot1, vel1, w1, np.empty((3, 3)), np.empty((3, 3)))
+        mdl.flow(self.desc, (_f64(s.position), _f64(s.rotation), _f64(s.velocity)), _f64(u), ang, float(dt),
+                 (pos1, rot1, vel1, w1), (np.empty((3, 3)), np.empty((3, 3))))
         return pos1, rot1, vel1, w1
 
     def predicted_points(self, s: FilterState, u: np.ndarray, dt: float, angular: np.ndarray | None) -> np.ndarray:
@@ -189,7 +191,7 @@ class BarrierModel:
         hess = _NO_HESSIAN if sample.hessian is None else _f64(sample.hessian)
         g = np.zeros((m, mdl.GAIN_COLUMNS))
         g[:, : np.asarray(gains).shape[1]] = gains
-        mdl.point_rows(self.di, self.df, self.dl, self.rotation(s), _f64(angular), _f64(s.velocity),
+        mdl.point_rows(self.desc, (self.rotation(s), _f64(angular), _f64(s.velocity)),
                        _f64(sample.gradient), hess, _f64(h), g, _STILL, a, b)
         return a, b
 
@@ -302,6 +304,26 @@ class SingleIntegrator(BarrierModel):
         self.dim, self.w_max = dim, w_max
 
 
+@dataclass(frozen=True)
+class Braking:
+    """The double integrator's barrier (``DoubleIntegrator``): ``kind`` "braking" or "hocbf", the
+    braking barrier's deceleration as a ``fraction`` of a_max, its class-K ``rate_length`` ℓ (inf:
+    linear) and ``speed_floor`` s₀ (None: a_b / k₂ of each row's gains)."""
+
+    kind: str = "braking"
+    fraction: float = 0.7
+    rate_length: float = math.inf
+    speed_floor: float | None = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("braking", "hocbf") or not 0 < self.fraction <= 1:
+            raise ValueError("barrier is 'braking' or 'hocbf', brake_fraction in (0, 1]")
+        if not self.rate_length > 0:
+            raise ValueError("brake_rate_length must be positive (inf: the linear class-K function)")
+        if self.speed_floor is not None and not self.speed_floor > 0:
+            raise ValueError("brake_speed_floor must be positive (None: a_b / k₂ of each row's gains)")
+
+
 class DoubleIntegrator(BarrierModel):
     """ṗ = v, v̇ = u (world-frame acceleration), |u_i| ≤ a_max, with one of two barriers.
 
@@ -387,22 +409,16 @@ class DoubleIntegrator(BarrierModel):
 
     def __init__(self, radius: float | np.ndarray = 0.15, a_max: float = 3.0, k_v: float = 2.0, dt: float = 0.02,
                  points: list[tuple[float, float, float]] | None = None, v_max: float = 1.0,
-                 barrier: str = "braking", brake_fraction: float = 0.7, brake_rate_length: float = math.inf,
-                 brake_speed_floor: float | None = 1e-3):
-        if barrier not in ("braking", "hocbf") or not 0 < brake_fraction <= 1:
-            raise ValueError("barrier is 'braking' or 'hocbf', brake_fraction in (0, 1]")
-        if not brake_rate_length > 0:
-            raise ValueError("brake_rate_length must be positive (inf: the linear class-K function)")
-        if brake_speed_floor is not None and not brake_speed_floor > 0:
-            raise ValueError("brake_speed_floor must be positive (None: a_b / k₂ of each row's gains)")
+                 barrier: Braking = Braking()):
         super().__init__(ModelSpec(
             "double3d", order=2, attitude="none", lin=_E, ang=np.zeros((3, 3)), passthrough=(1.0, 1.0, 1.0),
             offsets=np.array(points or [(0.0, 0.0, 0.0)]), radii=radius, weights=np.ones(3),
-            lo=-np.full(3, a_max), hi=np.full(3, a_max), barrier=barrier, a_brake=brake_fraction * a_max,
-            speed_floor=brake_speed_floor or 0.0, rate_length=brake_rate_length, a_max=a_max, k_v=k_v, dt=dt,
+            lo=-np.full(3, a_max), hi=np.full(3, a_max), barrier=barrier.kind, a_brake=barrier.fraction * a_max,
+            speed_floor=barrier.speed_floor or 0.0, rate_length=barrier.rate_length, a_max=a_max, k_v=k_v, dt=dt,
             point_speed=v_max))
-        self.k_v, self.dt, self.v_max, self.kind, self.a_max = k_v, dt, v_max, barrier, a_max
-        self.a_brake, self.rate_length, self.speed_floor = brake_fraction * a_max, brake_rate_length, brake_speed_floor
+        self.k_v, self.dt, self.v_max, self.kind, self.a_max = k_v, dt, v_max, barrier.kind, a_max
+        self.a_brake, self.rate_length, self.speed_floor = barrier.fraction * a_max, barrier.rate_length, \
+            barrier.speed_floor
 
     @staticmethod
     def roots(alpha1: float, alpha2: float) -> tuple[float, float]:

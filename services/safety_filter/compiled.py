@@ -460,8 +460,8 @@ def _points(wf, wi, lf, li, dl, predictive):
     mdl.place_points(df, dl, pos, r, pts, 0)
     if predictive:
         pos1, rot1, r1 = view1(wf, lf, F.pos1), view2(wf, lf, F.rot1), view2(wf, lf, F.s1)
-        mdl.flow(di, df, dl, pos, rot, vel, view1(wf, lf, F.u_box), view1(wf, lf, F.ang), _scalar(wf, lf, F.dt),
-                 pos1, rot1, view1(wf, lf, F.vel1), view1(wf, lf, F.w1), r1, view2(wf, lf, F.s2))
+        mdl.flow((di, df, dl), (pos, rot, vel), view1(wf, lf, F.u_box), view1(wf, lf, F.ang), _scalar(wf, lf, F.dt),
+                 (pos1, rot1, view1(wf, lf, F.vel1), view1(wf, lf, F.w1)), (r1, view2(wf, lf, F.s2)))
         mdl.attitude_rotation(di, rot1, r1)
         mdl.place_points(df, dl, pos1, r1, pts, di[DescInts.M])
 
@@ -514,12 +514,13 @@ def _rows(wf, wi, lf, li, dl, m, n, predictive):
     its group. Returns the row count."""
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     rot, ang, vel = view2(wf, lf, F.rot), view1(wf, lf, F.ang), view1(wf, lf, F.velocity)
+    desc, motion = (di, df, dl), (rot, ang, vel)
     grad, hess, gains = view2(wf, lf, F.grad), view3(wf, lf, F.hess), view2(wf, lf, F.gains)
     hb, still, A, B = view1(wf, lf, F.hb), view1(wf, lf, F.still), view2(wf, lf, F.A), view1(wf, lf, F.B)
     rgq, inside, rsrc = view1(wi, li, I.rgq), view1(wi, li, I.inside), view1(wi, li, I.rsrc)
     ryield = view1(wi, li, I.ryield)
     for i in range(m):
-        B[i] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[i], hess[i], hb[i], gains[i], still, A[i])
+        B[i] = mdl.point_row(desc, motion, i, grad[i], hess[i], hb[i], gains[i], still, A[i])
         rsrc[i] = i
         ryield[i] = gains[i, YIELD] > 0.0
     nrows = m
@@ -531,8 +532,7 @@ def _rows(wf, wi, lf, li, dl, m, n, predictive):
                 diff = max(diff, abs(grad[j, a] - grad[i, a]))
             same = diff < 0.05 and rgq[j] == rgq[i]
             if inside[j] and not same:
-                B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[j], hess[j], hb[i], gains[j], still,
-                                         A[nrows])
+                B[nrows] = mdl.point_row(desc, motion, i, grad[j], hess[j], hb[i], gains[j], still, A[nrows])
                 rsrc[nrows] = j
                 ryield[nrows] = gains[j, YIELD] > 0.0
                 nrows += 1
@@ -547,6 +547,7 @@ def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
     row count, the objects with rows)."""
     di, df = view1(wi, li, I.desc), view1(wf, lf, F.desc)
     rot, ang, vel = view2(wf, lf, F.rot), view1(wf, lf, F.ang), view1(wf, lf, F.velocity)
+    desc, motion = (di, df, dl), (rot, ang, vel)
     pts, grad, hess, gains = view2(wf, lf, F.pts), view2(wf, lf, F.grad), view3(wf, lf, F.hess), view2(wf, lf, F.gains)
     objects, when, v_ref, wobj = view2(wf, lf, F.objects), view1(wf, lf, F.when), view1(wf, lf, F.v_ref), \
         view1(wf, lf, F.wobj)
@@ -558,7 +559,7 @@ def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
     mdl.reference_velocity(di, df, dl, rot, vel, view1(wf, lf, F.u_box), v_ref)
     for k in range(nobj):
         g = min(int(objects[k, mdl.OBJ_GROUP]), nt - 1)
-        when[k] = mdl.object_course(df, dl, pts, v_ref, vel, objects[k], table[g, mdl.MARGIN], delta, horizon, a_stop)
+        when[k] = mdl.object_course(desc, pts, v_ref, vel, objects[k], table[g, mdl.MARGIN], delta, horizon, a_stop)
     cap = _scalar(wf, lf, F.alpha_cap)
     first_order = view1(wi, li, I.first_order)[0]
     made = 0
@@ -580,9 +581,9 @@ def _object_rows(wf, wi, lf, li, dl, m, n, nrows, table):
             gains[j + 1, c] = gains[j, c]
         for part in range(2):  # its body, then the capsule it sweeps (model.object_sample)
             jj = j + part
-            i, hbo = mdl.object_sample(df, dl, pts, objects[kb], gains[jj], delta, sweep * part, grad[jj], hess[jj],
+            i, hbo = mdl.object_sample(desc, pts, objects[kb], gains[jj], delta, sweep * part, grad[jj], hess[jj],
                                        wobj)
-            B[nrows] = mdl.point_row(di, df, dl, rot, ang, vel, i, grad[jj], hess[jj], hbo, gains[jj], wobj, A[nrows])
+            B[nrows] = mdl.point_row(desc, motion, i, grad[jj], hess[jj], hbo, gains[jj], wobj, A[nrows])
             rsrc[nrows] = jj
             ryield[nrows] = 1
             nrows += 1
@@ -741,7 +742,7 @@ def step_kernel(wf, wi, lf, li, dl, field, table):
     _sample(wf, wi, lf, li, field, table, 2 * m if predictive else m, order)
     dist, grad, hb = view1(wf, lf, F.dist), view2(wf, lf, F.grad), view1(wf, lf, F.hb)
     rgq, inside = view1(wi, li, I.rgq), view1(wi, li, I.inside)
-    kc = mdl.barriers(di, df, dl, dist, grad, view1(wf, lf, F.velocity), view2(wf, lf, F.gains),
+    kc = mdl.barriers((di, df, dl), dist, grad, view1(wf, lf, F.velocity), view2(wf, lf, F.gains),
                       _scalar(wf, lf, F.delta), view1(wi, li, I.margins)[0] != 0, hb, view1(wf, lf, F.still))
     h_crit = dist[kc] - view1(df, dl, D.radii)[kc]
     out_f[0], out_i[1] = h_crit, rgq[kc]

@@ -21,7 +21,7 @@ from riskfield.protocol import ade20k
 from riskfield.protocol.platforms import LIMO, PlanarPlatform
 
 from ..fields.grid import Interpolation
-from .barriers import BarrierModel, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
+from .barriers import BarrierModel, Braking, DoubleIntegrator, SingleIntegrator, UnicycleLookahead, disc_cover
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -383,6 +383,6 @@ class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
         if self.model in ("single2d", "single3d"):
             return SingleIntegrator(2 if self.model == "single2d" else 3, radii, self.v_max,
                                     self.vz_max, pts, self.w_max)  # type: ignore[arg-type]
+        braking = Braking(self.barrier, self.brake_fraction, self.brake_rate_length, self.brake_speed_floor)
         return DoubleIntegrator(radii, self.a_max, self.k_v, self.dt, pts, self.v_max,  # type: ignore[arg-type]
-                                self.barrier, self.brake_fraction, self.brake_rate_length,
-                                self.brake_speed_floor)
+                                braking)

@@ -147,7 +147,7 @@ class Evader:
         margin = float(gains[min(int(obj[mdl.OBJ_GROUP]), gains.shape[0] - 1)][mdl.MARGIN])
         # Both of object_course's futures are the body moving on at v, as the retreat would: its
         # braking future with a vanishing deceleration never slows within the horizon.
-        return mdl.object_course(self.model.df, self.model.dl, pts, v, v, np.ascontiguousarray(obj, np.float64),
+        return mdl.object_course(self.model.desc, pts, v, v, np.ascontiguousarray(obj, np.float64),
                                  margin, self.delta, self.params.collision_horizon_s, 1e-12)
 
     def _clear(self, pts: np.ndarray, v: np.ndarray, field: DistanceField, floor: FreeFloor) -> bool:

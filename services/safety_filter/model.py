@@ -262,11 +262,17 @@ def place_points(df, dl, pos, rot_att, pts, row0):
 
 
 @jit
-def flow(di, df, dl, pos, rot, vel, u, ang, dt, pos1, rot1, vel1, w1, s1, s2):
-    """The exact motion over dt with u held (zero-order hold) from the pose (pos, rot) and velocity
-    vel: pose (pos1, rot1 — the attitude rotation for order 1), world velocity vel1 and angular
-    velocity w1. Order 1: the body twist (v_b, ω_b) is constant, p₁ = p + R ∫₀ᵗexp(s[ω_b]×)ds v_b,
-    R₁ = R exp(t[ω_b]×) (a straight line or an arc for the unicycle); order 2: p₁ = p + v t + ½ a t²."""
+def flow(desc, start, u, ang, dt, end, scratch):
+    """The exact motion over dt with u held (zero-order hold) from ``start`` = (pos, rot, vel), the
+    pose and world velocity, into ``end`` = (pos1, rot1, vel1, w1): the pose (rot1 the attitude
+    rotation for order 1), world velocity and angular velocity; ``scratch`` two 3×3 arrays.
+    ``desc`` is the packed description (di, df, dl) (:meth:`ModelSpec.pack`). Order 1: the body
+    twist (v_b, ω_b) is constant, p₁ = p + R ∫₀ᵗexp(s[ω_b]×)ds v_b, R₁ = R exp(t[ω_b]×) (a straight
+    line or an arc for the unicycle); order 2: p₁ = p + v t + ½ a t²."""
+    di, df, dl = desc
+    pos, rot, vel = start
+    pos1, rot1, vel1, w1 = end
+    s1, s2 = scratch
     lin, ang_g = view2(df, dl, _D.lin), view2(df, dl, _D.ang)
     pas = view1(df, dl, _D.passthrough)
     n = di[DescInts.N]
@@ -354,9 +360,10 @@ def barrier_value(di, df, dl, hb, grad, vel, wobj, gain):
 
 
 @jit
-def barriers(di, df, dl, dist, grad, vel, gains, delta, margins, hb, wobj):
+def barriers(desc, dist, grad, vel, gains, delta, margins, hb, wobj):
     """hb_i = d_i - r_i - δ (- the group's margin) at the body points, into hb; returns the
     critical point (smallest barrier value). ``wobj`` is a zero vector: the field does not move."""
+    di, df, dl = desc
     radii = view1(df, dl, _D.radii)
     kbest, best = 0, math.inf
     for i in range(radii.shape[0]):
@@ -370,12 +377,14 @@ def barriers(di, df, dl, dist, grad, vel, gains, delta, margins, hb, wobj):
 
 
 @jit
-def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, wobj, a_row):
+def point_row(desc, motion, i, grad, hess, hb, gain, wobj, a_row):
     """The CBF row a·u ≥ b of body point i (module docstring) with the field sample (grad, hess)
     and gains [α, α₁, α₂, margin, yield] of its row, the barrier hb = d - r - δ of point i and the
     velocity ``wobj`` of the obstacle (0 for the field; an object's for :func:`object_sample`):
-    writes a into a_row, returns b. ``rot`` is the attitude rotation, ``ang`` the reference's
-    body rates. The only place the rows are written down."""
+    writes a into a_row, returns b. ``motion`` = (rot, ang, vel): the attitude rotation, the
+    reference's body rates and the world velocity. The only place the rows are written down."""
+    di, df, dl = desc
+    rot, ang, vel = motion
     lin, ang_g = view2(df, dl, _D.lin), view2(df, dl, _D.ang)
     o, pas = view2(df, dl, _D.offsets)[i], view1(df, dl, _D.passthrough)
     gx = rot[0, 0] * grad[0] + rot[1, 0] * grad[1] + rot[2, 0] * grad[2]  # g = Rᵀ∇d
@@ -427,12 +436,11 @@ def point_row(di, df, dl, rot, ang, vel, i, grad, hess, hb, gain, wobj, a_row):
 
 
 @jit
-def point_rows(di, df, dl, rot, ang, vel, grad, hess, hb, gains, wobj, a, b):
+def point_rows(desc, motion, grad, hess, hb, gains, wobj, a, b):
     """Rows of every body point i with the field sample i (grad, hess, gains row i); the field
     does not move (``wobj`` a zero vector)."""
     for i in range(hb.shape[0]):
-        b[i] = point_row(di, df, dl, rot, ang, vel, i, grad[i], hess[min(i, hess.shape[0] - 1)], hb[i], gains[i],
-                         wobj, a[i])
+        b[i] = point_row(desc, motion, i, grad[i], hess[min(i, hess.shape[0] - 1)], hb[i], gains[i], wobj, a[i])
 
 
 # --------------------------------------------------------------------------- moving objects
@@ -470,13 +478,14 @@ def reference_velocity(di, df, dl, rot_att, vel, u, out):
 
 
 @jit
-def object_course(df, dl, pts, v_ref, vel, obj, margin, delta, horizon, a_stop):
+def object_course(desc, pts, v_ref, vel, obj, margin, delta, horizon, a_stop):
     """When (s) a moving object first comes inside the margin of the robot's body within the
     horizon, or inf: whether it is on a collision course. Two futures of the body count: moving
     on at the reference's velocity ``v_ref`` (world), and braking at ``a_stop`` from its
     velocity ``vel`` to rest (the stopping footprint). The object moves on at its velocity, its
     position uncertain by σ t (σ: OBJ_SIGMA); the margin is the group's inflation plus δ. Someone
     walking past beside the robot or crossing behind it never comes inside: no row, no slowing."""
+    df, dl = desc[1], desc[2]
     speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1])
     ux, uy = (vel[0] / speed, vel[1] / speed) if speed > 1e-9 else (0.0, 0.0)
     for k in range(COURSE_SAMPLES + 1):
@@ -504,7 +513,7 @@ def object_gap(df, dl, pts, dx, dy, obj, t):
 
 
 @jit
-def object_sample(df, dl, pts, obj, gain, delta, sweep, grad, hess, wobj):
+def object_sample(desc, pts, obj, gain, delta, sweep, grad, hess, wobj):
     """The analytic field of one moving object at the body point nearest it: the capsule its
     cylinder sweeps from its predicted centre c along its velocity w for ``sweep`` seconds
     (radius R, inflated by its group's margin), so the robot keeps out of where the object is
@@ -513,6 +522,7 @@ def object_sample(df, dl, pts, obj, gain, delta, sweep, grad, hess, wobj):
     Hessian of the horizontal distance ((I - n nᵀ)/ρ off the ends' caps, 0 along the side) and
     the velocity the row uses, w + σ n (the worst velocity within the track's uncertainty:
     towards the point); returns (the body point, hb = ρ - R - r - δ - margin)."""
+    df, dl = desc[1], desc[2]
     radii = view1(df, dl, _D.radii)
     cx, cy, wx, wy = obj[OBJ_X], obj[OBJ_Y], obj[OBJ_VX] * sweep, obj[OBJ_VY] * sweep
     ww = wx * wx + wy * wy

@@ -48,13 +48,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/perception/kernels.py", "depth_noise_kernel"): 11,
     ("services/perception/kernels.py", "current_frame_kernel"): 10,
     ("services/perception/mast3r_backend.py", "keyframe_message"): 12,
-    ("services/safety_filter/barriers.py", "DoubleIntegrator.__init__"): 10,
-    ("services/safety_filter/model.py", "flow"): 15,
-    ("services/safety_filter/model.py", "point_row"): 13,
-    ("services/safety_filter/model.py", "point_rows"): 13,
-    ("services/safety_filter/model.py", "barriers"): 11,
-    ("services/safety_filter/model.py", "object_course"): 10,
-    ("services/safety_filter/model.py", "object_sample"): 10,
     ("services/simulator/kernels.py", "shade_kernel"): 21,
 }
 

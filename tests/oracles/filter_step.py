@@ -68,7 +68,7 @@ class ReferenceFilter:
         when = []
         for k, obj in enumerate(objects):
             g = table[min(int(obj[mdl.OBJ_GROUP]), table.shape[0] - 1)]
-            t = mdl.object_course(model.df, model.dl, pts, v_ref, _f64(state.velocity), obj, float(g[mdl.MARGIN]),
+            t = mdl.object_course(model.desc, pts, v_ref, _f64(state.velocity), obj, float(g[mdl.MARGIN]),
                                   delta, cfg.collision_horizon_s, cfg.a_max)
             if math.isfinite(t):
                 when.append((t, k))
@@ -83,9 +83,9 @@ class ReferenceFilter:
                 g[0] = min(g[0], self._alpha_cap)
             for part in range(2):
                 q = 2 * r + part
-                i, hb = mdl.object_sample(model.df, model.dl, pts, obj, g, delta, cfg.object_sweep_s * part, grads[q],
+                i, hb = mdl.object_sample(model.desc, pts, obj, g, delta, cfg.object_sweep_s * part, grads[q],
                                           hess, wobj)
-                b[q] = mdl.point_row(model.di, model.df, model.dl, rot, ang, _f64(state.velocity), i, grads[q], hess,
+                b[q] = mdl.point_row(model.desc, (rot, ang, _f64(state.velocity)), i, grads[q], hess,
                                      hb, g, wobj, a[q])
         return a, b, grads
 
@@ -117,7 +117,7 @@ class ReferenceFilter:
             gains[:, 0] = np.minimum(gains[:, 0], self._alpha_cap)
         hb = np.empty(m)
         delta = self.delta + self.config.map_margin_voxels * getattr(field, "voxel_size", 0.0)
-        k = mdl.barriers(model.di, model.df, model.dl, _f64(sample.distance), _f64(sample.gradient),
+        k = mdl.barriers(model.desc, _f64(sample.distance), _f64(sample.gradient),
                          _f64(state.velocity), _f64(gains[:m]), delta, self.config.margins_in_filter, hb, _ZERO3)
         h_crit, rg = float(clearance[k]), int(sample.risk_group[k])
         if not sample.inside.all():

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from riskfield.services.fields import FieldSample
-from riskfield.services.safety_filter.barriers import DoubleIntegrator
+from riskfield.services.safety_filter.barriers import Braking, DoubleIntegrator
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.state import FilterState
 
@@ -43,8 +43,8 @@ def test_below_the_speed_floor_the_braking_row_is_the_papers_hocbf_row(seed: int
     if s > K2 * hb:  # ψ₁ = ḣ + k₂ h < 0: outside both safe sets (their recoveries differ there)
         hb = s / K2 + 1e-3
     state, sample = FilterState(np.zeros(3), velocity=v), sample_at(hb, g, hess)
-    braking = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, brake_speed_floor=None)
-    hocbf = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier="hocbf")
+    braking = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(speed_floor=None))
+    hocbf = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(kind="hocbf"))
     a, b = braking.rows(state, sample, np.array([hb]), GAINS, np.zeros(3))
     a_p, b_p = hocbf.rows(state, sample, np.array([hb]), GAINS, np.zeros(3))
     np.testing.assert_allclose(K2 * a, a_p, atol=1e-12)  # the same half-space, scaled by 1/k₂
@@ -60,7 +60,7 @@ def test_on_the_boundary_braking_along_the_gradient_satisfies_the_row(s: float, 
     """At h_b = 0, with a straight wall (no curvature), u = a_max ∇d satisfies the row at any
     approach speed, also above the floor, where the paper's HOCBF would ask more than a_max."""
     g = np.array([1.0, 0.0, 0.0])
-    model = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, brake_speed_floor=None)
+    model = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(speed_floor=None))
     state = FilterState(np.zeros(3), velocity=-s * g)
     phi = model.braking_distance(np.array(s), GAINS[0])[0]
     h = float(phi)  # h_b = 0
@@ -73,7 +73,7 @@ def test_a_robot_inside_an_obstacle_that_backs_out_is_not_in_the_safe_set() -> N
     """φ(s) < 0 credits a receding robot, by s/k₂ with the floor a_b/k₂: h_b alone would call a
     robot 10 cm inside an obstacle safe; the safe set is {h ≥ 0, h_b ≥ 0}."""
     g = np.array([1.0, 0.0, 0.0])
-    model = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, brake_speed_floor=None)
+    model = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(speed_floor=None))
     state = FilterState(np.zeros(3), velocity=0.3 * g)  # moving away from the obstacle
     hb = np.array([-0.1])
     assert model.barrier(state, sample_at(-0.1, g, np.zeros((3, 3))), hb, gains=GAINS)[0] == pytest.approx(-0.1)

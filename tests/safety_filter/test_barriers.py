@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from riskfield.services.fields import AnalyticField
 from riskfield.services.geometry.shapes import Sphere
 from riskfield.services.geometry.transforms import quat_to_matrix
-from riskfield.services.safety_filter.barriers import DoubleIntegrator, SingleIntegrator, UnicycleLookahead
+from riskfield.services.safety_filter.barriers import Braking, DoubleIntegrator, SingleIntegrator, UnicycleLookahead
 from riskfield.services.safety_filter.state import FilterState, so3_exp
 
 FIELD = AnalyticField(Sphere([2.0, 0.5, 0.3], 0.6, label=1), groups=["high"])
@@ -88,7 +88,7 @@ def test_first_order_rows_predict_the_barrier_rate(model, seed):
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31))
 def test_hocbf_row_uses_the_second_derivative_of_h(seed):
-    model = DoubleIntegrator(0.1, points=[(0.0, 0.0, 0.0), (0.1, 0.0, 0.0)], barrier="hocbf")
+    model = DoubleIntegrator(0.1, points=[(0.0, 0.0, 0.0), (0.1, 0.0, 0.0)], barrier=Braking(kind="hocbf"))
     rng = np.random.default_rng(seed)
     s = random_state(rng, model)
     u = rng.uniform(model.lo, model.hi)

@@ -195,7 +195,7 @@ def course(filt: SafetyFilter, s: FilterState, u: np.ndarray, obj: TrackedObject
     m, cfg = filt.model, filt.config
     v_ref = np.empty(3)
     mdl.reference_velocity(m.di, m.df, m.dl, m.rotation(s), s.velocity, np.asarray(u, np.float64), v_ref)
-    return mdl.object_course(m.df, m.dl, m.points(s), v_ref, s.velocity, table(obj)[0], MARGIN, filt.delta,
+    return mdl.object_course(m.desc, m.points(s), v_ref, s.velocity, table(obj)[0], MARGIN, filt.delta,
                              cfg.collision_horizon_s, cfg.a_max)
 
 
@@ -255,9 +255,9 @@ def object_row(filt: SafetyFilter, s: FilterState, obj: np.ndarray, gains: np.nd
     g = gains[int(obj[OBJ_GROUP])].copy()
     g[0] = min(g[0], filt._alpha_cap)
     grad, hess, wobj, a = np.empty(3), np.empty((3, 3)), np.empty(3), np.empty((1, m.n))
-    i, hb = mdl.object_sample(m.df, m.dl, m.points(s), obj, g, filt.delta, filt.config.object_sweep_s, grad, hess,
+    i, hb = mdl.object_sample(m.desc, m.points(s), obj, g, filt.delta, filt.config.object_sweep_s, grad, hess,
                               wobj)
-    b = mdl.point_row(m.di, m.df, m.dl, m.rotation(s), np.zeros(3), s.velocity, i, grad, hess, hb, g, wobj, a[0])
+    b = mdl.point_row(m.desc, (m.rotation(s), np.zeros(3), s.velocity), i, grad, hess, hb, g, wobj, a[0])
     return a, np.array([b])
 
 

@@ -23,7 +23,7 @@ from riskfield.protocol import RiskConfig
 from riskfield.services.fields import AnalyticField, FieldSample
 from riskfield.services.fields.analytic import to_esdf
 from riskfield.services.geometry.shapes import Sphere
-from riskfield.services.safety_filter.barriers import DoubleIntegrator
+from riskfield.services.safety_filter.barriers import Braking, DoubleIntegrator
 from riskfield.services.safety_filter.config import FilterConfig
 from riskfield.services.safety_filter.filter import SafetyFilter
 from riskfield.services.safety_filter.state import FilterState
@@ -44,14 +44,14 @@ def ridge_state(hb: float) -> tuple[FilterState, FieldSample]:
 @pytest.mark.parametrize(("ell", "feasible"), [(math.inf, False), (0.02, True)])
 def test_braking_row_at_a_ridge_far_from_the_obstacle(ell: float, feasible: bool) -> None:
     s, sample = ridge_state(0.155)
-    m = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, brake_rate_length=ell)
+    m = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(rate_length=ell))
     a, b = m.rows(s, sample, np.array([0.155]), GAINS, np.zeros(3))
     assert (b[0] <= A_MAX * np.abs(a[0]).sum()) == feasible
 
 
 def test_the_class_k_function_is_the_linear_one_at_the_boundary() -> None:
     s, sample = ridge_state(1e-4)
-    lin = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, brake_rate_length=math.inf)
+    lin = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(rate_length=math.inf))
     new = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05)
     hb = np.array([1e-4])
     assert new.rows(s, sample, hb, GAINS, np.zeros(3))[1] == pytest.approx(
@@ -60,7 +60,7 @@ def test_the_class_k_function_is_the_linear_one_at_the_boundary() -> None:
     # millimetres of the map's surface, where any error of the map is a collision.
     assert FilterConfig(model="double3d").build_model().rate_length == math.inf
     with pytest.raises(ValueError):
-        DoubleIntegrator(0.15, brake_rate_length=0.0)
+        DoubleIntegrator(0.15, barrier=Braking(rate_length=0.0))
 
 
 def test_gridded_fields_keep_half_a_voxel_more() -> None:
@@ -102,7 +102,7 @@ def test_at_rest_just_inside_the_barrier_the_qp_stays_feasible(floor: float, fal
 
 
 def test_braking_distance_is_c1_and_covers_the_stopping_distance() -> None:
-    m = DoubleIntegrator(0.15, a_max=A_MAX, brake_speed_floor=0.1)
+    m = DoubleIntegrator(0.15, a_max=A_MAX, barrier=Braking(speed_floor=0.1))
     s = np.linspace(-0.5, 1.0, 3001)
     phi, dphi = m.braking_distance(s)
     assert np.all(phi[s >= 0] >= s[s >= 0] ** 2 / (2 * m.a_brake) - 1e-12)
