@@ -1,7 +1,7 @@
 # syntax=docker/dockerfile:1.7
 # riskfield robot image: the safety filter and the hardware bridges (LIMO serial, joystick,
 # MAVLink) and the camera node, with the robot site's extras only (deploy/requirements.py SITES):
-# `robot` — numpy, scipy, osqp, numba (the filter's compiled step; aarch64 wheels exist), pyserial,
+# `robot` — numpy, scipy, numba (the filter's compiled step; aarch64 wheels exist), pyserial,
 # pymavlink, evdev — and `camera` (PyAV). No open3d, no torch: it fits a Jetson or a
 # Raspberry Pi. Multi-arch with BuildKit, or with the classic builder on each architecture:
 #

@@ -22,7 +22,7 @@
 #   --no-start          install only; do not enable and start the units
 #
 # Only the robot site's extras are installed (deploy/requirements.py SITES: `robot` — numpy, scipy,
-# osqp, pyserial, pymavlink, evdev — and `camera`, PyAV): no torch, no open3d. Re-running updates
+# numba, pyserial, pymavlink, evdev — and `camera`, PyAV): no torch, no open3d. Re-running updates
 # the installation in place. Remove with:
 #   systemctl disable --now riskfield-router 'riskfield@*'; rm -r /opt/riskfield /etc/riskfield \
 #     /etc/systemd/system/riskfield-router.service /etc/systemd/system/riskfield@.service
