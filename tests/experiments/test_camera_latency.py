@@ -7,6 +7,7 @@ import pytest
 from riskfield.experiments.latency import (
     arrival_age_ms,
     camera_to_command_ms,
+    content_age_from_image_ms,
     content_age_ms,
     first_arrivals,
     latency_summary,
@@ -36,6 +37,15 @@ def test_content_age_is_measured_from_the_newest_stamp_received() -> None:
 def test_arrival_age_counts_from_the_newest_esdf_received() -> None:
     assert arrival_age_ms([0.05, 0.16], [0.04, 0.06, 0.16, 0.20]) == pytest.approx([10.0, 0.0, 40.0])
     assert arrival_age_ms([], [0.1]) == []
+
+
+def test_content_age_from_the_image_counts_from_its_first_publication() -> None:
+    # ESDFs (arrival, camera stamp); images (arrival, stamp): stamp 0.10's image published at 0.13.
+    esdf = [(0.05, 0.00), (0.16, 0.10)]
+    images = [(0.02, 0.00), (0.13, 0.10), (0.14, 0.10)]
+    assert content_age_from_image_ms(esdf, images, [0.06, 0.16, 0.18]) == pytest.approx([40.0, 30.0, 50.0])
+    # an ESDF whose image was never seen is left out, not counted from its stamp
+    assert content_age_from_image_ms([(0.05, 0.00)], [], [0.06]) == []
 
 
 def test_first_arrival_ignores_republications() -> None:
