@@ -43,10 +43,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/mapping/tsdf_integrator.py", "_integrate"): 21,
     ("services/mapping/tsdf_integrator.py", "_ray"): 18,
     ("services/mapping/tsdf_integrator.py", "_update"): 10,
-    ("services/perception/kernels.py", "match_kernel"): 18,
-    ("services/perception/kernels.py", "fuse_kernel"): 17,
-    ("services/perception/kernels.py", "depth_noise_kernel"): 11,
-    ("services/perception/kernels.py", "current_frame_kernel"): 10,
     ("services/perception/mast3r_backend.py", "keyframe_message"): 12,
     ("services/safety_filter/barriers.py", "DoubleIntegrator.__init__"): 10,
     ("services/safety_filter/compiled.py", "CompiledStep.__init__"): 12,
@@ -56,7 +52,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/safety_filter/model.py", "barriers"): 11,
     ("services/safety_filter/model.py", "object_course"): 10,
     ("services/safety_filter/model.py", "object_sample"): 10,
-    ("services/simulator/kernels.py", "shade_kernel"): 21,
 }
 
 
