@@ -43,7 +43,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/mapping/tsdf_integrator.py", "_integrate"): 21,
     ("services/mapping/tsdf_integrator.py", "_ray"): 18,
     ("services/mapping/tsdf_integrator.py", "_update"): 10,
-    ("services/perception/mast3r_backend.py", "keyframe_message"): 12,
     ("services/safety_filter/barriers.py", "DoubleIntegrator.__init__"): 10,
     ("services/safety_filter/compiled.py", "CompiledStep.__init__"): 12,
     ("services/safety_filter/model.py", "flow"): 15,
