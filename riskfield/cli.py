@@ -99,7 +99,7 @@ def main(
 #: The one ``--connect`` of every command (the argparse tools: ``runtime.session.add_connect_argument``).
 Connect = Annotated[list[str] | None, typer.Option("--connect", "-e", help="Zenoh endpoint to dial (repeatable).")]
 Listen = Annotated[list[str] | None, typer.Option("--listen", "-l", help="Zenoh endpoint to listen on (repeatable).")]
-#: The robot and key prefix of the commands that start or reach a stack (``riskfield run`` says more).
+#: The robot and key prefix of ``riskfield up`` and the tools (``riskfield run``'s, with help: :class:`NodeOptions`).
 Robot = Annotated[str | None, typer.Option()]
 Prefix = Annotated[str | None, typer.Option()]
 
@@ -139,7 +139,7 @@ class Site:
 
 
 @dataclass(frozen=True)
-class Stack:
+class StackIdentity:
     """The robot and key prefix of every service ``riskfield up`` starts, and their config file."""
 
     robot: Robot = None
@@ -246,7 +246,7 @@ def up(
     dry_run: Annotated[bool, typer.Option("--dry-run", help="The LIMO bridge drives the real serial port with "
                                           "stop frames only and counts the commands it withheld (bring-up).")
                        ] = False,
-    stack: Stack = Stack(),
+    stack: StackIdentity = StackIdentity(),
     duration: Annotated[float | None, typer.Option(help="Stop everything after this many seconds.")] = None,
     restarts: Restarts = Restarts(),
 ) -> None:
