@@ -370,7 +370,7 @@ class SimBackend:
             if keyframe_points:
                 points = np.array(obs.points, np.float32)
             matches = (m.idx_f2k.reshape(-1), m.valid_match_k.reshape(-1), m.Qk.reshape(-1))
-            frame = (points.reshape(-1, 3), labels.reshape(-1))  # views: the kernel writes the copies
+            frame = (points.reshape(-1, 3), labels.reshape(-1))  # views of the copies above, written in place
             current_frame_kernel(np.ascontiguousarray(_inv(T_WC_true) @ kf.T_WK_true), (f.X, f.labels), matches,
                                  float(self.config.Q_conf), keyframe_points, frame)
         elif m is not None:
