@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -15,8 +17,10 @@ from rich.markup import escape
 from rich.table import Table
 
 from riskfield import __version__
+from riskfield.options import grouped
 
 if TYPE_CHECKING:
+    from riskfield.services.runtime.processes import RestartPolicy
     from riskfield.services.runtime.settings import KnownSettings
 
 app = typer.Typer(help="Semantic-risk safety filtering from one RGB camera, as Zenoh services.",
@@ -95,32 +99,86 @@ def main(
 #: The one ``--connect`` of every command (the argparse tools: ``runtime.session.add_connect_argument``).
 Connect = Annotated[list[str] | None, typer.Option("--connect", "-e", help="Zenoh endpoint to dial (repeatable).")]
 Listen = Annotated[list[str] | None, typer.Option("--listen", "-l", help="Zenoh endpoint to listen on (repeatable).")]
+#: The robot and key prefix of ``riskfield up`` and the tools (``riskfield run``'s, with help: :class:`NodeOptions`).
+Robot = Annotated[str | None, typer.Option()]
+Prefix = Annotated[str | None, typer.Option()]
 
 
-def _overrides(connect, listen, mode, robot, prefix, config, log_level, sets) -> dict:
-    from riskfield.services.runtime import parse_overrides
+@dataclass(frozen=True)
+class NodeOptions:
+    """``riskfield run``'s settings of the node beside its config file: how it connects, which robot
+    and key prefix it serves, its config file, log level and ``--set`` overrides."""
 
-    out = parse_overrides(sets or [])
-    for k, v in dict(connect=connect, listen=listen, mode=mode, robot=robot, prefix=prefix,
-                     config=config, log_level=log_level).items():
-        if v:
-            out[k] = v
-    return out
+    connect: Connect = None
+    listen: Listen = None
+    mode: Annotated[str | None, typer.Option(help="peer, client or router.")] = None
+    robot: Annotated[str | None, typer.Option(help="Robot id (key prefix part).")] = None
+    prefix: Annotated[str | None, typer.Option(help="Key prefix, default rf.")] = None
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="YAML or TOML config file.")] = None
+    log_level: Annotated[str | None, typer.Option(help="DEBUG, INFO, WARNING.")] = None
+    set_: Annotated[list[str] | None, typer.Option("--set", "-s", help="Setting as key=value (repeatable).")] = None
+
+    def overrides(self) -> dict:
+        """The node's settings these give: the ``--set`` pairs, then each named option given."""
+        from riskfield.services.runtime import parse_overrides
+
+        out = parse_overrides(self.set_ or [])
+        for k in ("connect", "listen", "mode", "robot", "prefix", "config", "log_level"):
+            if v := getattr(self, k):
+                out[k] = v
+        return out
+
+
+@dataclass(frozen=True)
+class Site:
+    """The router a tool dials and the robot and key prefix whose keys it reads."""
+
+    connect: Connect = None
+    robot: Robot = None
+    prefix: Prefix = None
+
+
+@dataclass(frozen=True)
+class StackIdentity:
+    """The robot and key prefix of every service ``riskfield up`` starts, and their config file."""
+
+    robot: Robot = None
+    prefix: Prefix = None
+    config: Annotated[Path | None, typer.Option("--config", "-c")] = None
+
+
+@dataclass(frozen=True)
+class Restarts:
+    """How ``riskfield up`` restarts a crashed service (``runtime.processes.RestartPolicy``)."""
+
+    restart: Annotated[bool, typer.Option(help="Restart a crashed service with back-off (--no-restart: stop "
+                                          "the whole stack at the first exit, exit code 1, for tests and CI).")
+                       ] = True
+    max_restarts: Annotated[int, typer.Option(min=0, help="Crashes in a row (without a healthy run) a service may "
+                                              "have before the stack stops with exit code 1; 0: no limit.")] = 10
+    backoff: Annotated[float, typer.Option(min=0.01, help="First restart delay (s), doubled on each crash in a "
+                                           "row.")] = 0.5
+    backoff_max: Annotated[float, typer.Option(min=0.01, help="Longest restart delay (s).")] = 30.0
+    healthy: Annotated[float, typer.Option(min=0.01, help="Seconds a restarted service must run to count as "
+                                           "healthy again (back-off and budget reset).")] = 30.0
+
+    def policy(self) -> RestartPolicy:
+        """The policy; ValueError for delays it refuses."""
+        from riskfield.services.runtime.processes import NO_RESTART, RestartPolicy
+
+        if not self.restart:
+            return NO_RESTART
+        return RestartPolicy(backoff_s=self.backoff, backoff_max_s=self.backoff_max, healthy_s=self.healthy,
+                             max_restarts=self.max_restarts)
 
 
 @app.command(add_help_option=False)
+@grouped
 def run(
     ctx: typer.Context,
     service: Annotated[str | None, typer.Argument(
         help="router, mapping, safety-filter, ... (see `riskfield services`)", show_default=False)] = None,
-    connect: Connect = None,
-    listen: Listen = None,
-    mode: Annotated[str | None, typer.Option(help="peer, client or router.")] = None,
-    robot: Annotated[str | None, typer.Option(help="Robot id (key prefix part).")] = None,
-    prefix: Annotated[str | None, typer.Option(help="Key prefix, default rf.")] = None,
-    config: Annotated[Path | None, typer.Option("--config", "-c", help="YAML or TOML config file.")] = None,
-    log_level: Annotated[str | None, typer.Option(help="DEBUG, INFO, WARNING.")] = None,
-    set_: Annotated[list[str] | None, typer.Option("--set", "-s", help="Setting as key=value (repeatable).")] = None,
+    node: NodeOptions = NodeOptions(),
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
     help_: Annotated[bool, typer.Option("--help", "-h", help="Show this message (with SERVICE: its settings) "
                                         "and exit.")] = False,
@@ -139,8 +197,7 @@ def run(
         console.print("[red]missing SERVICE: riskfield run SERVICE (see `riskfield services`)[/red]")
         raise typer.Exit(2)
     try:
-        code = run_service(service, _overrides(connect, listen, mode, robot, prefix, config, log_level, set_),
-                           duration_s=duration)
+        code = run_service(service, node.overrides(), duration_s=duration)
     except (ServiceUnavailable, UnknownSetting) as exc:
         console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
@@ -176,6 +233,7 @@ def _print_settings(service: str) -> None:
 
 
 @app.command()
+@grouped
 def up(
     services: Annotated[list[str] | None, typer.Argument(help="Services to start beside the router.")] = None,
     profile: Annotated[str | None, typer.Option(help="A site's services (added to SERVICES): "
@@ -188,20 +246,9 @@ def up(
     dry_run: Annotated[bool, typer.Option("--dry-run", help="The LIMO bridge drives the real serial port with "
                                           "stop frames only and counts the commands it withheld (bring-up).")
                        ] = False,
-    robot: Annotated[str | None, typer.Option()] = None,
-    prefix: Annotated[str | None, typer.Option()] = None,
-    config: Annotated[Path | None, typer.Option("--config", "-c")] = None,
+    stack: StackIdentity = StackIdentity(),
     duration: Annotated[float | None, typer.Option(help="Stop everything after this many seconds.")] = None,
-    restart: Annotated[bool, typer.Option(help="Restart a crashed service with back-off (--no-restart: stop "
-                                          "the whole stack at the first exit, exit code 1, for tests and CI).")
-                       ] = True,
-    max_restarts: Annotated[int, typer.Option(min=0, help="Crashes in a row (without a healthy run) a service may "
-                                              "have before the stack stops with exit code 1; 0: no limit.")] = 10,
-    backoff: Annotated[float, typer.Option(min=0.01, help="First restart delay (s), doubled on each crash in a "
-                                           "row.")] = 0.5,
-    backoff_max: Annotated[float, typer.Option(min=0.01, help="Longest restart delay (s).")] = 30.0,
-    healthy: Annotated[float, typer.Option(min=0.01, help="Seconds a restarted service must run to count as "
-                                           "healthy again (back-off and budget reset).")] = 30.0,
+    restarts: Restarts = Restarts(),
 ) -> None:
     """Start the router and services as separate processes; logs are prefixed by service.
 
@@ -211,7 +258,7 @@ def up(
     error (exit code 2 is never restarted), and with --no-restart as soon as a service exits."""
     from riskfield.protocol import Keys
     from riskfield.services.runtime import SERVICES, NodeSettings
-    from riskfield.services.runtime.processes import NO_RESTART, ProcessRunner, RestartPolicy
+    from riskfield.services.runtime.processes import ProcessRunner
 
     if profile is not None and profile not in UP_PROFILES:
         console.print(f"[red]unknown profile {escape(profile)!r}: use one of {', '.join(UP_PROFILES)}[/red]")
@@ -227,6 +274,7 @@ def up(
 
         console.print(f"[red]{escape('; '.join(unknown_service(n) for n in unknown))}[/red]")
         raise typer.Exit(2)
+    robot, prefix, config = stack.robot, stack.prefix, stack.config
     common: list[str] = []
     for flag, value in (("--robot", robot), ("--prefix", prefix), ("--config", config)):
         if value:
@@ -237,8 +285,7 @@ def up(
     except (ValueError, OSError):  # a broken config: the services will say so and exit, and so will we
         keys = Keys(robot=robot or "limo1", prefix=prefix or "rf")
     try:
-        policy = RestartPolicy(backoff_s=backoff, backoff_max_s=backoff_max, healthy_s=healthy,
-                               max_restarts=max_restarts) if restart else NO_RESTART
+        policy = restarts.policy()
     except ValueError as exc:
         console.print(f"[red]{escape(str(exc))}[/red]")
         raise typer.Exit(2) from None
@@ -262,6 +309,7 @@ def _run_tool(service: str, overrides: dict, duration: float | None) -> None:
 
 
 @app.command()
+@grouped
 def record(
     out: Annotated[Path, typer.Option(help="Folder for recording.mcap and summary.json; an earlier run there "
                                       "is kept: this one is recording-1.mcap, summary-1.json, ...")] = Path(
@@ -276,9 +324,7 @@ def record(
                                                       "(repeatable), e.g. 'sim/**'.")] = None,
     max_mb: Annotated[float, typer.Option(help="Stop recording at this total size (MB); 0: no limit.")] = 0.0,
     split_mb: Annotated[float, typer.Option(help="Continue in a new file past this size (MB); 0: one file.")] = 0.0,
-    connect: Connect = None,
-    robot: Annotated[str | None, typer.Option()] = None,
-    prefix: Annotated[str | None, typer.Option()] = None,
+    site: Site = Site(),
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
 ) -> None:
     """Record a robot's keys to MCAP that Foxglove (and any MCAP tool) can show: camera as
@@ -286,8 +332,7 @@ def record(
     the rest as JSON. The keys that drive the filter (map/esdf, state, cmd/ref, nav/goal) are
     also kept raw for `riskfield replay`; --raw keeps every key raw."""
     _run_tool("record", dict(out=out, keys=keys, raw=raw, include=include or None, exclude=exclude or None,
-                             max_mb=max_mb, split_mb=split_mb, connect=connect, robot=robot, prefix=prefix),
-              duration)
+                             max_mb=max_mb, split_mb=split_mb, **dataclasses.asdict(site)), duration)
 
 
 @app.command()
@@ -349,6 +394,7 @@ def replay(
 
 
 @app.command()
+@grouped
 def view(
     foxglove: Annotated[bool, typer.Option("--foxglove", help="Serve the live stack to Foxglove over its WebSocket "
                                            "protocol (layout: deploy/foxglove/riskfield-layout.json) instead of "
@@ -361,15 +407,13 @@ def view(
     out: Annotated[Path | None, typer.Option(help="Rerun: folder for view.rrd.")] = None,
     write_layout: Annotated[Path | None, typer.Option(
         help="--foxglove: write the Foxglove layout for this robot and prefix to this file, then exit.")] = None,
-    connect: Connect = None,
-    robot: Annotated[str | None, typer.Option()] = None,
-    prefix: Annotated[str | None, typer.Option()] = None,
+    site: Site = Site(),
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
 ) -> None:
     """Watch a running stack live: in Rerun (the `viewer` service), or with --foxglove in Foxglove
     (the `foxglove` service: camera, ESDF grid, point cloud, robot footprint, tracked people with
     velocity arrows, and the filter's intervention and its reason)."""
-    common = dict(connect=connect, robot=robot, prefix=prefix)
+    common = dataclasses.asdict(site)
     if foxglove and write_layout is not None:
         import json
 
@@ -378,7 +422,7 @@ def view(
         try:
             from riskfield.services.recorder.live import layout
 
-            text = json.dumps(layout(Keys(robot or "limo1", prefix or "rf").root), indent=2) + "\n"
+            text = json.dumps(layout(Keys(site.robot or "limo1", site.prefix or "rf").root), indent=2) + "\n"
         except ModuleNotFoundError as exc:
             from riskfield.services.runtime.service import missing_extra
 

@@ -136,16 +136,32 @@ def counterpart(method: str) -> str:
     return method
 
 
-def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None = None, *,
-        modes: Sequence[str] = ("target", "scene"), frames: int = 48, map_budget_s: float = 6.0,
-        voxel: float = 0.05, seed: int = 0, baseline: bool = True, riskfield: bool = True,
-        no_hessian: bool = True, on_scene: Callable[[str, int], None] | None = None,
+@dataclass(frozen=True)
+class RunOptions:
+    """What a :func:`run` covers beside its scenes: the semantic modes (the first is the primary),
+    the frames of each scene's input stream, the seconds and voxel size its maps are built with,
+    the seed of the start/goal pairs, and which methods run beside the ESDFs (``methods_for``)."""
+
+    modes: Sequence[str] = ("target", "scene")
+    frames: int = 48
+    map_budget_s: float = 6.0
+    voxel: float = 0.05
+    seed: int = 0
+    baseline: bool = True
+    riskfield: bool = True
+    no_hessian: bool = True
+
+
+def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None = None,
+        options: RunOptions = RunOptions(), *, on_scene: Callable[[str, int], None] | None = None,
         on_rollout: Callable[[], None] | None = None) -> AuthorsResult:
     """The protocol over ``scenes``; ``on_scene(description, rollouts to come)`` and ``on_rollout()``
     drive a progress bar."""
     cfg = cfg or A.AuthorsConfig()
+    o = options
+    modes, baseline, riskfield = o.modes, o.baseline, o.riskfield
     clf = PointMassCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
-    methods = methods_for(modes, baseline, riskfield, no_hessian)
+    methods = methods_for(modes, baseline, riskfield, o.no_hessian)
     rollouts: list[Rollout] = []
     info: list[dict] = []
     # The authors' HOCBF keeps h = d − r: no margin beyond the radius; riskfield's filter keeps δ + half a voxel.
@@ -160,7 +176,7 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
         distance = snap.distance
         tier_of = {c.label: c.tier for c in tiers}
         by_tier = {t: [it for it in items if tier_of[it.label] == t] for t in A.TIERS}
-        rng = np.random.default_rng([seed, si, 14])
+        rng = np.random.default_rng([o.seed, si, 14])
         pairs = A.ring_pairs(by_tier, distance, case.lo, case.hi, rng, cfg, first_id)
         first_id += len(pairs)
         row = dict(scene=sc.name, objects=len(items), pairs=len(pairs),
@@ -172,8 +188,8 @@ def run(scenes: Sequence[Scene], perceive: Callable, cfg: A.AuthorsConfig | None
             on_scene(f"{sc.name}: maps", len(pairs) * len(methods))
         if not pairs:
             continue
-        stream = [perceive(snap, T) for T in camera_poses(case, frames)]
-        fields, esdf_info = esdf_variants(case, stream, map_budget_s, voxel, risk, modes, scene=riskfield)
+        stream = [perceive(snap, T) for T in camera_poses(case, o.frames)]
+        fields, esdf_info = esdf_variants(case, stream, o.map_budget_s, o.voxel, risk, modes, scene=riskfield)
         row["esdf"] = esdf_info
         controls: dict[str, Callable] = {ESDF: _HocbfStep(A.field_barrier(fields["plain"], cfg.radius), cfg),
                                          ESDF_NO_HESSIAN: _HocbfStep(A.field_barrier(fields["plain"], cfg.radius,

@@ -185,8 +185,8 @@ class Degrader:
         normal = self.rng.standard_normal(z.shape)  # the same draws, in the same order, as the numpy path
         e = np.exp(-z / cfg.z_scale)
         noisy, conf = np.empty(p.shape, np.float32), np.empty(valid.shape, np.float32)
-        depth_noise_kernel(p, valid, z, cos, normal, e, float(cfg.noise_a), float(cfg.noise_b), float(cfg.c_gain),
-                           noisy, conf)
+        depth_noise_kernel((p, valid, z, cos), (normal, e), (float(cfg.noise_a), float(cfg.noise_b), float(cfg.c_gain)),
+                           (noisy, conf))
         return Observation(noisy, conf, self.degrade_labels(labels, valid), self._drifted(T_WC), valid)
 
     def degrade_labels(self, labels: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:

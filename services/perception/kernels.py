@@ -1,11 +1,16 @@
-"""Compiled per-pixel kernels of the ``sim`` backend: keyframe matching, fusion and the current
-frame's message in one pass each.
+"""Compiled per-pixel kernels of the ``sim`` backend: keyframe matching, fusion, the current
+frame's message and the depth noise in one pass each, without the numpy path's full-frame
+temporaries.
 
-They compute exactly what the numpy reference does (``SimBackend.match`` with ``numpy=True``,
-``transform_points`` + ``KeyframeFusion.fuse``, ``SimBackend._message``), in the same dtypes and
-operation order, so their outputs are bit-identical (tests/perception/test_kernels.py checks this on
-real frames). The numpy path allocates a dozen full-frame temporaries per step; on the two shared
-cores that was 25 of the backend's ~37 ms per frame. Without numba (the ``perception`` extra alone) the numpy path runs.
+They compute exactly what the numpy reference does (``SimBackend`` and ``Degrader`` with
+``compiled=False``: ``SimBackend.match``, ``transform_points`` + ``KeyframeFusion.fuse``,
+``SimBackend._message``, ``Degrader.observe``), in the same dtypes and operation order, so their
+outputs are bit-identical (tests/perception/test_kernels.py checks this on real frames).
+
+A kernel takes its arrays grouped by role in tuples (keyframe, truth, frame, matches, out), not
+one argument each; the groups are not a flat :class:`~..runtime.kernels.Layout` workspace because
+their arrays differ in dtype, come from the frame's message or the keyframe, and the outputs
+leave in the next message, so there is nothing a workspace could keep from one call to the next.
 """
 
 from __future__ import annotations
@@ -17,13 +22,21 @@ from ..runtime.jit import HAVE_NUMBA, njit
 if HAVE_NUMBA:
 
     @njit(cache=True, nogil=True)
-    def match_kernel(T_CW: np.ndarray, world: np.ndarray, kf_valid: np.ndarray, C0: np.ndarray,
-                     truth_points: np.ndarray, truth_valid: np.ndarray, C_t: np.ndarray, h: int, w: int,
-                     fx: float, fy: float, cx: float, cy: float, tol_abs: float, tol_rel: float,
-                     idx: np.ndarray, valid: np.ndarray, Qk: np.ndarray) -> int:
+    def match_kernel(T_CW: np.ndarray, keyframe: tuple, truth: tuple, camera: tuple, tol: tuple,
+                     out: tuple) -> int:
         """Per keyframe pixel: reproject its true world point into the current camera (``T_CW``),
-        accept the pixel it lands on if the true depth there agrees; fills ``idx``, ``valid``,
-        ``Qk``, returns the number of valid matches (``SimBackend.match``)."""
+        accept the pixel it lands on if the true depth there agrees; fills ``out``, returns the
+        number of valid matches (``SimBackend.match``).
+
+        ``keyframe`` = (world (N, 3) float64, valid (N,), C0 (N,)); ``truth`` = the current frame's
+        (points (H·W, 3) float32, valid (H·W,), confidence (H·W,) float32); ``camera`` = (h, w, fx,
+        fy, cx, cy); ``tol`` = (absolute, relative to z) depth agreement; ``out`` = (idx (N,) int64,
+        valid (N,) bool, Qk (N,) float64)."""
+        world, kf_valid, C0 = keyframe
+        truth_points, truth_valid, C_t = truth
+        h, w, fx, fy, cx, cy = camera
+        tol_abs, tol_rel = tol
+        idx, valid, Qk = out
         n_valid = 0
         for k in range(world.shape[0]):
             x0, y0, z0 = world[k, 0], world[k, 1], world[k, 2]
@@ -53,16 +66,21 @@ if HAVE_NUMBA:
         return n_valid
 
     @njit(cache=True, nogil=True)
-    def fuse_kernel(T_KC: np.ndarray, points: np.ndarray, conf: np.ndarray, labels_frame: np.ndarray,
-                    idx: np.ndarray, valid_match: np.ndarray, Qk: np.ndarray, Q_conf: float, X: np.ndarray,
-                    C: np.ndarray, labels: np.ndarray, weights: np.ndarray, X_out: np.ndarray, C_out: np.ndarray,
-                    labels_out: np.ndarray, weights_out: np.ndarray, trusted: np.ndarray) -> None:
+    def fuse_kernel(T_KC: np.ndarray, frame: tuple, matches: tuple, Q_conf: float, state: tuple,
+                    out: tuple) -> None:
         """One tracked frame fused into a keyframe (eq. 2 and 7–8, ``KeyframeFusion.fuse``): the
         frame's point matched to keyframe pixel ξ, moved into the keyframe frame by ``T_KC``
         (float64, stored as float32 like ``transform_points(..., np.float32)``), averaged by
-        confidence with ``X, C``; its label votes on ``labels, weights`` over trusted matches. The
-        results go to the ``*_out`` arrays (new ones, as the numpy path makes: a message built
-        from the previous state keeps it)."""
+        confidence with the keyframe's; its label votes over trusted matches (valid, Qk > Q_conf).
+
+        ``frame`` = (points (H·W, 3) float32, confidence (H·W,) float32, labels (H·W,) uint16);
+        ``matches`` = (idx, valid, Qk) of :func:`match_kernel`; ``state`` = the keyframe's (X, C,
+        labels, weights); ``out`` = new arrays of the same (a message built from the previous state
+        keeps it, as with the numpy path's new arrays) and ``trusted`` (N,) bool."""
+        points, conf, labels_frame = frame
+        idx, valid_match, Qk = matches
+        X, C, labels, weights = state
+        X_out, C_out, labels_out, weights_out, trusted = out
         for k in range(X.shape[0]):
             i = idx[k]
             x0, y0, z0 = points[i, 0], points[i, 1], points[i, 2]
@@ -123,11 +141,17 @@ if HAVE_NUMBA:
                 cos[v, u] = min(max(c, np.float32(0.0)), one)
 
     @njit(cache=True, nogil=True)
-    def depth_noise_kernel(points: np.ndarray, valid: np.ndarray, z: np.ndarray, cos: np.ndarray,
-                           normal: np.ndarray, e: np.ndarray, a: float, b: float, c_gain: float,
-                           noisy: np.ndarray, conf: np.ndarray) -> None:
-        """Range noise along each pixel's ray and the confidence (``Degrader.observe``): ``normal``
-        is the standard normal draw, ``e = exp(−z / z_scale)`` (numpy's exp, for identical bits)."""
+    def depth_noise_kernel(frame: tuple, draws: tuple, model: tuple, out: tuple) -> None:
+        """Range noise along each pixel's ray and the confidence (``Degrader.observe``).
+
+        ``frame`` = (points (H, W, 3) float32, valid (H, W), z (H, W) float64, |cos| of incidence
+        (H, W) float32); ``draws`` = (the standard normal draw, ``exp(−z / z_scale)``), both
+        computed by numpy, for identical bits; ``model`` = (noise_a, noise_b, c_gain) of
+        ``DegradationConfig``; ``out`` = (noisy points, confidence), float32."""
+        points, valid, z, cos = frame
+        normal, e = draws
+        a, b, c_gain = model
+        noisy, conf = out
         h, w = valid.shape
         cmin, g = np.float32(0.2), np.float32(c_gain)
         for v in range(h):
@@ -148,15 +172,20 @@ if HAVE_NUMBA:
                 conf[v, u] = np.float32(1.0 + np.float64(g * c) * e[v, u])
 
     @njit(cache=True, nogil=True)
-    def current_frame_kernel(T_CK: np.ndarray, X: np.ndarray, labels_k: np.ndarray, idx: np.ndarray,
-                             valid_match: np.ndarray, Qk: np.ndarray, Q_conf: float, with_points: bool,
-                             points: np.ndarray, labels: np.ndarray) -> None:
+    def current_frame_kernel(T_CK: np.ndarray, keyframe: tuple, matches: tuple, Q_conf: float,
+                             with_points: bool, frame: tuple) -> None:
         """The current frame's message (``SimBackend._message``): over trusted matches (valid and
         Qk > Q_conf), the keyframe's fused label ``labels_k[ξ]`` written at its frame pixel
         ``idx[ξ]`` (``fusion.scatter_to_frame``) and, ``with_points``, its fused point moved into the
         camera by ``T_CK`` (float64, stored as float32 like ``transform_points(..., np.float32)``).
-        ``points`` and ``labels`` are the frame's own copies, written in place; a pixel two keyframe
-        pixels land on keeps the later one, as numpy's fancy assignment does."""
+
+        ``keyframe`` = its fused (X (N, 3) float32, labels_k (N,) uint16); ``matches`` = (idx, valid,
+        Qk) of :func:`match_kernel`; ``frame`` = the frame's own copies of (points (H·W, 3) float32,
+        labels (H·W,) uint16), written in place: a pixel two keyframe pixels land on keeps the later
+        one, as numpy's fancy assignment does."""
+        X, labels_k = keyframe
+        idx, valid_match, Qk = matches
+        points, labels = frame
         for k in range(X.shape[0]):
             if not (valid_match[k] and Qk[k] > Q_conf):
                 continue

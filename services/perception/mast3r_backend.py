@@ -55,7 +55,7 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -166,25 +166,38 @@ def sim3_pose(data: np.ndarray) -> tuple[np.ndarray, float]:
     return T, float(d[7])
 
 
-def keyframe_message(X_canon: np.ndarray, C: np.ndarray, sim3: np.ndarray, labels: np.ndarray, height: int, width: int,
-                     keyframe_id: int, stamp_ns: int, frame_id: str = "map", kind: str | None = None,
+class SlamFrame(NamedTuple):
+    """One MASt3R frame as its message needs it: the canonical pointmap ``X_canon`` (H·W, 3), the
+    *average* confidence ``C`` (``Frame.get_average_conf()``, not the running sum), the Sim(3)
+    pose ``sim3`` (lietorch data), the labels per pixel, the image ``shape`` (H, W) and the
+    keyframe index."""
+
+    X_canon: np.ndarray
+    C: np.ndarray
+    sim3: np.ndarray
+    labels: np.ndarray
+    shape: tuple[int, int]
+    keyframe_id: int
+
+
+def keyframe_message(frame: SlamFrame, stamp_ns: int, frame_id: str = "map", kind: str | None = None,
                      c_conf: float = 0.0, T_map_slam: np.ndarray | None = None) -> PerceptionFrame:
     """A MASt3R frame as a ``PerceptionFrame`` (scale folded into the points; see module doc).
-    ``C`` must be the *average* confidence (``Frame.get_average_conf()``); pixels below ``c_conf``
-    and non-finite points (the network's failures) get confidence 0 and a zero point.
-    ``T_map_slam`` places SLAM's world (its first camera) in the map frame."""
-    T, s = sim3_pose(sim3)
+    Pixels below ``c_conf`` and non-finite points (the network's failures) get confidence 0 and a
+    zero point. ``T_map_slam`` places SLAM's world (its first camera) in the map frame."""
+    height, width = frame.shape
+    T, s = sim3_pose(frame.sim3)
     if T_map_slam is not None:
         T = np.asarray(T_map_slam, np.float64) @ T
-    X = np.asarray(X_canon, np.float64).reshape(height, width, 3) * s
-    Cf = np.asarray(C, np.float64).reshape(height, width)
+    X = np.asarray(frame.X_canon, np.float64).reshape(height, width, 3) * s
+    Cf = np.asarray(frame.C, np.float64).reshape(height, width)
     bad = ~(np.isfinite(X).all(axis=-1) & np.isfinite(Cf))
     X[bad] = 0.0
     Cf = np.where(bad | (Cf < c_conf), 0.0, np.maximum(Cf, 0.0))
     return PerceptionFrame(header=Header(stamp_ns=stamp_ns, frame_id=frame_id), T_WC=T, points=X.astype(np.float32),
                            confidence=Cf.astype(np.float32),
-                           labels=np.asarray(labels, np.uint16).reshape(height, width),
-                           keyframe_id=int(keyframe_id), kind=kind)
+                           labels=np.asarray(frame.labels, np.uint16).reshape(height, width),
+                           keyframe_id=int(frame.keyframe_id), kind=kind)
 
 
 class MatchRecorder:
@@ -408,8 +421,8 @@ class Mast3rSlam:
         data = _np(frame.T_WC.data).reshape(-1)
         if kind != "tracking":
             self.published[idx] = data.copy()
-        return keyframe_message(_np(frame.X_canon), _np(frame.get_average_conf()), data, labels, h, w, idx, stamp_ns,
-                                self.frame_id, kind, self.c_conf, self.T_map_slam)
+        return keyframe_message(SlamFrame(_np(frame.X_canon), _np(frame.get_average_conf()), data, labels, (h, w), idx),
+                                stamp_ns, self.frame_id, kind, self.c_conf, self.T_map_slam)
 
     def _new_keyframe(self, labels: np.ndarray, stamp_ns: int) -> PerceptionFrame:
         idx = len(self.keyframes) - 1

@@ -165,12 +165,11 @@ class SimBackend:
         n = kf.world_true.shape[0]
         idx, valid, Qk = np.empty(n, np.int64), np.empty(n, bool), np.empty(n, np.float64)
         cam = self._camera
-        n_valid = match_kernel(np.ascontiguousarray(_inv(T_WC_true)), kf.world_true, kf.valid, kf.C0,
-                               np.ascontiguousarray(truth_points).reshape(-1, 3),
-                               np.ascontiguousarray(truth_valid).reshape(-1),
-                               np.ascontiguousarray(C_t, np.float32).reshape(-1), h, w, float(cam.fx), float(cam.fy),
-                               float(cam.cx), float(cam.cy), float(self.config.depth_tol_abs),
-                               float(self.config.depth_tol_rel), idx, valid, Qk)
+        truth = (np.ascontiguousarray(truth_points).reshape(-1, 3), np.ascontiguousarray(truth_valid).reshape(-1),
+                 np.ascontiguousarray(C_t, np.float32).reshape(-1))
+        n_valid = match_kernel(np.ascontiguousarray(_inv(T_WC_true)), (kf.world_true, kf.valid, kf.C0), truth,
+                               (h, w, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy)),
+                               (float(self.config.depth_tol_abs), float(self.config.depth_tol_rel)), (idx, valid, Qk))
         return Matches(idx, valid, Qk, float(n_valid) / max(1, int(kf.valid.sum())))
 
     def _intrinsics(self, points: np.ndarray, valid: np.ndarray,
@@ -295,10 +294,11 @@ class SimBackend:
             f = kf.fusion
             trusted = np.empty(f.C.shape, bool)
             X, C, labels, weights = (np.empty_like(a) for a in (f.X, f.C, f.labels, f.weights))
-            fuse_kernel(np.ascontiguousarray(T_KC), np.ascontiguousarray(obs.points, np.float32).reshape(-1, 3),
-                        np.ascontiguousarray(obs.confidence, np.float32).reshape(-1),
-                        np.ascontiguousarray(obs.labels, np.uint16).reshape(-1), m.idx_f2k, m.valid_match_k, m.Qk,
-                        float(self.config.Q_conf), f.X, f.C, f.labels, f.weights, X, C, labels, weights, trusted)
+            frame = (np.ascontiguousarray(obs.points, np.float32).reshape(-1, 3),
+                     np.ascontiguousarray(obs.confidence, np.float32).reshape(-1),
+                     np.ascontiguousarray(obs.labels, np.uint16).reshape(-1))
+            fuse_kernel(np.ascontiguousarray(T_KC), frame, (m.idx_f2k, m.valid_match_k, m.Qk),
+                        float(self.config.Q_conf), (f.X, f.C, f.labels, f.weights), (X, C, labels, weights, trusted))
             f.X, f.C, f.labels, f.weights = X, C, labels, weights
             f.updates += 1
             self.last_matches = m
@@ -369,10 +369,10 @@ class SimBackend:
             labels = np.array(obs.labels, np.uint16)
             if keyframe_points:
                 points = np.array(obs.points, np.float32)
-            current_frame_kernel(np.ascontiguousarray(_inv(T_WC_true) @ kf.T_WK_true), f.X, f.labels,
-                                 m.idx_f2k.reshape(-1), m.valid_match_k.reshape(-1), m.Qk.reshape(-1),
-                                 float(self.config.Q_conf), keyframe_points, points.reshape(-1, 3),
-                                 labels.reshape(-1))
+            matches = (m.idx_f2k.reshape(-1), m.valid_match_k.reshape(-1), m.Qk.reshape(-1))
+            frame = (points.reshape(-1, 3), labels.reshape(-1))  # views of the copies above, written in place
+            current_frame_kernel(np.ascontiguousarray(_inv(T_WC_true) @ kf.T_WK_true), (f.X, f.labels), matches,
+                                 float(self.config.Q_conf), keyframe_points, frame)
         elif m is not None:
             trusted = m.valid_match_k & (m.Qk > self.config.Q_conf)
             labels = scatter_to_frame(f.labels, m.idx_f2k, trusted, obs.labels)

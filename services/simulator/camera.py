@@ -134,10 +134,11 @@ class Renderer:
         dirs = rays[:, 3:]
         depth, labels, obj = np.empty(n, np.float32), np.empty(n, np.uint16), np.empty(n, np.int32)
         points, normals, rgb = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8)
-        shade_kernel(out["t_hit"], out["geometry_ids"], out["primitive_ids"], out["primitive_normals"],
-                     self._rays.reshape(-1, 3), dirs, self._inv_len.reshape(-1), snapshot.offsets,
-                     snapshot.object_index, snapshot.triangle_labels, float(self.max_depth), int(NO_LABEL), _LUT,
-                     255.0 * self.ambient, 255.0 * (1.0 - self.ambient), depth, points, labels, normals, rgb, obj)
+        shade_kernel((out["t_hit"], out["geometry_ids"], out["primitive_ids"], out["primitive_normals"]),
+                     (self._rays.reshape(-1, 3), dirs, self._inv_len.reshape(-1)),
+                     (snapshot.offsets, snapshot.object_index, snapshot.triangle_labels, _LUT),
+                     (float(self.max_depth), int(NO_LABEL), 255.0 * self.ambient, 255.0 * (1.0 - self.ambient)),
+                     (depth, points, labels, normals, rgb, obj))
         return Render(rgb=rgb.reshape(h, w, 3), depth=depth.reshape(h, w), points=points.reshape(h, w, 3),
                       labels=labels.reshape(h, w), normals=normals.reshape(h, w, 3), object=obj.reshape(h, w),
                       T_WC=T_WC)

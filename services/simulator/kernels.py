@@ -2,10 +2,12 @@
 
 ``shade_kernel`` computes exactly what ``Snapshot.cast`` + ``Renderer.render`` do in numpy (same
 float32/float64 steps, same order: tests/simulator/test_render_kernel.py checks the bytes), without
-their ~20 full-frame temporaries: on the two shared cores the numpy post-processing of a 512×384
-frame was ~5 ms on top of open3d's ray cast, all of it between the camera stamp and the image.
-"""
+their ~20 full-frame temporaries, all of them between the camera stamp and the image.
 
+Its arrays come grouped by role in tuples (hits, camera, scene, out), not one argument each; not a
+flat :class:`~..runtime.kernels.Layout` workspace, because they differ in dtype, the hits are
+open3d's and the outputs leave in the frame, so there is nothing a workspace could keep.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -15,15 +17,21 @@ from ..runtime.jit import HAVE_NUMBA, njit
 if HAVE_NUMBA:
 
     @njit(cache=True, nogil=True)
-    def shade_kernel(t_hit: np.ndarray, geometry_ids: np.ndarray, primitive_ids: np.ndarray,
-                     primitive_normals: np.ndarray, rays: np.ndarray, dirs: np.ndarray, inv_len: np.ndarray,
-                     offsets: np.ndarray, object_index: np.ndarray, triangle_labels: np.ndarray, max_depth: float,
-                     no_label: int, lut: np.ndarray, ambient0: float, ambient1: float, depth: np.ndarray,
-                     points: np.ndarray, labels: np.ndarray, normals: np.ndarray, rgb: np.ndarray,
-                     obj: np.ndarray) -> None:
+    def shade_kernel(hits: tuple, camera: tuple, scene: tuple, shading: tuple, out: tuple) -> None:
         """Per ray k (flattened pixels): depth, camera-frame point ``rays·depth``, label, world normal,
         object index (zero / ``no_label`` / −1 where nothing was hit within ``max_depth``) and the
-        Lambert-shaded class colour ``lut[label]·shade + ½`` as uint8."""
+        Lambert-shaded class colour ``lut[label]·shade + ½`` as uint8.
+
+        ``hits`` = open3d's (t_hit, geometry_ids, primitive_ids, primitive_normals); ``camera`` =
+        (camera-frame rays, world directions, 1 / |ray|) per pixel; ``scene`` = the snapshot's
+        (offsets, object_index, triangle_labels) and the colour ``lut``; ``shading`` = (max_depth,
+        no_label, ambient0, ambient1): shade = ambient0 + ambient1·light; ``out`` = (depth, points,
+        labels, normals, rgb, object)."""
+        t_hit, geometry_ids, primitive_ids, primitive_normals = hits
+        rays, dirs, inv_len = camera
+        offsets, object_index, triangle_labels, lut = scene
+        max_depth, no_label, ambient0, ambient1 = shading
+        depth, points, labels, normals, rgb, obj = out
         zero = np.float32(0.0)
         one = np.float32(1.0)
         md = np.float32(max_depth)

@@ -330,11 +330,12 @@ def test_bench_cli_authors_target_low_rows_identical(tmp_path):
 
 
 def test_authors_run_on_a_hand_made_scannetpp_scene(tmp_path):
+    from riskfield.experiments.authors_bench import RunOptions
     from riskfield.experiments.benches.safety_authors import authors_run
 
     scene = _write_scannetpp_scene(tmp_path / "data")
-    s = authors_run(tmp_path / "out", scenes=0, folders=[scene], perception="gt", modes=("target",), per_group=2,
-                    frames=6, map_budget=2.0)
+    s = authors_run(tmp_path / "out", scenes=0, folders=[scene], perception="gt", per_group=2,
+                    options=RunOptions(modes=("target",), frames=6, map_budget_s=2.0))
     assert s["scenes"][0]["scene"] == "scannetpp_0a1b2c3d4e"
     # One non-structural class (the office chair → swivel chair): it is the only tier, high.
     assert [t["name"] for t in s["scenes"][0]["tiers"]] == ["swivel chair"]

@@ -27,6 +27,7 @@ from riskfield.services.perception.mast3r_backend import (
     KeyframeLabels,
     Mast3rBackend,
     MatchRecorder,
+    SlamFrame,
     keyframe_message,
     labels_to_grid,
     mast3r_crop,
@@ -86,7 +87,7 @@ def test_keyframe_message_folds_the_scale_into_the_points():
     X[3] = np.nan  # a network failure
     C = rng.uniform(1, 5, (h * w, 1))
     data = np.array([0.5, 0, 0, 0, 0, 0, 1, 2.0])
-    msg = keyframe_message(X, C, data, np.full(h * w, 7), h, w, keyframe_id=4, stamp_ns=99)
+    msg = keyframe_message(SlamFrame(X, C, data, np.full(h * w, 7), (h, w), keyframe_id=4), stamp_ns=99)
     T, s = sim3_pose(data)
     world_sim3 = s * X[5] + data[:3]  # lietorch: p_W = s·R·X + t (R = I here)
     world_msg = T[:3, :3] @ msg.points.reshape(-1, 3)[5] + T[:3, 3]

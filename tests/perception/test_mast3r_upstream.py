@@ -26,6 +26,7 @@ from riskfield.services.perception.mast3r_backend import (
     REQUIRED,
     RETRIEVER,
     Mast3rSlam,
+    SlamFrame,
     SlamParams,
     checkout_config,
     keyframe_message,
@@ -369,8 +370,8 @@ def test_messages_carry_the_average_confidence_thresholded_at_1_5() -> None:
     f.update_pointmap(X, np.array([[1.2], [1.4], [2.0], [3.0], [1.0], [5.0]]))
     f.update_pointmap(X, np.array([[1.2], [1.4], [1.0], [3.0], [2.5], [5.0]]))
     assert f.C[0, 0] == pytest.approx(2.4)  # the sum would pass any threshold
-    msg = keyframe_message(f.X_canon, f.get_average_conf(), f.T_WC.data, np.zeros(n), 2, 3, 0, 1, c_conf=C_CONF,
-                           kind="keyframe_new")
+    msg = keyframe_message(SlamFrame(f.X_canon, f.get_average_conf(), f.T_WC.data, np.zeros(n), (2, 3), 0), 1,
+                           c_conf=C_CONF, kind="keyframe_new")
     np.testing.assert_allclose(msg.confidence.reshape(-1), [0, 0, 1.5, 3.0, 1.75, 5.0])
     assert C_CONF == 1.5 and msg.kind == "keyframe_new"
 

@@ -31,6 +31,7 @@ import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -51,6 +52,7 @@ from riskfield.experiments.scenarios import (
 )
 from riskfield.experiments.stack import FAST_FILTER, Stack, perception_args, publish, recording
 from riskfield.experiments.tables import write_json
+from riskfield.options import grouped
 from riskfield.protocol import (
     EsdfGrid,
     RiskConfig,
@@ -460,7 +462,21 @@ def plot(out: Path, variant: str, rows: list[dict[str, Any]]) -> Path:
     return path
 
 
+@dataclass(frozen=True)
+class CoreOptions:
+    """The options of ``--mode core`` (:func:`core`)."""
+
+    families: Annotated[str, typer.Option(help="core: comma-separated families (default: all).")] = ""
+    episodes: Annotated[int, typer.Option(help="core: randomised episodes per family.", min=1)] = 100
+    seed: Annotated[int, typer.Option(help="core: the first episode's seed (seeds seed … seed+episodes-1).")] = 0
+    results: Annotated[Path | None, typer.Option(help="core: rewrite this RESULTS.md's 'Crowd families (core)' "
+                                                 "section with the run's table.")] = None
+    evade: Annotated[bool, typer.Option(
+        help="core: the filter's opt-in evade (retreat into floor seen free).")] = False
+
+
 @app.command()
+@grouped
 def crowd(
     perception: Annotated[str, typer.Option(help="gt or sim.")] = "sim",
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds.")] = "0,1,2",
@@ -472,23 +488,18 @@ def crowd(
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/crowd"),
     mode: Annotated[str, typer.Option(help="stack: the full service stack (the cases above); core: the filter "
                                       "core in closed loop over the CrowdNav-style families.")] = "stack",
-    families: Annotated[str, typer.Option(help="core: comma-separated families (default: all).")] = "",
-    episodes: Annotated[int, typer.Option(help="core: randomised episodes per family.", min=1)] = 100,
-    seed: Annotated[int, typer.Option(help="core: the first episode's seed (seeds seed … seed+episodes-1).")] = 0,
-    results: Annotated[Path | None, typer.Option(help="core: rewrite this RESULTS.md's 'Crowd families (core)' "
-                                                 "section with the run's table.")] = None,
-    evade: Annotated[bool, typer.Option(help="core: the filter's opt-in evade (retreat into floor seen free).")]
-    = False,
+    core_run: CoreOptions = CoreOptions(),
 ) -> None:
     """People crossing, coming head-on, overtaking, stopping and turning in a robot's way."""
     console = Console()
     if mode == "core":
-        core(families, episodes, seed, out if out != Path("bench_out/crowd") else Path("bench_out/crowd_core"),
-             results, console, evade)
+        c = core_run
+        core(c.families, c.episodes, c.seed, out if out != Path("bench_out/crowd") else Path("bench_out/crowd_core"),
+             c.results, console, c.evade)
         return
     if mode != "stack":
         raise typer.BadParameter("mode must be stack or core")
-    if families:
+    if core_run.families:
         raise typer.BadParameter("--families runs in --mode core only (the stack mode runs the kinds)")
     if perception not in ("gt", "sim"):
         raise typer.BadParameter("perception must be gt or sim")

@@ -47,6 +47,7 @@ import threading
 import time
 import uuid
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -61,6 +62,7 @@ from riskfield.edge.limo.emulator import ChassisEmulator
 from riskfield.edge.limo.protocol import MotionCommand
 from riskfield.experiments.stack import publish
 from riskfield.experiments.timing import timing_stats
+from riskfield.options import grouped
 from riskfield.protocol import EsdfGrid, Keys, NodeStatus, SafetyStatus, VelocityCommand, decode, encode
 from riskfield.services.runtime.processes import EmbeddedRouter, ProcessRunner, client_session, wait_until
 
@@ -116,63 +118,69 @@ class Timeline:
         return None
 
 
-@app.command()
-def latency(
-    samples: Annotated[int, typer.Option(help="Measured events.")] = 300,
-    warmup: Annotated[int, typer.Option(help="Events sent first and not counted.")] = 20,
-    rate_hz: Annotated[float, typer.Option(help="Events per second.")] = 20.0,
-    filter_service: Annotated[str, typer.Option("--filter", help="safety-filter, or relay (no filter).")] =
-    "safety-filter",
-    poll_ms: Annotated[float, typer.Option(help="Joystick poll period (ms); events wake it at once anyway.")] = 10.0,
-    out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench/latency"),
-    filter_set: Annotated[list[str] | None, typer.Option("--filter-set", help="key=value for the filter.")] = None,
-    hops: Annotated[bool, typer.Option(help="Also time cmd/ref and cmd/safe (adds two subscribers here).")] = True,
+@dataclass(frozen=True)
+class LatencyOptions:
+    """The options of ``riskfield bench latency`` (:func:`latency`), each path reading its own."""
+
+    samples: Annotated[int, typer.Option(help="Measured events.")] = 300
+    warmup: Annotated[int, typer.Option(help="Events sent first and not counted.")] = 20
+    rate_hz: Annotated[float, typer.Option(help="Events per second.")] = 20.0
+    filter_service: Annotated[str, typer.Option("--filter", help="safety-filter, or relay (no filter).")] = \
+        "safety-filter"
+    poll_ms: Annotated[float, typer.Option(help="Joystick poll period (ms); events wake it at once anyway.")] = 10.0
+    out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench/latency")
+    filter_set: Annotated[list[str] | None, typer.Option("--filter-set", help="key=value for the filter.")] = None
+    hops: Annotated[bool, typer.Option(help="Also time cmd/ref and cmd/safe (adds two subscribers here).")] = True
     path: Annotated[str, typer.Option(help="teleop (joystick → serial), camera (camera → cmd/safe), both, or "
-                                           "replay (recorded perception frames → cmd/safe).")] =
-    "both",
-    replay_frames: Annotated[int, typer.Option(help="Replay path: frames recorded and replayed (10 Hz).")] = 250,
-    camera_seconds: Annotated[float, typer.Option(help="Camera path: seconds measured.")] = 30.0,
-    camera_warmup_s: Annotated[float, typer.Option(help="Camera path: seconds after the first ESDF not counted.")] =
-    3.0,
+                                           "replay (recorded perception frames → cmd/safe).")] = "both"
+    replay_frames: Annotated[int, typer.Option(help="Replay path: frames recorded and replayed (10 Hz).")] = 250
+    camera_seconds: Annotated[float, typer.Option(help="Camera path: seconds measured.")] = 30.0
+    camera_warmup_s: Annotated[float, typer.Option(help="Camera path: seconds after the first ESDF not counted.")] = \
+        3.0
     previous: Annotated[bool, typer.Option(help="Camera path: first also as the previous scheduling ran it "
-                                                "(mapping esdf_rate_hz=10, no filter step on a new map).")] = False,
-) -> None:
+                                                "(mapping esdf_rate_hz=10, no filter step on a new map).")] = False
+
+
+@app.command()
+@grouped
+def latency(o: LatencyOptions) -> None:
     """Teleop latency (p99 target ≤ 5 ms on loopback) and camera → cmd/safe latency with the ESDF's age
     (p99 targets: content age ≤ camera period + 40 ms, camera frame → cmd/safe ≤ 100 ms)."""
-    if path not in ("teleop", "camera", "both", "replay"):
-        raise typer.BadParameter(f"--path {path!r}: use teleop, camera, both or replay")
+    if o.path not in ("teleop", "camera", "both", "replay"):
+        raise typer.BadParameter(f"--path {o.path!r}: use teleop, camera, both or replay")
     console = Console()
     summary: dict[str, Any] = {"bench": "latency"}
     ok = True
-    if path in ("teleop", "both"):
-        teleop = teleop_path(console, samples, warmup, rate_hz, filter_service, poll_ms, filter_set, hops)
+    if o.path in ("teleop", "both"):
+        teleop = teleop_path(console, o)
         summary.update(teleop)
         ok = ok and teleop["target_met"]
-    if path in ("camera", "both"):
-        if previous:
-            summary["camera_path_previous"] = camera_path(console, camera_seconds, camera_warmup_s, PREVIOUS,
+    if o.path in ("camera", "both"):
+        if o.previous:
+            summary["camera_path_previous"] = camera_path(console, o.camera_seconds, o.camera_warmup_s, PREVIOUS,
                                                           "previous scheduling")
-        cam = camera_path(console, camera_seconds, camera_warmup_s)
+        cam = camera_path(console, o.camera_seconds, o.camera_warmup_s)
         summary["camera_path"] = cam
         ok = ok and cam["target_met"]
-        if previous:
+        if o.previous:
             console.print(compare_table(summary["camera_path_previous"], cam))
-    if path == "replay":  # the path the product owns, without rendering and perception (experiments.replay)
+    if o.path == "replay":  # the path the product owns, without rendering and perception (experiments.replay)
         from riskfield.experiments.replay import replay_path
 
-        rep = summary["replay_path"] = replay_path(console, replay_frames, warmup)
+        rep = summary["replay_path"] = replay_path(console, o.replay_frames, o.warmup)
         ok = ok and rep["target_met"]
     summary["all_targets_met"] = ok
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    console.print(f"wrote {out / 'summary.json'}")
-    if summary.get("lost") == samples or summary.get("camera_path", {}).get("no_data"):
+    o.out.mkdir(parents=True, exist_ok=True)
+    (o.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    console.print(f"wrote {o.out / 'summary.json'}")
+    if summary.get("lost") == o.samples or summary.get("camera_path", {}).get("no_data"):
         raise typer.Exit(1)
 
 
-def teleop_path(console: Console, samples: int, warmup: int, rate_hz: float, filter_service: str, poll_ms: float,
-                filter_set: list[str] | None, hops: bool) -> dict[str, Any]:
+def teleop_path(console: Console, o: LatencyOptions) -> dict[str, Any]:
     """Joystick event → serial bytes through the filter; the teleop part of ``summary.json``."""
+    samples, warmup, rate_hz, filter_service = o.samples, o.warmup, o.rate_hz, o.filter_service
+    poll_ms, filter_set, hops = o.poll_ms, o.filter_set, o.hops
     robot = f"bench_{uuid.uuid4().hex[:6]}"
     keys = Keys(robot)
     values = stick_values(warmup + samples)

@@ -43,6 +43,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -52,6 +53,7 @@ from rich.console import Console
 from rich.table import Table
 
 from riskfield.experiments.timing import timing_stats
+from riskfield.options import grouped
 from riskfield.protocol import RiskConfig, ade20k, decode
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, Sphere, render
@@ -319,7 +321,17 @@ def _ratio(walls: dict[str, list[float]]) -> dict[str, float]:
     return {"previous_ms": a, "now_ms": b, "ratio": a / b if b > 0 else float("inf"), "n": len(walls["now"])}
 
 
+@dataclass(frozen=True)
+class NodeFeed:
+    """The bench's run of the mapping node itself, fed rendered pointmaps over Zenoh."""
+
+    node_seconds: Annotated[float, typer.Option(help="Feed the mapping node over Zenoh this long (0: skip).")] = 6.0
+    node_rate: Annotated[float, typer.Option(help="Pointmaps per second fed to the node.")] = 30.0
+    node_wave: Annotated[bool, typer.Option(help="Also run the 3-D node with esdf_incremental=wave.")] = True
+
+
 @app.command()
+@grouped
 def main(
     out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Path("out/bench-mapping"),
     frames: Annotated[int, typer.Option(help="Frames integrated (camera poses along an arc).")] = 30,
@@ -328,9 +340,7 @@ def main(
     height: int = 384,
     pixel_stride: Annotated[int, typer.Option(help="Integrate every n-th pixel (default config: 2).")] = 2,
     threads: Annotated[int, typer.Option(help="Threads of the EDT.")] = MapperConfig.model_fields["threads"].default,
-    node_seconds: Annotated[float, typer.Option(help="Feed the mapping node over Zenoh this long (0: skip).")] = 6.0,
-    node_rate: Annotated[float, typer.Option(help="Pointmaps per second fed to the node.")] = 30.0,
-    node_wave: Annotated[bool, typer.Option(help="Also run the 3-D node with esdf_incremental=wave.")] = True,
+    feed: NodeFeed = NodeFeed(),
 ) -> None:
     """TSDF, ESDF (exact vs. paper dilation, 3-D vs. 2-D slice) and query timings: medians, p99, CPU."""
     console = Console()
@@ -346,12 +356,13 @@ def main(
     comparison = compare(rendered, poses, camera, threads)
     comparison["ESDF 3-D full recompute (glibc's heap policy → the node's heap_keep_mb)"] = heap
     node = node_e2e = node_w = None
-    if node_seconds > 0:
-        node = node_rate_test(rendered, poses, camera, node_seconds, node_rate)
-        if node_wave:
-            node_w = node_rate_test(rendered, poses, camera, node_seconds, node_rate,
+    if feed.node_seconds > 0:
+        node = node_rate_test(rendered, poses, camera, feed.node_seconds, feed.node_rate)
+        if feed.node_wave:
+            node_w = node_rate_test(rendered, poses, camera, feed.node_seconds, feed.node_rate,
                                     mapping_set=("esdf_incremental=wave",))
-        node_e2e = node_rate_test(rendered, poses, camera, node_seconds, node_rate, output="2d", with_filter=True)
+        node_e2e = node_rate_test(rendered, poses, camera, feed.node_seconds, feed.node_rate, output="2d",
+                                  with_filter=True)
 
     mapper = Mapper(MapperConfig(output="both", **base), RiskConfig())
     mapper.set_robot_position(np.zeros(3))

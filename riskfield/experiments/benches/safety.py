@@ -12,6 +12,7 @@ trajectory) and plots into ``--out``. See ``safety_benchmark`` for the protocol.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -21,6 +22,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from riskfield.experiments.authors_bench import RunOptions
 from riskfield.experiments.benches.safety_authors import authors_run
 from riskfield.experiments.metrics import Rollout, matched, summarise
 from riskfield.experiments.safety_benchmark import (
@@ -43,6 +45,7 @@ from riskfield.experiments.safety_benchmark import (
 )
 from riskfield.experiments.scannetpp import load_scene, scannetpp_folders
 from riskfield.experiments.tables import plot_safety, safety_table, table2, table3, write_json
+from riskfield.options import grouped
 from riskfield.protocol import RiskConfig
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.navigator.clf import PointMassCLF
@@ -51,57 +54,75 @@ from riskfield.services.simulator.camera import Renderer
 app = typer.Typer(add_completion=False)
 
 
-@app.command()
-def safety(
-    trajectories: Annotated[int, typer.Option(help="Matched start/goal pairs in total (paper: 486).")] = 486,
-    scenes: Annotated[int, typer.Option(help="Procedural scenes.")] = 6,
-    perception: Annotated[str, typer.Option(help="gt (exact pointmaps) or sim (FM-like degraded).")] = "gt",
-    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/safety"),
-    map_budget: Annotated[float, typer.Option(help="Seconds each method may spend integrating frames.")] = 6.0,
-    frames: Annotated[int, typer.Option(help="Frames in each scene's input stream.")] = 48,
-    robot_radius: Annotated[float, typer.Option(help="Robot radius (m), subtracted from every distance.")] = 0.15,
-    seed: Annotated[int, typer.Option(help="Seed of scenes and pairs.")] = 0,
+@dataclass(frozen=True)
+class SafetyOptions:
+    """The options of ``riskfield bench safety`` (:func:`safety`) but the authors' protocol's own."""
+
+    trajectories: Annotated[int, typer.Option(help="Matched start/goal pairs in total (paper: 486).")] = 486
+    scenes: Annotated[int, typer.Option(help="Procedural scenes.")] = 6
+    perception: Annotated[str, typer.Option(help="gt (exact pointmaps) or sim (FM-like degraded).")] = "gt"
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("bench_out/safety")
+    map_budget: Annotated[float, typer.Option(help="Seconds each method may spend integrating frames.")] = 6.0
+    frames: Annotated[int, typer.Option(help="Frames in each scene's input stream.")] = 48
+    robot_radius: Annotated[float, typer.Option(help="Robot radius (m), subtracted from every distance.")] = 0.15
+    seed: Annotated[int, typer.Option(help="Seed of scenes and pairs.")] = 0
     scannetpp: Annotated[list[Path] | None, typer.Option(
-        help="ScanNet++ scene folder, or a data folder of scenes (repeatable).")] = None,
+        help="ScanNet++ scene folder, or a data folder of scenes (repeatable).")] = None
     protocol: Annotated[str, typer.Option(
-        help="riskfield (this project's benchmark) or authors (the paper's published protocol).")] = "riskfield",
+        help="riskfield (this project's benchmark) or authors (the paper's published protocol).")] = "riskfield"
+
+
+@dataclass(frozen=True)
+class AuthorsOptions:
+    """The options of the authors' protocol (``--protocol authors``)."""
+
     semantic: Annotated[str, typer.Option(
         help="authors protocol: target (only the target's group inflated, the authors'), scene (every group "
-             "inflated) or both (target is primary).")] = "both",
-    per_group: Annotated[int, typer.Option(help="authors protocol: pairs requested per risk group and scene.")] = 50,
-    baseline: Annotated[bool, typer.Option(help="authors protocol: run the SaferSplat-style baseline.")] = True,
+             "inflated) or both (target is primary).")] = "both"
+    per_group: Annotated[int, typer.Option(help="authors protocol: pairs requested per risk group and scene.")] = 50
+    baseline: Annotated[bool, typer.Option(help="authors protocol: run the SaferSplat-style baseline.")] = True
+
+
+@app.command()
+@grouped
+def safety(
+    o: SafetyOptions = SafetyOptions(),
+    authors: AuthorsOptions = AuthorsOptions(),
 ) -> None:
     """Equal-time comparison of a point-cloud CBF, the ESDF and the semantic ESDF (3-D double integrator)."""
-    if perception not in ("gt", "sim"):
+    if o.perception not in ("gt", "sim"):
         raise typer.BadParameter("perception must be gt or sim")
-    if protocol not in ("riskfield", "authors"):
+    if o.protocol not in ("riskfield", "authors"):
         raise typer.BadParameter("protocol must be riskfield or authors")
-    folders = [f for root in scannetpp or [] for f in scannetpp_folders(root)]
-    if protocol == "authors":
-        if semantic not in ("target", "scene", "both"):
+    folders = [f for root in o.scannetpp or [] for f in scannetpp_folders(root)]
+    if o.protocol == "authors":
+        if authors.semantic not in ("target", "scene", "both"):
             raise typer.BadParameter("semantic must be target, scene or both")
-        modes = ("target", "scene") if semantic == "both" else (semantic,)
-        authors_run(out, scenes=scenes, folders=folders, perception=perception, modes=modes, per_group=per_group,
-                    frames=frames, map_budget=map_budget, seed=seed, baseline=baseline)
+        modes = ("target", "scene") if authors.semantic == "both" else (authors.semantic,)
+        options = RunOptions(modes=modes, frames=o.frames, map_budget_s=o.map_budget, seed=o.seed,
+                             baseline=authors.baseline)
+        authors_run(o.out, scenes=o.scenes, folders=folders, perception=o.perception, per_group=authors.per_group,
+                    options=options)
         return
     console = Console()
-    cfg = BenchConfig(trajectories=trajectories, scenes=scenes, perception=perception, map_budget_s=map_budget,
-                      frames=frames, robot_radius=robot_radius, seed=seed)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg = BenchConfig(trajectories=o.trajectories, scenes=o.scenes, perception=o.perception, map_budget_s=o.map_budget,
+                      frames=o.frames, robot_radius=o.robot_radius, seed=o.seed)
+    o.out.mkdir(parents=True, exist_ok=True)
     risk = RiskConfig()
     t_start = time.perf_counter()
 
-    cases = [procedural_case(seed * 1000 + i, risk) for i in range(scenes)]
+    cases = [procedural_case(o.seed * 1000 + i, risk) for i in range(o.scenes)]
     for folder in folders:
 
         cases.append(make_case(f"scannetpp_{folder.name}", load_scene(folder), risk))
     if not cases:
         raise typer.BadParameter("no scenes: use --scenes ≥ 1 or --scannetpp")
-    per_scene = [trajectories // len(cases) + (1 if i < trajectories % len(cases) else 0) for i in range(len(cases))]
+    per_scene = [o.trajectories // len(cases) + (1 if i < o.trajectories % len(cases) else 0)
+                 for i in range(len(cases))]
 
 
     renderer = Renderer(PinholeCamera.from_fov(*cfg.image, 90.0))
-    perceive = gt_perception(renderer) if perception == "gt" else sim_perception(renderer, seed)
+    perceive = gt_perception(renderer) if o.perception == "gt" else sim_perception(renderer, o.seed)
     clf = PointMassCLF(cfg.k_p, cfg.k_d, cfg.v_max, cfg.a_max)
     safe = filter_safe_control(cfg)
     extra = variants(cfg)
@@ -116,7 +137,7 @@ def safety(
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
     with Progress(*columns, console=console) as progress:
-        task = progress.add_task("roll-outs", total=trajectories * per_pair)
+        task = progress.add_task("roll-outs", total=o.trajectories * per_pair)
         for case, n in zip(cases, per_scene, strict=True):
             progress.update(task, description=f"{case.name}: maps")
             snap = case.scene.at(0.0)
@@ -169,13 +190,13 @@ def safety(
               "semantic": summarise(rollouts, mp_esdf, SEMANTIC).as_dict()}
     wall = time.perf_counter() - t_start
 
-    md = [f"# riskfield bench safety — perception `{perception}`", "",
-          f"{len(cases)} scenes, {n_pairs} matched trajectories, robot radius {robot_radius} m, map budget "
-          f"{map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), "",
+    md = [f"# riskfield bench safety — perception `{o.perception}`", "",
+          f"{len(cases)} scenes, {n_pairs} matched trajectories, robot radius {o.robot_radius} m, map budget "
+          f"{o.map_budget} s, wall time {wall:.0f} s.", "", table2(t2, n_pairs), "", table3(t3, n_pairs), "",
           safety_table({**t2, **t_extra, **{f"{m} – {g}": {**t3[g][k], "margin_m": margins[m]} for g in groups
                                             for m, k in ((ESDF, "esdf"), (SEMANTIC, "semantic"))}}, n_pairs,
                        barrier=safe.barrier), ""]
-    (out / "tables.md").write_text("\n".join(md))
+    (o.out / "tables.md").write_text("\n".join(md))
     per_traj = [dict(pair=r.pair, scene=r.scene, method=r.method, group=r.group, progress=r.progress,
                      reached=r.reached,
                      mp_clearance_all=mp_all.get((r.method, r.pair), mp_extra.get((r.method, r.pair))),
@@ -183,14 +204,14 @@ def safety(
                      relaxed_steps=r.relaxed_steps,
                      steps=len(r.filter_times), filter_time_mean_s=float(r.filter_times.mean()),
                      start=r.start, goal=r.goal) for r in rollouts]
-    write_json(out / "summary.json", dict(
+    write_json(o.out / "summary.json", dict(
         benchmark="safety", config=cfg.__dict__, risk=risk.model_dump(mode="json"), wall_time_s=wall,
         trajectories=n_pairs, methods=methods_info, table2=t2, no_extra_margin=t_extra, table3=t3,
         table3_overall=t3_all, maps=maps_info,
         filter_time_median_s={m: float(np.median(np.concatenate([r.filter_times for r in rollouts if r.method == m])))
                               for m in (*METHODS, *extra_methods)},
         per_trajectory=per_traj))
-    plot_safety(out,
+    plot_safety(o.out,
                 {m: [mp_all[(m, r.pair)] for r in rollouts if r.method == m] for m in METHODS},
                 {m: [r.progress for r in rollouts if r.method == m] for m in METHODS},
                 {m: np.concatenate([r.filter_times for r in rollouts if r.method == m]) for m in METHODS},
@@ -219,7 +240,7 @@ def safety(
                                                                 s["mp_collision_rate"], s["collision_rate"],
                                                                 s["min_clearance_m"])))
     console.print(g_table)
-    console.print(f"wrote {out / 'tables.md'}, {out / 'summary.json'} and plots ({wall:.0f} s)")
+    console.print(f"wrote {o.out / 'tables.md'}, {o.out / 'summary.json'} and plots ({wall:.0f} s)")
 
 
 __all__ = ["POINTCLOUD", "app"]

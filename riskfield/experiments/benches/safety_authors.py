@@ -30,10 +30,13 @@ def procedural_scene(seed: int) -> B.Scene:
     return B.Scene(f"procedural_{seed}", random_room(seed, furniture=4, boxes=2, balls=2, people=2, animals=2))
 
 
-def authors_run(out: Path, *, scenes: int, folders: Sequence[Path], perception: str, modes: Sequence[str],
-                per_group: int = 50, frames: int = 48, map_budget: float = 6.0, seed: int = 0,
-                baseline: bool = True, console: Console | None = None) -> dict:
+def authors_run(out: Path, *, scenes: int, folders: Sequence[Path], perception: str, per_group: int = 50,
+                options: B.RunOptions, console: Console | None = None) -> dict:
+    """The protocol over ``scenes`` procedural rooms and the ScanNet++ ``folders``, ``per_group``
+    start/goal pairs requested per risk group and scene, with ``perception`` gt or sim; writes
+    ``out``'s files (module doc) and returns the summary."""
     console = console or Console()
+    seed, modes, map_budget = options.seed, options.modes, options.map_budget_s
     t_start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     cfg = A.AuthorsConfig(per_group=per_group)
@@ -51,8 +54,7 @@ def authors_run(out: Path, *, scenes: int, folders: Sequence[Path], perception: 
         def on_scene(description: str, more: int) -> None:
             progress.update(task, description=description, total=progress.tasks[0].total + more)
 
-        result = B.run(todo, perceive, cfg, modes=modes, frames=frames, map_budget_s=map_budget, seed=seed,
-                       baseline=baseline, on_scene=on_scene, on_rollout=lambda: progress.advance(task))
+        result = B.run(todo, perceive, cfg, options, on_scene=on_scene, on_rollout=lambda: progress.advance(task))
     primary = modes[0]
     t = B.tables(result, primary)
     wall = time.perf_counter() - t_start
