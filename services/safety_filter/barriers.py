@@ -354,12 +354,12 @@ class DoubleIntegrator(BarrierModel):
     A fixed speed floor s₀ (``brake_speed_floor``) keeps the input's coefficient c ≥ s₀/a_b: with
     φ = s²/(2a_b) alone, c vanishes at rest and a robot at rest just inside its barrier (a
     sampled-data overshoot, in the corner between two obstacles where it has stopped) has no
-    input that raises h_b at once — every such step was a relaxed QP. It costs at most
+    input that raises h_b at once, and every such step is a relaxed QP. It costs at most
     s₀²/(2a_b) (5 mm for s₀ = 0.1 m/s, a_b = 1.05 m/s²) of clearance at s = s₀. For s < 0
     (moving away) φ < 0 credits the receding speed; h only grows while s < 0, and φ(0) = 0,
     so a state that keeps h_b ≥ 0 has h ≥ 0 whenever it approaches.
 
-    and the row is the first-order CBF ḣ_b ≥ -κ h_b with κ = k₁, the slower root of the group's
+    The row is the first-order CBF ḣ_b ≥ -κ h_b with κ = k₁, the slower root of the group's
     s² + α₁ s + α₂ = (s + k₁)(s + k₂): on the HOCBF's boundary h decays as e^{-k₁t} once the
     fast mode has died out, so the approach speed s ≤ κ h it allows near the obstacle is the one
     the paper's filter settles to, and the groups keep their ordering:
@@ -368,9 +368,8 @@ class DoubleIntegrator(BarrierModel):
 
     (The default is the linear α(h_b) = κ h_b. A steeper one, below, makes fewer relaxed steps at the
     distance field's ridges but brings the robot to the map's surface fast: with s₀ = 0.1 m/s and
-    ℓ = 2 cm the benchmark's robot rode the surface within millimetres, and with no extra margin
-    every few millimetres the map read long were a collision — 0.171 of 486 roll-outs, against
-    0.037 with s₀ = a_b/k₂ and the linear rate.)
+    ℓ = 2 cm it rides the surface within millimetres, so with no extra margin every few
+    millimetres the map reads long are a collision.)
     Far from the boundary the linear class-K function is needlessly tight: the row asks
     ḣ_b ≥ -κ h_b, and where the nearest obstacle changes (the ridge of the distance field
     between two obstacles or around a corner, vᵀ∇²d v ≈ -|∇²d| |v|² with |∇²d| up to

@@ -86,12 +86,10 @@ class BarrierParams(BaseModel):
     is where φ turns from linear to the braking parabola; ``None`` (default) takes a_b/k₂ of each
     row's risk group (k₂ the faster root of s² + α₁ s + α₂). Below s₀ the braking barrier is then
     the paper's HOCBF (h_b = h + ḣ/k₂), above it the robot can still stop within the bounds; on
-    the safety benchmark (v ≤ 0.5 m/s < a_b/k₂ = 0.7 m/s) it collides as often as ``hocbf``: at
-    zero extra margin (gt, 486 trajectories) 0.037 / 0.004 full-run collisions (ESDF / semantic
-    ESDF) for both, where a fixed s₀ = 0.1 m/s with ℓ = 2 cm had
-    0.171 / 0.074 — its fast approach rode the map's surface within millimetres, and the map
-    reads a few millimetres to centimetres long. A fixed s₀ keeps the input coefficient ≥ s₀/a_b
-    (``DoubleIntegrator``). ``brake_rate_length`` ℓ (m) shapes the class-K function
+    the safety benchmark (v ≤ 0.5 m/s < a_b/k₂ = 0.7 m/s) it collides as often as ``hocbf``, and a
+    fixed s₀ = 0.1 m/s with ℓ = 2 cm more often: its fast approach rides the map's surface within
+    millimetres, and the map reads a few millimetres to centimetres long. A fixed s₀ keeps the
+    input coefficient ≥ s₀/a_b (``DoubleIntegrator``). ``brake_rate_length`` ℓ (m) shapes the class-K function
     κ h_b (1 + h_b/ℓ): linear near the boundary, steeper with clearance (fewer relaxed steps at
     the distance field's ridges, a faster approach); ``inf`` (default): linear.
     """
@@ -376,7 +374,7 @@ class FilterConfig(MotionParams, QpParams, BoundsParams, BarrierParams):
             body = (np.array(pts).reshape(-1, 3), np.array(radii)) if pts else None
             return UnicycleLookahead(self.lookahead_m, self.robot_radius, self.lambda_v, self.lambda_w,
                                      self.v_max, self.w_max, extra, body)  # type: ignore[arg-type]
-        if not pts:  # no body: the centre point with robot_radius, as before footprints
+        if not pts:  # no body: the centre point with robot_radius
             pts, radii = [(0.0, 0.0, 0.0)], [self.robot_radius]
         pts = [*pts, *extra]  # type: ignore[list-item]
         radii = np.array([*radii, *[self.robot_radius] * len(extra)])  # type: ignore[assignment]

@@ -418,9 +418,7 @@ def point_row(desc, motion, i, grad, hess, hb, gain, wobj, a_row):
             # changed, a point cloud's nearest point switched) with the speed floor a_b/k₂, where
             # the barrier is the HOCBF: its recovery below with ψ₁ = h_b / c, k_fast = 1 / c, so h
             # stays positive instead of h_b creeping back at κ while the robot slides on into the
-            # obstacle (on the sim point cloud of the safety benchmark 0.74 of the roll-outs
-            # collided with κ, 0.02 with this, as with ``hocbf``). A fixed floor keeps κ: the
-            # braking barrier with a constant recovery rate.
+            # obstacle. A fixed floor keeps κ: the braking barrier with a constant recovery rate.
             rate = max(kappa, (1.0 + 2 * abs(hbrake) / max(hb, 1e-3)) / cc) * hbrake
         for j in range(di[DescInts.N]):
             a_row[j] = a_row[j] * cc

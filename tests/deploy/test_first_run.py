@@ -1,5 +1,5 @@
 """A new user's first run: a fresh clone, no compiled kernels anywhere, passes `riskfield demo` the
-first time (issue 24: it failed twice on a cold numba cache before it passed)."""
+first time, on a cold numba cache."""
 
 from __future__ import annotations
 
@@ -23,11 +23,11 @@ def test_a_fresh_clone_passes_the_demo_on_its_first_run():
     """``git clone`` of this checkout into a temporary folder, installed editable into a new venv,
     then ``riskfield demo``: it warms its kernels (cold: minutes), then runs both experiments.
 
-    Fresh where the issue was: the source tree, its install and numba's cache (NUMBA_CACHE_DIR unset,
+    Fresh: the source tree, its install and numba's cache (NUMBA_CACHE_DIR unset,
     so numba caches in ``__pycache__`` beside the clone's sources, as for a new user). Reused: the
     third-party packages, through a ``.pth`` line naming this venv's site-packages (a path line only:
     this venv's own editable finder of riskfield is not loaded). Installing them again would test
-    pip and its download cache, which the issue allows to be warm, not the first run."""
+    pip and its download cache, not the first run."""
     work = Path(tempfile.mkdtemp(prefix="rf-first-run-"))
     try:
         clone, venv, out = work / "clone", work / "venv", work / "out"

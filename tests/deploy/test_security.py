@@ -215,7 +215,7 @@ def test_teleop_cmd_safe_never_reaches_a_subscriber(secrets: Secrets, server: st
 
 @pytest.mark.parametrize("role", ["navigator", "teleop"])
 def test_a_source_puts_only_its_own_reference_key(secrets: Secrets, server: str, role: str) -> None:
-    """Issue 35: priority follows the key, and the key follows the identity. The navigator (and the
+    """Priority follows the key, and the key follows the identity. The navigator (and the
     keyboard) may not put the joystick's cmd/ref/joystick, its lock, or the plain cmd/ref whose
     declared source the filter would trust; its own cmd/ref/<source> gets through."""
     own_key = KEYS.cmd_ref_of(REF_SOURCES[role][0])

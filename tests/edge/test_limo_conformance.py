@@ -9,9 +9,9 @@ The vendor's int16 cast truncates towards zero (``int16_t steering_cmd = steerin
 the examples are chosen where that and rounding agree, except the steering field, which the bridge
 truncates as the vendor does.
 
-Each docstring says what the bridge sent before (``git show 74fc933^:edge/limo/kinematics.py``:
-the central angle itself as the steering field, clamped to 0.488; ``bridge.py``: the 0x221
-angular field as the yaw rate, one enable frame for every mode) where that differs.
+Where a plausible encoding differs from the vendor's (the central angle itself as the steering
+field, clamped to 0.488; the 0x221 angular field as the yaw rate; one enable frame for every mode),
+the docstring says what that encoding gives.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def bridge(mode: MotionMode | None, **kw: object) -> LimoBridge:
     return b
 
 
-# -- differential (unchanged: the same frames before and after) ---------------------------------
+# -- differential ---------------------------------------------------------------------------------
 
 
 def test_differential_frame_is_the_vendors() -> None:
@@ -68,7 +68,7 @@ def test_ackermann_frame_is_the_inner_angle_over_1_64() -> None:
     """v = 0.5, ω = 0.5: r = v/ω = 1 m; central c = atan(L/r) = 0.197396; inner
     tan i = 2L·sin c / (2L·cos c − T·sin c) = L / (r − T/2) = 0.2 / 0.914 → i = 0.215423 (below
     0.48869); field i / 1.64 = 0.131355 → 131 = 0x0083; linear 500 = 0x01F4, angular 0.
-    Checksum 0x01 + 0xF4 + 0x83 = 0x178 → 0x78. Before: the field was c itself, 197 = 0x00C5."""
+    Checksum 0x01 + 0xF4 + 0x83 = 0x178 → 0x78. The field is not c itself (197 = 0x00C5)."""
     b = bridge(MotionMode.ACKERMANN)
     assert b.on_command(0.5, 0.0, 0.5, 0.0) == bytes.fromhex("550e0111" "01f4000000000083" "00" "78")
 
@@ -76,7 +76,7 @@ def test_ackermann_frame_is_the_inner_angle_over_1_64() -> None:
 def test_ackermann_reversing_keeps_the_vendors_sign() -> None:
     """v = −0.3, ω = 0.3: r = −1 m, c = atan(L/r) = −0.197396, i = −0.215423, field −0.131355 →
     −131 (towards zero) = 0xFF7D; linear −300 = 0xFED4. Checksum 0xFE+0xD4+0xFF+0x7D = 0x24E → 0x4E.
-    Before: −197."""
+    Not −197."""
     b = bridge(MotionMode.ACKERMANN)
     assert b.on_command(-0.3, 0.0, 0.3, 0.0) == bytes.fromhex("550e0111" "fed400000000ff7d" "00" "4e")
 
@@ -86,7 +86,7 @@ def test_ackermann_clamps_the_inner_wheel() -> None:
     = 1.123276; 2L·cos c − T·sin c = 0.018030 > 0, i = atan(0.4·sin c / 0.018030) = 1.520838,
     clamped to pylimo's 0.48869 → field 0.297982 → 297 = 0x0129 (the bridge's 0.488, the
     reference's figure, gives 0.297561 → 297 too: the same frame). Linear 200 = 0x00C8.
-    Checksum 0xC8 + 0x01 + 0x29 = 0xF2. Before: 488 (the central angle clamped to 0.488).
+    Checksum 0xC8 + 0x01 + 0x29 = 0xF2. Not 488 (the central angle clamped to 0.488).
     (limo_ros at HEAD compares i with 28.0 and would send 1.520838 / 1.64 → 927.)"""
     b = bridge(MotionMode.ACKERMANN)
     assert b.on_command(0.2, 0.0, 3.0, 0.0) == bytes.fromhex("550e0111" "00c8000000000129" "00" "f2")
@@ -96,8 +96,8 @@ def test_ackermann_clamps_the_inner_wheel() -> None:
 def test_the_central_limit_follows_from_the_inner_one_and_the_geometry() -> None:
     """``convertInnerAngleToCentral`` at the limit: r = L / tan i + T/2, c = atan(L / r).
     i = 0.488: tan i = 0.530674, r = 0.376878 + 0.086 = 0.462774 m, c = atan(0.432176) = 0.407933.
-    i = 0.48869 (pylimo): r = 0.462147 m, c = 0.408427. Before: the central limit was 0.488
-    (radius L / tan 0.488 = 0.378 m) and no inner limit existed."""
+    i = 0.48869 (pylimo): r = 0.462147 m, c = 0.408427. 0.488 is the inner wheel's limit: as the
+    central one it would allow a radius of L / tan 0.488 = 0.378 m."""
     lim = LimoLimits()
     assert lim.max_central_steering == pytest.approx(0.407933, abs=1e-6)
     assert 1 / lim.max_curvature == pytest.approx(0.462774, abs=1e-6)
@@ -121,7 +121,7 @@ def test_the_central_limit_follows_from_the_inner_one_and_the_geometry() -> None
 def test_ackermann_state_from_the_steering_feedback(raw: int, linear: float, wz: float, central: float) -> None:
     """``parseFrame`` (0x221: s = raw / 1000, ×2.47 if s > 0 else ×1.64 is the inner angle) and
     ``publishOdometry`` MODE_ACKERMANN (r = L / tan|i| + T/2, ω = ±v / r by the sign of the central
-    angle). The frame's angular field is 0, as the vendor ignores it. Before: ω was that field, 0."""
+    angle). The frame's angular field is 0, as the vendor ignores it; ω does not come from it."""
     b = bridge(MotionMode.ACKERMANN, use_imu=False)
     data = (round(linear * 1e3).to_bytes(2, "big", signed=True) + bytes(4) + raw.to_bytes(2, "big", signed=True))
     b.on_bytes(p.encode_frame(p.MOTION_STATE_ID, data) + p.encode(p.Odometry(0.0, 0.0)), 1.0)
@@ -139,8 +139,8 @@ def test_mecanum_forces_the_mode_frame_and_sends_lateral_whatever_d6_says() -> N
     """``use_mcnamu``: the constructor sends ``enableCommandedMode`` then ``enableMcMode``,
     {1, 0, 1, 0, 0, 0, 0, 0} (checksum 2), and ``parseFrame`` ignores 0x211 d6. MODE_MCNAMU:
     ``setMotionCommand(v, ω, vy, 0)``; v = 0.2, vy = 0.1, ω = 0.3 → 200 = 0x00C8, 300 = 0x012C,
-    100 = 0x0064; checksum 0xC8 + 0x01 + 0x2C + 0x64 = 0x159 → 0x59. Before: the plain enable
-    frame, and a chassis reporting d6 = 0 (it cannot see its mecanum wheels) was a mode mismatch."""
+    100 = 0x0064; checksum 0xC8 + 0x01 + 0x2C + 0x64 = 0x159 → 0x59. Not the plain enable
+    frame, and a chassis reporting d6 = 0 (it cannot see its mecanum wheels) is no mode mismatch."""
     b = LimoBridge(BridgeConfig(motion_mode=MotionMode.MECANUM, enable_retry_s=1.0))
     assert b.on_connected(0.0)[:14] == ENABLE_MECANUM
     assert b.tick(1.5)[:14] == ENABLE_MECANUM  # the retries too, until the chassis confirms
@@ -181,8 +181,8 @@ def drive(emu: ChassisEmulator, b: LimoBridge, commands: list[tuple[float, float
 def test_ackermann_end_to_end_drives_the_commanded_circle(tmp_path: Path) -> None:
     """v = 0.3, ω = 0.3 (r = 1 m) through the bridge, the pty and the emulated chassis, which reads
     the field as the vendor's chassis does (×1.64 → inner → central): it turns at ω ≈ 0.3 and the
-    bridge's state, from the steering feedback, agrees. Before: the field 197 read as an inner
-    angle of 0.323 gives ω = 0.439."""
+    bridge's state, from the steering feedback, agrees. The central angle as the field, 197, reads
+    as an inner angle of 0.323 and gives ω = 0.439."""
     model = ChassisModel(motion_mode=MotionMode.ACKERMANN)
     with ChassisEmulator(model, link=str(tmp_path / "limo")) as emu:
         b = LimoBridge(BridgeConfig(motion_mode=MotionMode.ACKERMANN, watchdog_s=10, use_imu=False))
@@ -200,8 +200,8 @@ def test_ackermann_end_to_end_drives_the_commanded_circle(tmp_path: Path) -> Non
 
 def test_ackermann_end_to_end_beyond_the_limit_follows_the_tightest_circle(tmp_path: Path) -> None:
     """ω = 3 at v = 0.2 asks for r = 0.067 m: the chassis turns on the 0.46 m circle (ω = 0.2 / 0.4628
-    = 0.432), and the wheel reaches its limit. Before: the field 488 read as 0.80 rad of inner
-    angle, which the chassis clamps at 0.488: the same circle by accident of the mechanical stop."""
+    = 0.432), and the wheel reaches its limit. The clamped central angle as the field, 488, reads as
+    0.80 rad of inner angle, which the chassis clamps at 0.488: the same circle only by the mechanical stop."""
     model = ChassisModel(motion_mode=MotionMode.ACKERMANN)
     with ChassisEmulator(model, link=str(tmp_path / "limo")) as emu:
         b = LimoBridge(BridgeConfig(motion_mode=MotionMode.ACKERMANN, watchdog_s=10, use_imu=False))
@@ -216,7 +216,7 @@ def test_ackermann_end_to_end_beyond_the_limit_follows_the_tightest_circle(tmp_p
 
 def test_mecanum_end_to_end_switches_the_chassis_and_slides(tmp_path: Path) -> None:
     """A chassis in differential mode with mecanum wheels (d6 keeps saying 0): the bridge's mecanum
-    frame switches it and the lateral speed reaches it. Before: no switch, no slide."""
+    frame switches it and the lateral speed reaches it; the plain enable frame neither switches nor slides it."""
     model = ChassisModel(motion_mode=MotionMode.DIFFERENTIAL, reported_mode=0)
     with ChassisEmulator(model, link=str(tmp_path / "limo")) as emu:
         b = LimoBridge(BridgeConfig(motion_mode=MotionMode.MECANUM, watchdog_s=10))

@@ -115,7 +115,7 @@ def test_paced_filter_steps_are_timed_one_by_one() -> None:
 
 def test_bench_mapping_runs_end_to_end_on_a_small_map(tmp_path) -> None:
     """`riskfield bench mapping` at a toy size, without the node: every row is measured and the
-    summary written (a renamed timing key once broke its last line, after all the work)."""
+    summary written (a renamed timing key would break its last line, after all the work)."""
     import json
 
     from typer.testing import CliRunner

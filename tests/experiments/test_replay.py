@@ -1,5 +1,5 @@
 """The replay path of ``riskfield bench latency`` (``experiments/replay.py``): the recording's
-compact frames and their error against today's, and how a frame is matched to the filter's step."""
+compact frames and their error against the full ones, and how a frame is matched to the filter's step."""
 
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def test_the_recording_is_compact_and_close_to_todays_frames():
     assert s["truth_bytes_strided"] < s["truth_bytes_full"] / 7
     # at 1–4 m: float16 (≤ 1 mm) and the fused points' sub-pixel offsets from their ray
     assert s["error_pixels"] > 10_000 and s["error_m_median"] < 1e-3 and s["error_m_max"] < 0.03
-    # the maps built from today's frames and from their compact form: a point error under a voxel moves
+    # the maps built from the full frames and from their compact form: a point error under a voxel moves
     # a surface by at most one voxel along each axis, so a distance by one diagonal step (√2 × 5 cm; a
     # wall near a voxel boundary 2.5–3 m away does, over a few % of the cells)
     m = s["map_agreement"]["today_compact"]

@@ -153,9 +153,9 @@ def test_bench_cli_end_to_end(tmp_path):
 
 
 def test_the_stream_sees_the_top_of_a_tall_person():
-    """Issue 13 regression: from 1.3 m with the 31° tilt no frame saw above ≈ 1.7 m, so the top of
-    a 1.94 m person was missing from every map and the ESDF read +0.09 m where the robot's body
-    was 0.09 m inside the head. The stream's high frames see it: 5 cm above the top, the
+    """From 1.3 m with the 31° tilt no frame sees above ≈ 1.7 m: without the stream's high frames
+    the top of a 1.94 m person is missing from every map and the ESDF reads +0.09 m where the
+    robot's body is 0.09 m inside the head. The high frames see it: 5 cm above the top, the
     ESDF's distance is within a voxel of the truth."""
     from riskfield.experiments.safety_benchmark import ESDF, build_esdf_maps
     from riskfield.services.geometry.camera import PinholeCamera

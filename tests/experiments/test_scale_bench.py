@@ -17,7 +17,7 @@ def test_aligned_stops_like_s1_and_anchored_does_not() -> None:
     assert aligned["error_first"] is not None and abs(aligned["error_first"]) < 0.05  # the floor, before moving
     assert aligned["capped_s"] > 0  # the speed was capped until the estimate converged
     assert abs(aligned["scale_error"]) < 0.01 and aligned["scale_sigma"] < 0.01
-    # the former behaviour: every obstacle (s − 1) × its distance too near, the robot stops short of nothing
+    # anchored (no alignment): every obstacle (s − 1) × its distance too near, the robot stops short of nothing
     assert anchored["gap"] < by[("anchored", 1.0)]["gap"] - 0.2
     assert summary["gap_target_met"]
 

@@ -145,7 +145,7 @@ def test_services_lists_real_extras_with_hints_rich_does_not_swallow():
     assert r.returncode == 0, r.stderr
     rows = {ln.split("│")[1].strip(): ln for ln in r.stdout.splitlines() if ln.count("│") >= 3}
     assert "riskfield[mapping]" in rows["mapping"] and " ok " in rows["mapping"]  # the extra keeps its brackets
-    assert " ok " not in rows["viewer"]  # no longer "ok" without rerun, then a crash
+    assert " ok " not in rows["viewer"]  # not "ok" without rerun (the viewer would crash)
     assert "pip install 'riskfield[viz]'" in rows["viewer"]  # not "pip install 'riskfield'"
 
 

@@ -1,4 +1,4 @@
-"""Kept libraries where the project once wrote its own, and test-only libraries out of the
+"""Libraries the project uses instead of its own code, and test-only libraries out of the
 runtime: PLY through ``plyfile``; ``edt`` only for the mapping's test oracle and bench."""
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ NEEDS: dict[str, tuple[str, str]] = {
     "osqp": ("1.0.2", "osqp.SolverStatus (the filter QP's oracle, tests/oracles/qp.py)"),
     "typer": ("0.16.1", "Click 8.2, which pip installs beside any typer"),
     "plyfile": ("1.1", "numpy 2 (simulator/mesh_io.py)"),
-    # .ci/lowest (wheels only) found these: an older floor does not install at all.
+    # .ci/lowest (wheels only) checks these: an older floor does not install at all.
     "rich": ("14.2", "import-linter 2.17's own floor (the dev extra)"),
     "msgpack": ("1.0.5", "a wheel for CPython 3.11"),
     "pymavlink": ("2.4.36", "a wheel for CPython 3.11"),

@@ -148,7 +148,7 @@ def test_post_runs_on_the_loop_thread_and_close_hooks_publish(router_endpoint):
 
 def test_wildcard_puts_never_reach_a_handler_and_are_counted(router_endpoint):
     """Zenoh delivers a put on ``cmd/*``, ``rf/t_wild/**`` or ``**`` to a ``cmd/safe`` subscriber;
-    the runtime drops it before the latest-value queue and counts it (issue 19)."""
+    the runtime drops it before the latest-value queue and counts it."""
     node = Node("echo", EchoSettings(connect=[router_endpoint], robot="t_wild"))
     seen: list[str] = []
     node.subscribe(node.keys.cmd_safe, VelocityCommand, lambda m: seen.append(m.source), queue="latest")

@@ -1,6 +1,6 @@
 """The compact perception frame (``services/perception/compact.py``): depth + intrinsics at the
 mapping's pixel stride instead of three float32 per pixel; what it loses, bounded; the mapper
-takes it and today's full pointmaps alike."""
+takes it and full pointmaps alike."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ F16_HALF_ULP = 2.0**-11  # float16 rounds to nearest: relative error ≤ half it
 
 
 def _frame(cam: PinholeCamera, z: np.ndarray, offset_px: np.ndarray | None = None) -> PerceptionFrame:
-    """Today's frame: points on the pixel rays at depths ``z`` (optionally ``offset_px`` off them)."""
+    """A full frame: points on the pixel rays at depths ``z`` (optionally ``offset_px`` off them)."""
     v, u = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
     if offset_px is not None:
         u, v = u + offset_px[..., 0], v + offset_px[..., 1]
@@ -71,7 +71,7 @@ def test_a_point_off_its_ray_comes_back_on_it_at_the_same_depth(cam, seed):
 
 
 def test_the_compact_frame_is_a_ninth_of_todays():
-    """The default 512×384 camera: today's frame 3.54 MB; depth float16 at stride 2 under 0.4 MB."""
+    """The default 512×384 camera: the full frame 3.54 MB; depth float16 at stride 2 under 0.4 MB."""
     cam = PinholeCamera()
     full = _frame(cam, np.full((cam.height, cam.width), 2.0))
     today = len(encode(full))
@@ -109,7 +109,7 @@ def test_frame_stride():
 
 
 def test_the_mapper_maps_a_compact_frame_as_the_full_one():
-    """Today's full pointmap and its compact form (float16, stride 2) give the same occupancy: people
+    """A full pointmap and its compact form (float16, stride 2) give the same occupancy: people
     1.5 m ahead beside a wall at 2.1 m (the pixels between the stride's left out)."""
     cam = PinholeCamera(64, 48, 40.0, 40.0, 31.5, 23.5)
     z = np.full((48, 64), 1.5)

@@ -118,7 +118,7 @@ def test_rejects_truth_without_geometry():
 
 @pytest.mark.parametrize("publish", ["keyframe", "frame"])
 def test_each_frame_publishes_its_own_pose_and_what_it_sees_now(publish: str) -> None:
-    """Issue 23: the message of a tracked frame is that frame — its pose and its depth, also where an
+    """The message of a tracked frame is that frame — its pose and its depth, also where an
     object appeared after the keyframe started (those pixels no longer match the keyframe) — never
     the keyframe's pointmap and pose under a new stamp."""
     world = World(load_scenario(SMALL))

@@ -1,4 +1,4 @@
-"""Issue 25: the default double-integrator barrier is the braking barrier with the speed floor
+"""The default double-integrator barrier is the braking barrier with the speed floor
 a_b/k₂ (``BarrierParams.brake_speed_floor=None``): below that approach speed it is the paper's
 HOCBF, so at equal margin it is no worse than the paper's filter, and above it the braking
 parabola keeps the rows feasible within |aᵢ| ≤ a_max (``barriers.DoubleIntegrator``)."""

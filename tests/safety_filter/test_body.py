@@ -1,4 +1,4 @@
-"""The whole body stays clear in closed loop (issue 13's property): random layouts of boxes and
+"""The whole body stays clear in closed loop: random layouts of boxes and
 spheres on analytic fields, random states from which the robot can still stop (half of them
 within twice the stopping distance of an obstacle), random references, every model with its
 bounds, 200 steps of the exact dynamics at 50 Hz. The body's clearance — the true distance of
@@ -179,7 +179,7 @@ def test_the_same_rollouts_without_the_filter_collide(model_name):
 
 
 # -- the same property on fields the mapper builds ------------------------------------------------
-# Issue 13's property on fields the mapper builds: random boxes and spheres are rendered from
+# The same property on fields the mapper builds: random boxes and spheres are rendered from
 # views round the room, integrated by the real ``Mapper`` (solid obstacles, exact margins), and the
 # filter drives on the published ESDF for 200 steps from states it can stop from, with random
 # references. The body's clearance, measured on the *true* geometry, never goes below zero.

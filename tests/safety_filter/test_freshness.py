@@ -1,4 +1,4 @@
-"""Map freshness by content (issue 19): admission of maps and the content age, explicit clocks."""
+"""Map freshness by content: admission of maps and the content age, explicit clocks."""
 
 from __future__ import annotations
 

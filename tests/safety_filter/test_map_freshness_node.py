@@ -1,5 +1,5 @@
 """Map freshness by content, over a real Zenoh router with the filter (and mapping) in their own
-processes (issue 19 item 2): a stuck publisher replaying an old map, perception dead while
+processes: a stuck publisher replaying an old map, perception dead while
 mapping re-emits, a replayed sequence number, a restarted mapper."""
 
 from __future__ import annotations
@@ -103,8 +103,8 @@ def filter_process(endpoint: str, keys: Keys) -> ServiceProcess:
 
 def test_a_stuck_publisher_replaying_an_old_free_map_is_never_followed(router_endpoint: str) -> None:
     """A fresh map with a wall 0.2 m ahead, and beside it a stuck publisher replaying (the same
-    bytes, over and over) a 5-second-old map of free space: before, cmd/safe alternated
-    between braking and the full 0.5 m/s; now the old map is refused and reported."""
+    bytes, over and over) a 5-second-old map of free space: the old map is refused and reported,
+    where following it would alternate cmd/safe between braking and the full 0.5 m/s."""
     keys = Keys("t_sf_stuck")
     old_free = wall(50.0)
     old_free.header.stamp_ns = time.time_ns() - 5_000_000_000

@@ -372,8 +372,8 @@ def test_someone_walking_into_a_stopped_robot_leaves_it_stopped_and_says_yieldin
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_static_obstacles_keep_their_recovery_from_inside_a_margin(backend):
-    """Inside a wall's margin the robot is pushed out as before (the field's low group does not
-    yield); inside a person's margin it stops instead."""
+    """Inside a wall's margin the robot is pushed out as with no group yielding (the field's low
+    group does not yield); inside a person's margin it stops instead."""
     wall = ((0.35, 0.0, 0.0), (-1.0, 0.0, 0.0))
     s, u = FilterState.planar(0.0, 0.0, 0.0), np.array([0.2, 0.0])
     inside_wall = make(backend).filter(s, u, grid(walls=(wall,)))
@@ -406,7 +406,7 @@ def supervisor(field, motion: bool = True) -> FilterSupervisor:
 
 def test_a_zero_reference_is_a_zero_command_whatever_comes():
     """The idle LIMO, the dead-man released: a person walks into it, or stands in its margin with a
-    wall behind it — the command stays zero (today's filter reversed it 0.63 m into the wall)."""
+    wall behind it — the command stays zero (the static barrier's recovery would reverse it into the wall)."""
     wall = ((-0.5, 0.0, 0.0), (1.0, 0.0, 0.0))
     sup = supervisor(grid((0.5, 0.0), walls=(wall,)))
     sup.on_objects(TrackedObjects(header=Header(stamp_ns=0), objects=[person(0.5, vx=-1.0)]), 0.0)

@@ -113,7 +113,7 @@ def test_the_joystick_outranks_the_navigator_which_takes_over_after_its_timeout_
 
 
 def test_a_source_is_the_key_it_puts_on_so_no_one_takes_the_joysticks_priority_or_lock(router_endpoint):
-    """Issue 35: with ref_plain_key=false (a secure site, whose routers let only a source's identity
+    """With ref_plain_key=false (a secure site, whose routers let only a source's identity
     put cmd/ref/<source>), a command that declares the joystick on the operator's key, or on the
     plain key, is refused and counted, and so is a lock put under another source's name; the
     joystick on its own key still wins, and a lock on the operator's own key still brakes."""
@@ -196,8 +196,8 @@ def test_a_wire_risk_config_is_versioned_kept_across_a_restart_and_one_naming_no
 
 def test_on_the_plain_key_no_sources_reference_displaces_anothers_before_the_arbitration_sees_it(router_endpoint):
     """Two sources on the plain cmd/ref, faster than the node's loop takes them (here: not at all until
-    the burst is in): every reference waits its turn, where one newest-value slot kept the joystick's
-    alone and the navigator's claims were lost (its input timed out on a busy machine)."""
+    the burst is in): every reference waits its turn. With one newest-value slot the joystick's
+    would displace the navigator's claims, and its input would time out on a busy machine."""
     from riskfield.services.runtime import Node
     from riskfield.services.safety_filter.node import PLAIN_REF_BACKLOG, SERVICE
 

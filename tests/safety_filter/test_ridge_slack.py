@@ -1,7 +1,7 @@
 """The safety benchmark's relaxed steps and map-resolution collisions, as regressions.
 
 * At the ridge of the distance field (where the nearest obstacle changes) the braking barrier's
-  row needs ḣ_b ≈ -s (1 + |vᵀ∇²d v| / a_b); with the linear class-K function κ h_b that was
+  row needs ḣ_b ≈ -s (1 + |vᵀ∇²d v| / a_b); with the linear class-K function κ h_b that is
   infeasible far from any obstacle. The numbers are those of a relaxed step of the benchmark.
 * The ESDF places a face no ray hit only to within a voxel: the filter keeps half a voxel more.
 * The slack QP's backup: braking along the critical point's gradient at a ridge drives into the
@@ -56,7 +56,7 @@ def test_the_class_k_function_is_the_linear_one_at_the_boundary() -> None:
     hb = np.array([1e-4])
     assert new.rows(s, sample, hb, GAINS, np.zeros(3))[1] == pytest.approx(
         lin.rows(s, sample, hb, GAINS, np.zeros(3))[1], abs=1e-6)
-    # The default is the linear κ h_b (issue 25): a steeper rate far out brought the robot within
+    # The default is the linear κ h_b: a steeper rate far out brings the robot within
     # millimetres of the map's surface, where any error of the map is a collision.
     assert FilterConfig(model="double3d").build_model().rate_length == math.inf
     with pytest.raises(ValueError):
@@ -113,8 +113,8 @@ def test_braking_distance_is_c1_and_covers_the_stopping_distance() -> None:
 @pytest.mark.parametrize("backend", ["step", "oracle"])
 def test_crossing_a_ridge_the_predictive_rows_are_soft(backend: str) -> None:
     """Between two balls, 1.4 cm on the -x ball's side of the ridge and heading across it at
-    0.18 m/s: the nearest obstacle changes within the period (a relaxed step of the benchmark
-    had the same geometry). The QP with every row hard is infeasible; with the predictive rows
+    0.18 m/s: the nearest obstacle changes within the period (the geometry of a relaxed step of
+    the benchmark). The QP with every row hard is infeasible; with the predictive rows
     soft the current rows hold exactly and the step is no fallback."""
     risk = RiskConfig()
     risk = risk.model_copy(update={"groups": [g.model_copy(update={"alpha1": 2.5, "alpha2": 1.5})

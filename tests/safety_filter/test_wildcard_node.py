@@ -1,5 +1,5 @@
 """Defence in depth over a plain router (no access control): the safety filter, in its own
-process, never takes a reference, map or state put on a wildcard key expression (issue 19)."""
+process, never takes a reference, map or state put on a wildcard key expression."""
 
 from __future__ import annotations
 
