@@ -544,7 +544,7 @@ class Mapper:
     def _esdf3d(self, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The 3-D field, incrementally from the last one when the volume and margins are unchanged."""
         last = self._last3d
-        if self.config.esdf_update == "incremental" and last is not None and last[0].shape == groups.shape:
+        if last is not None and last[0].shape == groups.shape:
             dist, grp, _ = self.esdf_integrator.update(groups, self.margins, last[0], (last[1], last[2]))
         else:
             dist, grp = self.esdf_integrator.compute(groups, self.margins)

@@ -1,0 +1,2 @@
+"""Test oracles: the plain implementations the compiled production paths are checked against.
+Tests import them (``from oracles.esdf import ...``); shipped code never does."""
