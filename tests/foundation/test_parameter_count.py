@@ -30,8 +30,6 @@ LEFT: dict[tuple[str, str], int] = {
     ("services/mapping/objects.py", "_columns"): 15,
     ("services/mapping/occupancy.py", "_solid"): 12,
     ("services/mapping/occupancy.py", "semantic_occupancy"): 10,
-    ("services/mapping/projective_integrator.py", "_integrate_projective"): 28,
-    ("services/mapping/projective_integrator.py", "_point_to_plane"): 15,
     ("services/mapping/semantic_integrator.py", "_integrate"): 14,
     ("services/perception/kernels.py", "match_kernel"): 18,
     ("services/perception/kernels.py", "fuse_kernel"): 17,
