@@ -381,11 +381,11 @@ class Mapper:
         ct, cs = self._composite
         t, sem, c = self.tsdf, self.semantic, self.config
         n = t.tsdf.size
-        self.overlaid = overlay(t.tsdf.reshape(n), t.weight.reshape(n), t.view.reshape(n, 3), sem.label.reshape(n),
-                                sem.vote.reshape(n), p.tsdf.reshape(n), p.weight.reshape(n), p.view.reshape(n, 3),
-                                ps.label.reshape(n), ps.vote.reshape(n), max(c.min_weight, 1e-12), c.surface_band,
-                                ct.tsdf.reshape(n), ct.weight.reshape(n), ct.view.reshape(n, 3), cs.label.reshape(n),
-                                cs.vote.reshape(n))
+
+        def flat(d: TsdfLayer, s: SemanticLayer) -> tuple[np.ndarray, ...]:
+            return d.tsdf.reshape(n), d.weight.reshape(n), d.view.reshape(n, 3), s.label.reshape(n), s.vote.reshape(n)
+
+        self.overlaid = overlay(flat(t, sem), flat(p, ps), flat(ct, cs), max(c.min_weight, 1e-12), c.surface_band)
         return ct, cs
 
     def overlay_mask(self) -> np.ndarray:
