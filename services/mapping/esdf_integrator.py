@@ -253,8 +253,8 @@ class EsdfIntegrator:
             box = tuple(slice(int(a), int(b)) for a, b in zip(blo, bhi, strict=True))
             sub = groups[box]
             s = self._edt_of_label(sub, g, equal=True, site_box=(lo[g] - blo, hi[g] - blo))
-            k.combine(sub, depth[box], s, dist[box], grp[box], g, base, half, np.float32(m_g),
-                      np.float32(0.5 * v + m_g))
+            k.combine((sub, depth[box], s, dist[box], grp[box]), g, base,
+                      (half, np.float32(m_g), np.float32(0.5 * v + m_g)))
         k.clip(dist, grp, np.float32(dmax))
         return dist, grp
 

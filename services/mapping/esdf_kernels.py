@@ -159,10 +159,12 @@ def reach_box(e_union: np.ndarray, tlo: np.ndarray, thi: np.ndarray, llo: np.nda
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def combine(groups: np.ndarray, depth: np.ndarray, s: np.ndarray, dist: np.ndarray, grp: np.ndarray, g: int,
-            base: int, half: np.float32, m_g: np.float32, off: np.float32) -> None:
-    """Fold group g's term into (dist, grp) on a box; ``s`` is e_g there (the EDT of the box) and
-    ``off`` = float32(v/2 + m_g). Ties go to the lower group id, but the base group yields every tie."""
+def combine(box: tuple, g: int, base: int, numbers: tuple) -> None:
+    """Fold group g's term into (dist, grp) on a box, ``box`` = (groups, depth, s, dist, grp): ``s``
+    is e_g there (the EDT of the box); ``numbers`` = (half, m_g, off) float32, off = float32(v/2 +
+    m_g). Ties go to the lower group id, but the base group yields every tie."""
+    groups, depth, s, dist, grp = box
+    half, m_g, off = numbers
     nx, ny, nz = groups.shape
     for i in prange(nx):
         for j in range(ny):

@@ -111,13 +111,19 @@ def _reach(xy: np.ndarray, centre: np.ndarray, voxel_size: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: np.ndarray, hit: np.ndarray,
-             hit2: np.ndarray, k_lo: int, k_hi: int, group_ok: np.ndarray, is_movable: np.ndarray, min_weight: float,
-             voxel_size: float, use_tsdf: bool, use_hit: bool, use_hit2: bool
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One pass over the height band: per (i, j) column, its movable voxels' fraction sum (0: none),
-    fraction-weighted height sum, labelled-voxel count, a movable label and the newest ``hit`` of
-    its voxels (the later of ``hit`` and ``hit2``, the present layer's, when given)."""
+def _columns(grid: tuple, hits: tuple, lookup: tuple, band: tuple, numbers: tuple,
+             flags: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over the height band ``band`` = (k_lo, k_hi) of ``grid`` = (groups, labels, tsdf,
+    weight): per (i, j) column, its movable voxels' fraction sum (0: none), fraction-weighted height
+    sum, labelled-voxel count, a movable label and the newest ``hit`` of its voxels (the later of
+    ``hits`` = (hit, hit2), hit2 the present layer's, when given). ``lookup`` = (group_ok,
+    is_movable), ``numbers`` = (min_weight, voxel_size), ``flags`` = (use_tsdf, use_hit, use_hit2)."""
+    groups, labels, tsdf, weight = grid
+    hit, hit2 = hits
+    group_ok, is_movable = lookup
+    k_lo, k_hi = band
+    min_weight, voxel_size = numbers
+    use_tsdf, use_hit, use_hit2 = flags
     nx, ny = groups.shape[0], groups.shape[1]
     seen = np.full((nx, ny), NEVER, np.int32)
     frac = np.zeros((nx, ny), np.float64)
@@ -202,10 +208,10 @@ def detect(reading: MapReading, params: MapperConfig) -> list[Detection]:
     dummy = np.zeros((1, 1, 1), np.float32)
     no_hit = np.zeros((1, 1, 1), np.int32)
     body, frac, fz, seeds, col_label, col_seen = _columns(
-        groups, labels, tsdf if use_tsdf else dummy, weight if use_tsdf else dummy,
-        hit if use_hit else no_hit, present_hit if use_hit and present_hit is not None else no_hit, k_lo, k_hi,
-        group_ok, is_movable, float(r.min_weight), float(voxel_size), use_tsdf, use_hit,
-        use_hit and present_hit is not None)
+        (groups, labels, tsdf if use_tsdf else dummy, weight if use_tsdf else dummy),
+        (hit if use_hit else no_hit, present_hit if use_hit and present_hit is not None else no_hit),
+        (group_ok, is_movable), (k_lo, k_hi), (float(r.min_weight), float(voxel_size)),
+        (use_tsdf, use_hit, use_hit and present_hit is not None))
     if not seeds.any():
         return []
     # Every cell grows by a disc of half the merge gap (whole voxels, rounded up) and touching
