@@ -50,6 +50,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,6 +61,16 @@ from .tsdf_integrator import TsdfIntegrator
 from .volume import Volume, shift_array
 
 NEW, UPDATE, TRACKING = "keyframe_new", "keyframe_update", "tracking"
+
+
+class KeyframeData(NamedTuple):
+    """A keyframe's content as ``KeyframeMap.integrate`` fuses it: the camera-frame pointmap, its
+    confidence and labels, and the pose."""
+
+    points: np.ndarray
+    confidence: np.ndarray
+    labels: np.ndarray
+    T_WC: np.ndarray
 LABEL_SLOTS = 4
 _EPS = 1e-6
 
@@ -261,13 +272,12 @@ class KeyframeMap:
         return kind in (NEW, UPDATE)
 
     def integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer, kind: str, kid: int,
-                  points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray,
-                  now_ms: int) -> tuple[int, int, bool]:
+                  frame: KeyframeData, now_ms: int) -> tuple[int, int, bool]:
         """A ``keyframe_new`` or ``keyframe_update`` (one ``admit`` let through) into the mapper's
         ``tsdf``/``semantic``: the keyframe's last contribution out, the new one in. Returns the
         new contribution's rays and votes, and whether the keyframe was re-posed (its pose moved
         over ``repose_tolerance``: the caller's present layer is then in an old frame of reference)."""
-        pose = np.asarray(T_WC, dtype=np.float64)
+        pose = np.asarray(frame.T_WC, dtype=np.float64)
         reposed = False
         old = self.records.pop(kid, None) if kind == UPDATE else None
         if old is not None:
@@ -278,7 +288,7 @@ class KeyframeMap:
             self.nbytes -= self.records.pop(kid).nbytes
         if kind == NEW or kid not in self.seen_ms:
             self.seen_ms[kid] = now_ms
-        contrib, rays, votes = self.integrator.contribution(volume, points, confidence, labels, T_WC)
+        contrib, rays, votes = self.integrator.contribution(volume, *frame)
         self.integrator.apply(volume, tsdf, contrib, +1.0, semantic, self.seen_ms[kid])
         self.records[kid] = contrib
         self.poses[kid] = pose.copy()

@@ -61,10 +61,10 @@ from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import FloorParams, MapperConfig
 from .esdf_integrator import EsdfIntegrator
 from .free_floor import FreeFloorIntegrator, FreeFloorLayer
-from .keyframes import NEW, UPDATE, KeyframeMap
+from .keyframes import NEW, UPDATE, KeyframeData, KeyframeMap
 from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
 from .objects import MapReading
-from .occupancy import semantic_occupancy
+from .occupancy import OccupancyRule, semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
 from .projective_integrator import ProjectiveIntegrator
 from .semantic_integrator import SemanticIntegrator
@@ -427,9 +427,9 @@ class Mapper:
         rays = votes = 0
         if self.keyframes.admit(kind, kid):
             assert kind in (NEW, UPDATE)
-            rays, votes, reposed = self.keyframes.integrate(
-                self.volume, self.tsdf, self.semantic, kind, kid, points, frame.confidence, frame.labels,
-                frame.T_WC, self.clock(stamp or time.time_ns()))
+            content = KeyframeData(points, frame.confidence, frame.labels, frame.T_WC)
+            rays, votes, reposed = self.keyframes.integrate(self.volume, self.tsdf, self.semantic, kind, kid, content,
+                                                            self.clock(stamp or time.time_ns()))
             if reposed:  # what was seen free was seen in the old frame of reference
                 self.clear_present()
                 self.free_floor.clear()
@@ -461,8 +461,8 @@ class Mapper:
             self.projective_integrator.integrate(scratch, tsdf, sem, arrays[0], arrays[1], arrays[2], arrays[3],
                                                  (2.0, 2.0, 0.5, 0.5))
         c = self.config
-        semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
-                           fill_steps=1)
+        semantic_occupancy(tsdf, sem, self.label_to_group,
+                           OccupancyRule(c.min_weight, c.surface_band, 1, interior="solid", fill_steps=1))
         self.esdf_integrator.warm_up()
 
     # -- outputs --------------------------------------------------------------------------------
@@ -471,10 +471,9 @@ class Mapper:
         c = self.config
         self.decay()
         tsdf, semantic = self.read = self.layers()
-        groups = semantic_occupancy(tsdf, semantic, self.label_to_group, c.min_weight, c.surface_band,
-                                    self.unknown_group_id if c.unknown_is_occupied else 0,
-                                    interior=c.obstacle_interior, fill_steps=c.fill_steps,
-                                    support_steps=c.support_steps)
+        rule = OccupancyRule(c.min_weight, c.surface_band, self.unknown_group_id if c.unknown_is_occupied else 0,
+                             c.obstacle_interior, c.fill_steps, c.support_steps)
+        groups = semantic_occupancy(tsdf, semantic, self.label_to_group, rule)
         if self.volume is not None:
             self._groups = (groups, self.volume.origin_index.copy())
         return groups
