@@ -9,8 +9,8 @@ composes them. The composition is
 flat (``MapperConfig`` is each of them), so a setting keeps one short name everywhere
 (``--set truncation=0.2``, ``RISKFIELD_TRUNCATION``, ``config.truncation``); ``config.tsdf``
 etc. give one stage its own struct, and ``MapperConfig.compose`` builds one from the parts.
-Each integrator is built from its own struct alone (the TSDF, semantic and projective integrators
-from ``TsdfParams``, the ESDF's from ``EsdfParams``) plus the few derived numbers it is handed
+Each integrator is built from its own struct alone (the TSDF, semantic, projective and keyframe
+integrators from ``TsdfParams``, the ESDF's from ``EsdfParams``) plus the few derived numbers it is handed
 (the voxel size, the surface band), as nvblox's integrators take only their own parameters.
 
 Defaults follow the authors' release (5 cm voxels in a rolling local volume that follows the

@@ -130,7 +130,7 @@ class Mapper:
         self.frame_id = "map"
         self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
-        self.keyframes = KeyframeMap(self.config)  # the keyframe map-update protocol (keyframes.py)
+        self.keyframes = KeyframeMap.of(self.config)  # the keyframe map-update protocol (keyframes.py)
         # The present layer (module doc): made on the first current frame of the keyframe protocol.
         self.present: TsdfLayer | None = None
         self.present_semantic: SemanticLayer | None = None
