@@ -364,7 +364,7 @@ def main(
     groups = mapper.occupancy()
     k_lo, k_hi, _ = mapper.band_indices()
     # The tracker after each map update (10 Hz stamps): the room's person and animal, tracked.
-    tracker = ObjectTracker.warmed(mapper.config)
+    tracker = ObjectTracker.warmed(mapper.config.objects, mapper.config.dynamic)
     stamps = iter(range(10**9, 10**18, 100_000_000))
     results["objects"] = _stats(_time(lambda: tracker.update_map(mapper.reading(groups), next(stamps)), repeat))
     tracked = tracker.update_map(mapper.reading(groups), next(stamps))
