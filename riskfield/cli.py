@@ -225,7 +225,7 @@ def _print_settings(service: str) -> None:
     # One line per setting (not a table), so that a narrow terminal or grep keeps each whole.
     print(f"\n{service} settings (--set key=value, the {service} section of a config file, or RISKFIELD_<KEY>):")
     common = NodeSettings.model_fields
-    for line in setting_lines(spec.settings, skip={*common, *spec.settings.REFERENCE_ONLY}):
+    for line in setting_lines(spec.settings, skip=common):
         print(line)
     print("\ncommon to every node:")
     for line in setting_lines(spec.settings, skip=set(spec.settings.model_fields) - set(common)):

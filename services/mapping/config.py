@@ -9,8 +9,8 @@ composes them. The composition is
 flat (``MapperConfig`` is each of them), so a setting keeps one short name everywhere
 (``--set truncation=0.2``, ``RISKFIELD_TRUNCATION``, ``config.truncation``); ``config.tsdf``
 etc. give one stage its own struct, and ``MapperConfig.compose`` builds one from the parts.
-Each integrator is built from its own struct alone (the TSDF, semantic and projective integrators
-from ``TsdfParams``, the ESDF's from ``EsdfParams``) plus the few derived numbers it is handed
+Each integrator is built from its own struct alone (the TSDF, semantic, projective and keyframe
+integrators from ``TsdfParams``, the ESDF's from ``EsdfParams``) plus the few derived numbers it is handed
 (the voxel size, the surface band), as nvblox's integrators take only their own parameters.
 
 Defaults follow the authors' release (5 cm voxels in a rolling local volume that follows the
@@ -165,6 +165,19 @@ class OccupancyParams(BaseModel):
     """Risk group of unknown voxels; ``None`` → the risk config's default group, else its last group."""
 
 
+#: ``EsdfParams`` fields that chose a reference implementation, removed: setting one (a node setting,
+#: ``MappingSettings.REMOVED``, or a core parameter) is an error that names what replaced it.
+REMOVED_SETTINGS: dict[str, str] = {
+    "esdf_update": "removed: the 3-D grid is updated incrementally (esdf_incremental chooses how) and "
+                   "recomputed in full only where it has no previous grid (the first map, a moved volume, "
+                   "new margins)",
+    "esdf_kernel": "removed: the 3-D field always runs the compiled passes (esdf_kernels); the numpy path "
+                   "is the tests' oracle (tests/oracles/esdf.py)",
+    "esdf_edt": "removed: the distance transforms are always the compiled ones (distance_transform); the "
+                "edt package is the tests' oracle (tests/oracles/esdf.py)",
+}
+
+
 class EsdfParams(BaseModel):
     """The risk-inflated ESDF: clipping, inflation rule, output form and EDT threads."""
 
@@ -186,22 +199,20 @@ class EsdfParams(BaseModel):
     process on the 2-core development machine, the 2-D slice's transform (101²) took 17 ms on 2
     threads against 0.14 ms on 1, and the 3-D grid's (101³) 22–44 ms against 27 (``edt`` of 1 %
     random sites); in the demo the 2-D ESDF update's p90 was 65 ms. More where cores are spare."""
-    esdf_update: Literal["incremental", "full"] = "incremental"
-    """3-D grid: ``incremental`` recomputes only the box the changed voxels can reach (max_distance
-    + the largest margin), ``full`` the whole grid every time (the same result)."""
     esdf_incremental: Literal["box", "wave"] = "box"
-    """How ``incremental`` works: ``box`` recomputes the changed voxels' box grown by the reach (exact);
-    ``wave`` keeps nearest-site maps and moves only the voxels whose value changes (``esdf_wave``;
-    26-neighbour propagation: rare digital misses of a few mm far from obstacles, see there; on the
-    bench room 4.9 ms against the box's 8.3 over a built map, 33 ms while the map grows)."""
-    esdf_kernel: Literal["numba", "numpy"] = "numba"
-    """3-D exact field: ``numba`` compiled passes around the EDTs (``esdf_kernels``), ``numpy`` the
-    array-operation path (the cross-check; the same result)."""
-    esdf_edt: Literal["compiled", "edt"] = "compiled"
-    """The distance transforms under the field: ``compiled`` the numba transform of
-    ``distance_transform`` (exact squared distances; the union's transform 4× faster here, the
-    inside depth over the occupied runs only), ``edt`` the ``edt`` package (the previous
-    implementation: the bench's before/after and the tests' oracle)."""
+    """How the 3-D grid is updated after an edit: ``box`` recomputes the changed voxels' box grown by
+    the reach (exact); ``wave`` keeps nearest-site maps and moves only the voxels whose value changes
+    (``esdf_wave``; 26-neighbour propagation: rare digital misses of a few mm far from obstacles, see
+    there). The whole grid is computed where there is no previous one (the first map, a moved volume,
+    new margins)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _removed(cls, data: object) -> object:
+        if isinstance(data, dict):
+            for key in REMOVED_SETTINGS.keys() & data.keys():
+                raise ValueError(f"{key!r} is not a parameter: {REMOVED_SETTINGS[key]}")
+        return data
 
     @model_validator(mode="after")
     def _band_order(self) -> EsdfParams:
@@ -263,19 +274,6 @@ class DynamicParams(BaseModel):
         """ADE20K indices of ``dynamic_labels``."""
 
         return [ade20k.index(n) for n in self.dynamic_labels]
-
-
-#: ``EsdfParams`` fields that choose a reference implementation, kept so the tests and the bench can
-#: compare against it: core parameters (``MapperConfig(esdf_kernel="numpy")``), not node settings
-#: (``MappingSettings.REFERENCE_ONLY``: setting one is an error saying this). ``esdf_incremental``
-#: stays a setting: ``wave`` is a real, faster option, not an oracle.
-REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
-    "esdf_update": "the full recomputation is the incremental update's test reference "
-                   "(MapperConfig(esdf_update='full'))",
-    "esdf_kernel": "the numpy path is the compiled kernels' cross-check (MapperConfig(esdf_kernel='numpy'))",
-    "esdf_edt": "the edt package is the compiled transform's test oracle and the bench's before "
-                "(MapperConfig(esdf_edt='edt'))",
-}
 
 
 class ObjectParams(BaseModel):

@@ -9,13 +9,11 @@ numbers of voxels (int32), so every pass is exact and the result is bit-for-bit 
 site set: an update that recomputes a part and a full recompute agree exactly. The metre distance
 is float32 ``sqrt(d²) · v``, taken once in the last pass.
 
-Why not the ``edt`` package (``esdf_edt = "edt"``, kept for the bench's before/after and as the test
-oracle): on the bench map (101³ voxels, 2 cores) it takes 15.9 ms on one thread and 10.7 ms on two
-for the union's transform; this takes 6.7 and 4.1 ms, and 4.7 and 2.7 ms when told the sites' box
-(``site_box``: the union's or a risk group's bounding box from ``esdf_kernels.scan``), because
-planes without any site are skipped, the envelopes are read out a parabola's segment at a time (a
-branch-free inner loop; a boundary test per voxel cost 30 % more), and the strided last axis runs
-on a transposed copy of each plane that stays in cache. Measured in one process, medians of 41.
+Why not the ``edt`` package (the tests' oracle, ``tests/oracles/esdf.py``): this is faster on the
+mapper's grids, because it can be told the sites' box (``site_box``: the union's or a risk group's
+bounding box from ``esdf_kernels.scan``) and then skips the planes without any site, reads the
+envelopes out a parabola's segment at a time (a branch-free inner loop), and runs the strided last
+axis on a transposed copy of each plane that stays in cache.
 
 Outside the grid is not a site (``edt``'s ``black_border=False``); with no site at all every
 distance is +inf.

@@ -30,8 +30,8 @@ e_g − v/2 − m_g < max_distance, and the distance to g's bounding box is a lo
 so the box only has to hold the voxels whose distance to that bounding box passes both tests.
 People, pets and furniture cost little; walls (no margin) ride on the union.
 The inside depth e_f is one voxel for every occupied voxel with a free face neighbour; only
-deeper voxels need an EDT. Solid obstacles are deep almost everywhere; then a single
-multi-label EDT yields e_U and e_f together.
+deeper voxels need an EDT. Solid obstacles are deep almost everywhere; then the two transforms
+of the whole grid (to the occupied and to the free voxels) yield e_U and e_f together.
 
 **Paper-faithful variant** (``inflation = "dilate"``): each group's occupancy is dilated by
 a ball of round(m_g / v) voxels, then the ESDF of the union is taken with no further margin
@@ -57,7 +57,6 @@ computed exactly and cheaply with 2-D EDTs of the projected per-group occupancy.
 from __future__ import annotations
 
 import math
-from types import ModuleType
 
 import numpy as np
 from scipy import ndimage
@@ -66,15 +65,6 @@ from ..runtime.jit import threads
 from . import distance_transform
 from .config import EsdfParams, MapperConfig
 from .esdf_wave import WaveEsdf
-
-
-def _edt_package() -> ModuleType:
-    """The ``edt`` package, imported only by the reference path (``esdf_edt = "edt"``: the compiled
-    transform's test oracle and the bench's before): a mapping node never runs it, so the package
-    is in the ``dev`` extra, not in ``mapping``."""
-    import edt
-
-    return edt
 
 
 def _bbox(mask: np.ndarray, pad: int) -> tuple[slice, ...] | None:
@@ -105,7 +95,6 @@ class EsdfIntegrator:
     def __init__(self, params: EsdfParams, voxel_size: float):
         self.config, self.voxel_size = params, voxel_size
         self._wave: WaveEsdf | None = None  # the wavefront maps, made by the first ``update``
-        self._depth_pad = 1  # voxels: the deep voxels' box pad (``_deep_depth``), learnt per call
 
     @classmethod
     def of(cls, config: MapperConfig) -> EsdfIntegrator:
@@ -121,8 +110,6 @@ class EsdfIntegrator:
         """Compile (or load from numba's cache) the 3-D passes before serving: on a small grid whose
         group boxes are parts of it (strided views) and one where a box is all of it."""
         distance_transform.edt(np.eye(3, dtype=bool)[:, :, None], 1.0, self.config.threads)
-        if self.config.esdf_kernel != "numba":
-            return
         margins = np.array([0.0, 0.1, 0.0])
         groups = np.zeros((24, 24, 24), np.uint8)
         groups[:, :, 0:4] = 2  # deep base group
@@ -148,10 +135,6 @@ class EsdfIntegrator:
         if self._wave is None:
             self._wave = WaveEsdf(self.voxel_size, self.config.max_distance)
         return self._wave
-
-    def compute_reference(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``compute`` by the numpy path (``esdf_kernel = "numpy"``): the cross-check of the compiled one."""
-        return self._field(self._masks(groups, margins.shape[0] - 1), margins, shape=groups.shape)
 
     def update(self, groups: np.ndarray, margins: np.ndarray, previous_groups: np.ndarray,
                previous: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
@@ -179,7 +162,7 @@ class EsdfIntegrator:
                    previous: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
         """``update`` by a recompute of the changed voxels' box grown by the reach (see ``update``)."""
         c = self.config
-        if c.esdf_kernel == "numba" and groups.ndim == 3 and groups.shape == previous_groups.shape:
+        if groups.ndim == 3 and groups.shape == previous_groups.shape:
             from . import esdf_kernels as k
 
             with threads(c.threads):
@@ -222,11 +205,11 @@ class EsdfIntegrator:
     # -- internals ------------------------------------------------------------------------------
     def _field3d(self, groups: np.ndarray, margins: np.ndarray,
                  counts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The 3-D field of a group map by the compiled kernels (``esdf_kernels``), when configured
-        and exact inflation; else by ``_field``. The same steps and float32 arithmetic as ``_field``."""
+        """The 3-D field of a group map by the compiled kernels (``esdf_kernels``) under exact
+        inflation; else by ``_field``. The same steps and float32 arithmetic as ``_field``."""
         c = self.config
         n_groups = margins.shape[0] - 1
-        if c.esdf_kernel != "numba" or c.inflation != "exact" or groups.ndim != 3:
+        if c.inflation != "exact" or groups.ndim != 3:
             return self._field(self._masks(groups, n_groups), margins, shape=groups.shape, counts=counts)
         with threads(c.threads):  # the passes' parallel loops, as the EDTs'
             return self._field3d_compiled(groups, margins, counts)
@@ -270,44 +253,17 @@ class EsdfIntegrator:
             box = tuple(slice(int(a), int(b)) for a, b in zip(blo, bhi, strict=True))
             sub = groups[box]
             s = self._edt_of_label(sub, g, equal=True, site_box=(lo[g] - blo, hi[g] - blo))
-            k.combine(sub, depth[box], s, dist[box], grp[box], g, base, half, np.float32(m_g),
-                      np.float32(0.5 * v + m_g))
+            k.combine((sub, depth[box], s, dist[box], grp[box]), g, base,
+                      (half, np.float32(m_g), np.float32(0.5 * v + m_g)))
         k.clip(dist, grp, np.float32(dmax))
         return dist, grp
 
     def _deep_depth(self, groups: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                     occupied: tuple[np.ndarray, np.ndarray]) -> None:
         """Fill the depth of the deep voxels (marked −1 in ``depth``, bounding box [lo, hi]) in place:
-        the distance to the nearest free voxel.
-
-        Compiled (``esdf_edt = "compiled"``): ``distance_transform.inside_depth`` over the occupied
-        voxels' box (``occupied``), whose cost follows the occupied voxels. With the ``edt`` package
-        (the previous implementation, kept for the bench and as an oracle): a transform over the
-        deep voxels' box grown by a pad p. The box grown by p holds every voxel within p of a deep
-        voxel, so a depth ≤ p found in it is the depth; only if some deep voxel finds none that close
-        is the box grown to the clip depth (past which the depth is clipped anyway: inf). p is the
-        deepest depth of the last call plus one voxel (obstacles change little between frames). The
-        result does not depend on p, only the cost does."""
-        c = self.config
-        v = self.voxel_size
-        if c.esdf_edt == "compiled":
-            distance_transform.inside_depth(groups, depth, occupied[0], occupied[1], v, c.threads)
-            return
-        clip_pad = math.ceil((c.max_distance + v) / v) + 1
-        pad = min(self._depth_pad, clip_pad)
-        while True:
-            box = tuple(slice(max(int(lo[a]) - pad, 0), min(int(hi[a]) + pad + 1, n))
-                        for a, n in enumerate(groups.shape))
-            d = depth[box]
-            deep = d < 0
-            found = self._edt_of_label(groups[box], 0, equal=True)[deep]  # to the nearest free voxel
-            deepest = float(found.max())
-            if pad >= clip_pad or deepest <= np.float32(pad) * np.float32(v):
-                d[deep] = found
-                break
-            pad = clip_pad
-        learnt = math.ceil(deepest / v - 1e-6) + 1 if math.isfinite(deepest) else clip_pad
-        self._depth_pad = max(1, min(learnt, clip_pad))
+        the distance to the nearest free voxel, by ``distance_transform.inside_depth`` over the
+        occupied voxels' box (``occupied``), whose cost follows the occupied voxels."""
+        distance_transform.inside_depth(groups, depth, occupied[0], occupied[1], self.voxel_size, self.config.threads)
 
     @staticmethod
     def _masks(groups: np.ndarray, n_groups: int) -> dict[int, np.ndarray]:
@@ -316,34 +272,21 @@ class EsdfIntegrator:
 
     def _edt(self, sites: np.ndarray) -> np.ndarray:
         """Distance (m, float32) from every voxel to the nearest True voxel of ``sites`` (0 there)."""
-        c = self.config
-        if c.esdf_edt == "compiled":
-            return distance_transform.edt(sites, self.voxel_size, c.threads)
-        free = np.ascontiguousarray(~np.asarray(sites, dtype=bool)).view(np.uint8)
-        return _edt_package().edt(free, anisotropy=(self.voxel_size,) * free.ndim, black_border=False,
-                                  parallel=c.threads)
+        return distance_transform.edt(sites, self.voxel_size, self.config.threads)
 
     def _edt_of_label(self, labels: np.ndarray, label: int, equal: bool,
                       site_box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """``_edt`` of the sites (labels == label) == equal of a uint8 group map or a box of it;
         ``site_box`` (inclusive lo, hi) bounds where the sites are (``distance_transform.edt_of_label``)."""
-        c = self.config
-        if c.esdf_edt == "compiled":
-            return distance_transform.edt_of_label(labels, label, equal, self.voxel_size, c.threads, site_box)
-        return self._edt((labels == label) == equal)
+        return distance_transform.edt_of_label(labels, label, equal, self.voxel_size, self.config.threads, site_box)
 
     def _edt_two_sided(self, union: np.ndarray) -> np.ndarray:
         """Distance from each voxel to the nearest voxel on the other side of ``union`` (occupied ↔
-        free). The compiled path sums two transforms (each is 0 on its own sites, so one of the two
-        terms is 0 everywhere); the ``edt`` package does it as one multi-label transform."""
-        c = self.config
-        if c.esdf_edt == "compiled":
-            e = self._edt(union)
-            e += self._edt(~union)
-            return e
-        labels = np.ascontiguousarray(union).view(np.uint8) + np.uint8(1)
-        return _edt_package().edt(labels, anisotropy=(self.voxel_size,) * union.ndim, black_border=False,
-                                  parallel=c.threads)
+        free): the sum of two transforms (each is 0 on its own sites, so one of the two terms is 0
+        everywhere)."""
+        e = self._edt(union)
+        e += self._edt(~union)
+        return e
 
     def _field(self, masks: dict[int, np.ndarray], margins: np.ndarray, shape: tuple[int, ...],
                counts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -430,9 +373,8 @@ class EsdfIntegrator:
         An occupied voxel with a free face neighbour is exactly one voxel deep; only the rest
         needs an EDT, on their bounding box grown by the clip depth — no free voxel within it
         means deeper than the clip (inf). Solid obstacles (walls, filled interiors) have deep
-        voxels everywhere, so that box is most of the grid: then one multi-label EDT of
-        (free = 1, occupied = 2) gives both sides at once — the ``edt`` package measures each
-        voxel's distance to the nearest voxel of another label — cheaper than two binary ones.
+        voxels everywhere, so that box is most of the grid: then the two-sided transform of the
+        whole grid (``_edt_two_sided``) gives both sides at once.
         """
         c = self.config
         depth = np.zeros(union.shape, dtype=np.float32)

@@ -1,15 +1,15 @@
-"""Compiled passes of the exact signed ESDF (``EsdfIntegrator``, ``esdf_kernel = "numba"``).
+"""Compiled passes of the exact signed ESDF (``EsdfIntegrator``'s 3-D field).
 
-The EDTs are ``distance_transform``'s; these kernels replace the numpy glue around them (per-group
-masks over the whole grid, boolean fancy indexing, the shifted-array face tests), which cost about a
-third of a 3-D update. Each is one pass over the grid or a box, in the same float32 arithmetic as the
-numpy path (``EsdfIntegrator._field``), so both give the same field; the tests hold them equal.
+The EDTs are ``distance_transform``'s; these kernels do the work around them in place of array
+operations (per-group masks over the whole grid, boolean fancy indexing, the shifted-array face
+tests). Each is one pass over the grid or a box, in the same float32 arithmetic as the array path
+(``EsdfIntegrator._field``, which the 2-D slice runs), so both give the same field; the tests hold
+the 3-D field equal to it (``tests/oracles/esdf.py``).
 
 The passes loop over the first axis in parallel (``prange``, on ``EsdfParams.threads`` cores, as the
 EDTs): each i-plane writes only its own voxels and its own row of the partial counts and boxes,
-which are reduced serially afterwards. On the bench map with 2 threads the passes went from 4.8 to
-2.1 ms (``riskfield bench mapping``); the bounding-box pass (``reach_box``) most, 2.0 → 0.5 ms, as its
-running bounds moved from arrays to registers.
+which are reduced serially afterwards; the bounding-box pass (``reach_box``) keeps its running
+bounds in registers, not arrays.
 """
 
 from __future__ import annotations
@@ -159,10 +159,12 @@ def reach_box(e_union: np.ndarray, tlo: np.ndarray, thi: np.ndarray, llo: np.nda
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def combine(groups: np.ndarray, depth: np.ndarray, s: np.ndarray, dist: np.ndarray, grp: np.ndarray, g: int,
-            base: int, half: np.float32, m_g: np.float32, off: np.float32) -> None:
-    """Fold group g's term into (dist, grp) on a box; ``s`` is e_g there (the EDT of the box) and
-    ``off`` = float32(v/2 + m_g). Ties go to the lower group id, but the base group yields every tie."""
+def combine(box: tuple, g: int, base: int, numbers: tuple) -> None:
+    """Fold group g's term into (dist, grp) on a box, ``box`` = (groups, depth, s, dist, grp): ``s``
+    is e_g there (the EDT of the box); ``numbers`` = (half, m_g, off) float32, off = float32(v/2 +
+    m_g). Ties go to the lower group id, but the base group yields every tie."""
+    groups, depth, s, dist, grp = box
+    half, m_g, off = numbers
     nx, ny, nz = groups.shape
     for i in prange(nx):
         for j in range(ny):

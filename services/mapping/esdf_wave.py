@@ -49,6 +49,43 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..runtime.kernels import Layout, view1, view2
+
+#: The wave's workspace, one flat buffer per element type: the two maps (site, key and the cells'
+#: linked lists), the group map ``state``, the field, the wave's queue and dirty list, the key
+#: table ``root`` and the counts. ``n`` voxels, ``q`` = n + 1 queue slots, ``g`` groups (with
+#: free), ``r`` squared distances within the reach.
+WAVE_I32 = Layout("WaveI32", [("site", (2, "n")), ("nxt", (2, "n")), ("prv", (2, "n")), ("head", (2, "n")),
+                              ("changed", ("n",)), ("buf", ("n",)), ("queue", ("q",)), ("dirty_list", ("n",))])
+WAVE_U8 = Layout("WaveU8", [("state", ("n",)), ("old", ("n",)), ("inq", ("n",)), ("dirty", ("n",)), ("grp", ("n",))])
+WAVE_F32 = Layout("WaveF32", [("dist", ("n",)), ("off", ("g",)), ("margins", ("g",))])
+WAVE_F64 = Layout("WaveF64", [("key", (2, "n")), ("weight", ("g",)), ("root", ("r",)), ("lim", (1,)),
+                              ("voxel", (1,))])
+WAVE_I64 = Layout("WaveI64", [("counts", ("g",)), ("stats", (2,)), ("shape", (3,))])
+#: In the order of the workspace tuple (i32, u8, f32, f64, i64, tables): ``tables[k]`` is LAYOUTS[k]'s.
+LAYOUTS = (WAVE_I32, WAVE_U8, WAVE_F32, WAVE_F64, WAVE_I64)
+_I, _B, _F, _D, _L = (layout.slot for layout in LAYOUTS)
+
+
+def workspace(n: int, groups: int, roots: int) -> tuple[np.ndarray, ...]:
+    """A zeroed workspace (i32, u8, f32, f64, i64, tables) for ``n`` voxels, ``groups`` group ids
+    (free included) and ``roots`` entries of the key table."""
+    tables = [layout.table(n=n, q=n + 1, g=groups, r=roots) for layout in LAYOUTS]
+    stacked = np.zeros((len(tables), max(len(t) for t in tables), 4), np.int64)
+    for k, t in enumerate(tables):
+        stacked[k, :len(t)] = t
+    buffers = tuple(np.zeros(Layout.size(t), dtype) for t, dtype in
+                    zip(tables, (np.int32, np.uint8, np.float32, np.float64, np.int64), strict=True))
+    return (*buffers, stacked)
+
+
+def slot(ws: tuple[np.ndarray, ...], name: str) -> np.ndarray:
+    """The workspace's slot ``name`` (a view), from Python."""
+    for k, layout in enumerate(LAYOUTS):
+        if name in layout.shapes:
+            return layout.view(ws[k], ws[5][k], name)
+    raise KeyError(name)
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _unlink(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, m: int, x: int) -> None:
@@ -80,9 +117,13 @@ def _link(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, 
 
 
 @njit(cache=True, nogil=True)
-def reset(state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray, prv: np.ndarray,
-          head: np.ndarray, counts: np.ndarray, dist: np.ndarray, grp: np.ndarray, dmax: np.float32) -> None:
+def reset(ws: tuple, dmax: np.float32) -> None:
     """The empty map: all voxels free (each its own free site), no obstacle sites, d = max_distance."""
+    i32, u8, f32, f64, i64, tb = ws
+    site, nxt, prv, head = view2(i32, tb[0], _I.site), view2(i32, tb[0], _I.nxt), view2(i32, tb[0], _I.prv), \
+        view2(i32, tb[0], _I.head)
+    state, grp = view1(u8, tb[1], _B.state), view1(u8, tb[1], _B.grp)
+    dist, key, counts = view1(f32, tb[2], _F.dist), view2(f64, tb[3], _D.key), view1(i64, tb[4], _L.counts)
     n = state.shape[0]
     for x in range(n):
         state[x] = 0
@@ -135,11 +176,19 @@ def _mark(dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, y: int) -> in
 
 
 @njit(cache=True, nogil=True)
-def _refill(m: int, buf: np.ndarray, nr: int, state: np.ndarray, site: np.ndarray, key: np.ndarray,
-            nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, weight: np.ndarray, root: np.ndarray, lim: float,
-            nx: int, ny: int, nz: int, queue: np.ndarray, inq: np.ndarray, qt: int) -> int:
+def _refill(ws: tuple, m: int, nr: int, qt: int) -> int:
     """Voxels ``buf[:nr]`` of map m that lost their site: each takes the best site its 26 neighbours
-    hold (a site voxel is first its own again) and is queued for the lower wave. Returns the tail."""
+    hold (a site voxel is first its own again) and is queued for the lower wave (tail ``qt``).
+    Returns the tail."""
+    i32, u8, _f32, f64, i64, tb = ws
+    site, nxt, prv, head = view2(i32, tb[0], _I.site), view2(i32, tb[0], _I.nxt), view2(i32, tb[0], _I.prv), \
+        view2(i32, tb[0], _I.head)
+    buf, queue = view1(i32, tb[0], _I.buf), view1(i32, tb[0], _I.queue)
+    state, inq = view1(u8, tb[1], _B.state), view1(u8, tb[1], _B.inq)
+    key, weight, root = view2(f64, tb[3], _D.key), view1(f64, tb[3], _D.weight), view1(f64, tb[3], _D.root)
+    lim = view1(f64, tb[3], _D.lim)[0]
+    shape = view1(i64, tb[4], _L.shape)
+    nx, ny, nz = shape[0], shape[1], shape[2]
     plane = ny * nz
     for t in range(nr):
         x = buf[t]
@@ -180,12 +229,19 @@ def _refill(m: int, buf: np.ndarray, nr: int, state: np.ndarray, site: np.ndarra
 
 
 @njit(cache=True, nogil=True)
-def _lower(m: int, state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray, prv: np.ndarray,
-           head: np.ndarray, weight: np.ndarray, root: np.ndarray, lim: float, nx: int, ny: int, nz: int,
-           queue: np.ndarray, inq: np.ndarray, qt: int, dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int,
-           stats: np.ndarray) -> int:
-    """The FIFO wave of map m from the queued voxels (head at 0): a neighbour takes the popped voxel's
-    site when its key drops and stays within ``lim``. Returns the number of voxels listed dirty."""
+def _lower(ws: tuple, m: int, qt: int, n_dirty: int) -> int:
+    """The FIFO wave of map m from the queued voxels (head at 0, tail ``qt``): a neighbour takes the
+    popped voxel's site when its key drops and stays within ``lim``. Returns the number of voxels
+    listed dirty (``n_dirty`` before)."""
+    i32, u8, _f32, f64, i64, tb = ws
+    site, nxt, prv, head = view2(i32, tb[0], _I.site), view2(i32, tb[0], _I.nxt), view2(i32, tb[0], _I.prv), \
+        view2(i32, tb[0], _I.head)
+    queue, dirty_list = view1(i32, tb[0], _I.queue), view1(i32, tb[0], _I.dirty_list)
+    state, inq, dirty = view1(u8, tb[1], _B.state), view1(u8, tb[1], _B.inq), view1(u8, tb[1], _B.dirty)
+    key, weight, root = view2(f64, tb[3], _D.key), view1(f64, tb[3], _D.weight), view1(f64, tb[3], _D.root)
+    lim = view1(f64, tb[3], _D.lim)[0]
+    stats, shape = view1(i64, tb[4], _L.stats), view1(i64, tb[4], _L.shape)
+    nx, ny, nz = shape[0], shape[1], shape[2]
     plane = ny * nz
     qh = 0
     while qh != qt:
@@ -231,16 +287,21 @@ def _lower(m: int, state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np
 
 
 @njit(cache=True, nogil=True)
-def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray,
-                prv: np.ndarray, head: np.ndarray, weight: np.ndarray, lim: float, nx: int, ny: int, nz: int,
-                counts: np.ndarray, changed: np.ndarray, old: np.ndarray, buf: np.ndarray, queue: np.ndarray,
-                inq: np.ndarray, dirty: np.ndarray, dirty_list: np.ndarray, stats: np.ndarray,
-                root: np.ndarray) -> tuple[int, int]:
+def wave_update(ws: tuple, new: np.ndarray) -> tuple[int, int]:
     """Bring the maps from the group map ``state`` to ``new`` (flat, uint8; ids ≥ ``weight.size`` are
     free, as in the oracle) and list the voxels whose value may have changed in ``dirty_list``.
     Map 0: free sites, key v·|x − s|; map 1: obstacle sites, key v·|x − s| − m_{g(s)} (``weight``).
     ``root[e]`` = v·√e for every squared voxel distance e within the reach (no sqrt in the wave).
     Returns (voxels whose group changed, voxels listed). ``dirty`` is all zero on entry and on return."""
+    i32, u8, _f32, f64, i64, tb = ws
+    site, nxt, prv, head = view2(i32, tb[0], _I.site), view2(i32, tb[0], _I.nxt), view2(i32, tb[0], _I.prv), \
+        view2(i32, tb[0], _I.head)
+    changed, buf, queue = view1(i32, tb[0], _I.changed), view1(i32, tb[0], _I.buf), view1(i32, tb[0], _I.queue)
+    dirty_list = view1(i32, tb[0], _I.dirty_list)
+    state, old, inq = view1(u8, tb[1], _B.state), view1(u8, tb[1], _B.old), view1(u8, tb[1], _B.inq)
+    dirty = view1(u8, tb[1], _B.dirty)
+    key, weight = view2(f64, tb[3], _D.key), view1(f64, tb[3], _D.weight)
+    counts = view1(i64, tb[4], _L.counts)
     n = state.shape[0]
     n_groups = weight.shape[0]
     n_ch = 0
@@ -278,7 +339,7 @@ def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.nd
                 n_dirty = _mark(dirty, dirty_list, n_dirty, x)
                 x = nn
             head[m, r] = -1
-        qt = _refill(m, buf, nr, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, 0)
+        qt = _refill(ws, m, nr, 0)
         # 2. insert: a new site is its own, unless another one already beats it there (then its
         # cell is empty: cells are star-shaped about their site)
         for c in range(n_ch):
@@ -293,21 +354,25 @@ def wave_update(state: np.ndarray, new: np.ndarray, site: np.ndarray, key: np.nd
                 key[m, a] = own
                 qt = _push(queue, inq, qt, a)
         # 3. lower
-        n_dirty = _lower(m, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, qt,
-                         dirty, dirty_list, n_dirty, stats)
+        n_dirty = _lower(ws, m, qt, n_dirty)
     for t in range(n_dirty):
         dirty[dirty_list[t]] = 0
     return n_ch, n_dirty
 
 
 @njit(cache=True, nogil=True)
-def shift_maps(di: int, dj: int, dk: int, state: np.ndarray, site: np.ndarray, key: np.ndarray, nxt: np.ndarray,
-               prv: np.ndarray, head: np.ndarray, weight: np.ndarray, root: np.ndarray, lim: float, nx: int,
-               ny: int, nz: int, counts: np.ndarray, buf: np.ndarray, queue: np.ndarray, inq: np.ndarray,
-               dirty: np.ndarray, dirty_list: np.ndarray, stats: np.ndarray) -> None:
+def shift_maps(ws: tuple, di: int, dj: int, dk: int) -> None:
     """Move the maps with the volume: new[i] = old[i + δ] (``volume.shift_array``). Voxels entering
     the grid are free with no obstacle site; sites left behind are lost, and the voxels that had
     them, with the entering ones, are refilled by the wave (as after a removal)."""
+    i32, u8, _f32, f64, i64, tb = ws
+    site, nxt, prv, head = view2(i32, tb[0], _I.site), view2(i32, tb[0], _I.nxt), view2(i32, tb[0], _I.prv), \
+        view2(i32, tb[0], _I.head)
+    buf, queue = view1(i32, tb[0], _I.buf), view1(i32, tb[0], _I.queue)
+    state, inq, dirty = view1(u8, tb[1], _B.state), view1(u8, tb[1], _B.inq), view1(u8, tb[1], _B.dirty)
+    key = view2(f64, tb[3], _D.key)
+    counts, shape = view1(i64, tb[4], _L.counts), view1(i64, tb[4], _L.shape)
+    nx, ny, nz = shape[0], shape[1], shape[2]
     n = state.shape[0]
     old_state = state.copy()
     old_site = site.copy()
@@ -367,7 +432,7 @@ def shift_maps(di: int, dj: int, dk: int, state: np.ndarray, site: np.ndarray, k
             if not (0 <= a < nx and 0 <= b < ny and 0 <= c < nz) or old_site[m, (a * ny + b) * nz + c] >= 0:
                 buf[keep] = x
                 keep += 1
-        qt = _refill(m, buf, keep, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, 0)
+        qt = _refill(ws, m, keep, 0)
         if m == 0:  # the entering voxels are new free sites: their wave reaches the insides they border
             for x in range(n):
                 i = x // (ny * nz)
@@ -377,20 +442,24 @@ def shift_maps(di: int, dj: int, dk: int, state: np.ndarray, site: np.ndarray, k
                 a, b, c = i + di, j + dj, k + dk
                 if not (0 <= a < nx and 0 <= b < ny and 0 <= c < nz):
                     qt = _push(queue, inq, qt, x)
-        _lower(m, state, site, key, nxt, prv, head, weight, root, lim, nx, ny, nz, queue, inq, qt, dirty, dirty_list,
-               0, stats)
+        _lower(ws, m, qt, 0)
         for x in range(n):
             dirty[x] = 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def values(state: np.ndarray, site: np.ndarray, voxels: np.ndarray, n_vox: int, ny: int, nz: int,
-           dist: np.ndarray, grp: np.ndarray, off: np.ndarray, margins: np.ndarray, base: int, voxel: float,
-           half: np.float32, dmax: np.float32) -> None:
-    """d and risk_group on ``voxels[:n_vox]`` (all voxels when ``n_vox`` < 0) from the maps (see the
-    module docstring), in the oracle's float32 steps: ``off[g]`` = float32(v/2 + m_g) as the oracle
-    forms it, ``margins`` float32. Ties between a group's own (inside) term and the nearest other
-    group's go as in the oracle: to the lower id, but the base group yields."""
+def values(ws: tuple, n_vox: int, base: int, half: np.float32, dmax: np.float32) -> None:
+    """d and risk_group on ``dirty_list[:n_vox]`` (all voxels when ``n_vox`` < 0) from the maps (see
+    the module docstring), in the oracle's float32 steps: ``off[g]`` = float32(v/2 + m_g) as the
+    oracle forms it, ``margins`` float32. Ties between a group's own (inside) term and the nearest
+    other group's go as in the oracle: to the lower id, but the base group yields."""
+    i32, u8, f32, f64, i64, tb = ws
+    site, voxels = view2(i32, tb[0], _I.site), view1(i32, tb[0], _I.dirty_list)
+    state, grp = view1(u8, tb[1], _B.state), view1(u8, tb[1], _B.grp)
+    dist, off, margins = view1(f32, tb[2], _F.dist), view1(f32, tb[2], _F.off), view1(f32, tb[2], _F.margins)
+    voxel = view1(f64, tb[3], _D.voxel)[0]
+    shape = view1(i64, tb[4], _L.shape)
+    ny, nz = shape[1], shape[2]
     n = state.shape[0] if n_vox < 0 else n_vox
     plane = ny * nz
     for t in range(n):
@@ -448,34 +517,21 @@ class WaveEsdf:
         v, dmax = self.voxel_size, self.max_distance
         self.shape = shape
         self.margins = np.asarray(margins, dtype=np.float64).copy()
-        self.state = np.zeros(n, np.uint8)
-        self.site = np.empty((2, n), np.int32)
-        self.key = np.empty((2, n), np.float64)
-        self.nxt = np.empty((2, n), np.int32)
-        self.prv = np.empty((2, n), np.int32)
-        self.head = np.empty((2, n), np.int32)
-        self.counts = np.zeros(self.margins.shape[0], np.int64)
-        self.dist = np.empty(n, np.float32)
-        self.grp = np.empty(n, np.uint8)
-        self.changed = np.empty(n, np.int32)
-        self.old = np.empty(n, np.uint8)
-        self.buf = np.empty(n, np.int32)
-        self.queue = np.empty(n + 1, np.int32)  # a voxel is queued at most once at a time
-        self.inq = np.zeros(n, np.uint8)
-        self.dirty = np.zeros(n, np.uint8)
-        self.dirty_list = np.empty(n, np.int32)
-        self.stats = np.zeros(2, np.int64)  # queue pops, site moves (cumulative)
         # Keys beyond max_distance + v/2 are clipped anyway; one voxel of slack for the rounding.
-        self.lim = dmax + 1.5 * v
-        reach = int(np.ceil((self.lim + float(np.max(self.margins))) / v)) + 1
-        self.root = np.sqrt(np.arange(reach * reach + 1, dtype=np.float64)) * v
-        self.weight = self.margins.copy()
-        self.weight[0] = 0.0
+        lim = dmax + 1.5 * v
+        reach = int(np.ceil((lim + float(np.max(self.margins))) / v)) + 1
+        self.ws = workspace(n, self.margins.shape[0], reach * reach + 1)
+        slot(self.ws, "root")[:] = np.sqrt(np.arange(reach * reach + 1, dtype=np.float64)) * v
+        slot(self.ws, "weight")[:] = self.margins
+        slot(self.ws, "weight")[0] = 0.0
+        slot(self.ws, "lim")[0] = lim
+        slot(self.ws, "voxel")[0] = v
+        slot(self.ws, "shape")[:] = shape
+        slot(self.ws, "margins")[:] = self.margins.astype(np.float32)
         self.off = np.array([0.0] + [np.float32(0.5 * v + float(m)) for m in self.margins[1:]], np.float32)
-        self.margins32 = self.margins.astype(np.float32)
+        self.state, self.counts = slot(self.ws, "state"), slot(self.ws, "counts")
         self.base = -1
-        reset(self.state, self.site, self.key, self.nxt, self.prv, self.head, self.counts, self.dist, self.grp,
-              np.float32(dmax))
+        reset(self.ws, np.float32(dmax))
 
     def update(self, groups: np.ndarray, margins: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """(distance f4, risk_group u1, voxels whose value was recomputed) of ``groups``."""
@@ -485,30 +541,26 @@ class WaveEsdf:
             self._allocate(shape, np.asarray(margins))  # type: ignore[arg-type]
             self._key = key
         flat = np.ascontiguousarray(groups, dtype=np.uint8).reshape(-1)
-        nx, ny, nz = shape
         occupied = self.state.size - int(self.counts[0])
         if occupied > 0 and count_changes(self.state, flat, self.margins.shape[0]) > occupied // 2:
             # Most of the map moved (a volume shift, a new scene): a rebuild from the empty map
             # only inserts, where the edit would first raise every cell; about half the work.
-            reset(self.state, self.site, self.key, self.nxt, self.prv, self.head, self.counts, self.dist,
-                  self.grp, np.float32(self.max_distance))
+            reset(self.ws, np.float32(self.max_distance))
             self.base = -1
-        _, n_dirty = wave_update(self.state, flat, self.site, self.key, self.nxt, self.prv, self.head, self.weight,
-                                 self.lim, nx, ny, nz, self.counts, self.changed, self.old, self.buf, self.queue,
-                                 self.inq, self.dirty, self.dirty_list, self.stats, self.root)
+        _, n_dirty = wave_update(self.ws, flat)
         base = self._base()
         if base != self.base:  # the tie rule changed: every value
             n_dirty = -1
             self.base = base
         if n_dirty != 0:
             half, dmax = np.float32(0.5 * self.voxel_size), np.float32(self.max_distance)
-            off = self.off.copy()
+            off = slot(self.ws, "off")
+            off[:] = self.off
             if base > 0:  # the oracle's union term: float32(v/2) + float32(m_min)
-                off[base] = half + self.margins32[base]
-            values(self.state, self.site, self.dirty_list, n_dirty, ny, nz, self.dist, self.grp, off,
-                   self.margins32, base, self.voxel_size, half, dmax)
+                off[base] = half + slot(self.ws, "margins")[base]
+            values(self.ws, n_dirty, base, half, dmax)
         n = self.state.size if n_dirty < 0 else n_dirty
-        return self.dist.reshape(shape).copy(), self.grp.reshape(shape).copy(), n
+        return slot(self.ws, "dist").reshape(shape).copy(), slot(self.ws, "grp").reshape(shape).copy(), n
 
     def shift(self, delta: np.ndarray) -> None:
         """The volume moved by ``delta`` voxels (new[i] = old[i + δ]): move the maps with it, so the
@@ -521,10 +573,7 @@ class WaveEsdf:
         if any(abs(x) >= n for x, n in zip(d, self.shape, strict=True)):
             self._key = None  # nothing overlaps: start over
             return
-        nx, ny, nz = self.shape
-        shift_maps(d[0], d[1], d[2], self.state, self.site, self.key, self.nxt, self.prv, self.head, self.weight,
-                   self.root, self.lim, nx, ny, nz, self.counts, self.buf, self.queue, self.inq, self.dirty,
-                   self.dirty_list, self.stats)
+        shift_maps(self.ws, d[0], d[1], d[2])
         self.base = -1  # every value at the next update
 
     def _base(self) -> int:

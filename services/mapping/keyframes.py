@@ -50,16 +50,27 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from .config import MapperConfig
+from .config import MapperConfig, TsdfParams
 from .layers import NO_LABEL, SemanticLayer, TsdfLayer
 from .semantic_integrator import SemanticIntegrator
 from .tsdf_integrator import TsdfIntegrator
 from .volume import Volume, shift_array
 
 NEW, UPDATE, TRACKING = "keyframe_new", "keyframe_update", "tracking"
+
+
+class KeyframeData(NamedTuple):
+    """A keyframe's content as ``KeyframeMap.integrate`` fuses it: the camera-frame pointmap, its
+    confidence and labels, and the pose."""
+
+    points: np.ndarray
+    confidence: np.ndarray
+    labels: np.ndarray
+    T_WC: np.ndarray
 LABEL_SLOTS = 4
 _EPS = 1e-6
 
@@ -85,11 +96,11 @@ class Contribution:
 class ContributionIntegrator:
     """Computes a frame's contribution, and adds it to or subtracts it from a ``TsdfLayer``."""
 
-    def __init__(self, config: MapperConfig):
-        self.config = config
+    def __init__(self, params: TsdfParams, surface_band: float):
+        self.config = params
         # Same rays and weights as the mapper's integrator, but uncapped: w_k must be the whole sum.
-        self.integrator = TsdfIntegrator(config.tsdf.model_copy(update={"max_weight": 1e30}))
-        self.semantic = SemanticIntegrator(config.tsdf, config.surface_band)
+        self.integrator = TsdfIntegrator(params.model_copy(update={"max_weight": 1e30}))
+        self.semantic = SemanticIntegrator(params, surface_band)
         self.scratch: TsdfLayer | None = None
         self.scratch_sem = SemanticLayer((1, 1, 1))
         self.wsum: np.ndarray | None = None
@@ -236,12 +247,15 @@ class KeyframeMap:
     The bookkeeping only: the ``Mapper`` owns one, hands it the layers to change and applies what it
     returns (a re-pose clears its present layer), so this module knows no mapper."""
 
-    def __init__(self, config: MapperConfig, max_keyframes: int = 512, max_bytes: int = 512 * 2**20):
+    def __init__(self, params: TsdfParams, surface_band: float, repose_tolerance: float, max_keyframes: int = 512,
+                 max_bytes: int = 512 * 2**20):
+        """``params``, ``surface_band``: the integration's, as the mapper's own integrators';
+        ``repose_tolerance``: ``DynamicParams``'."""
         if max_keyframes < 1 or max_bytes < 1:
             raise ValueError("max_keyframes and max_bytes must be positive")
-        self.config = config
+        self.config, self.repose_tolerance = params, repose_tolerance
         self.max_keyframes, self.max_bytes = max_keyframes, max_bytes
-        self.integrator = ContributionIntegrator(config)
+        self.integrator = ContributionIntegrator(params, surface_band)
         self.records: OrderedDict[int, Contribution] = OrderedDict()
         self.poses: dict[int, np.ndarray] = {}  # the pose each record was integrated at
         self.seen_ms: dict[int, int] = {}  # when each keyframe's own frame was seen (mapper clock)
@@ -261,13 +275,12 @@ class KeyframeMap:
         return kind in (NEW, UPDATE)
 
     def integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer, kind: str, kid: int,
-                  points: np.ndarray, confidence: np.ndarray, labels: np.ndarray, T_WC: np.ndarray,
-                  now_ms: int) -> tuple[int, int, bool]:
+                  frame: KeyframeData, now_ms: int) -> tuple[int, int, bool]:
         """A ``keyframe_new`` or ``keyframe_update`` (one ``admit`` let through) into the mapper's
         ``tsdf``/``semantic``: the keyframe's last contribution out, the new one in. Returns the
         new contribution's rays and votes, and whether the keyframe was re-posed (its pose moved
         over ``repose_tolerance``: the caller's present layer is then in an old frame of reference)."""
-        pose = np.asarray(T_WC, dtype=np.float64)
+        pose = np.asarray(frame.T_WC, dtype=np.float64)
         reposed = False
         old = self.records.pop(kid, None) if kind == UPDATE else None
         if old is not None:
@@ -278,7 +291,7 @@ class KeyframeMap:
             self.nbytes -= self.records.pop(kid).nbytes
         if kind == NEW or kid not in self.seen_ms:
             self.seen_ms[kid] = now_ms
-        contrib, rays, votes = self.integrator.contribution(volume, points, confidence, labels, T_WC)
+        contrib, rays, votes = self.integrator.contribution(volume, *frame)
         self.integrator.apply(volume, tsdf, contrib, +1.0, semantic, self.seen_ms[kid])
         self.records[kid] = contrib
         self.poses[kid] = pose.copy()
@@ -286,6 +299,12 @@ class KeyframeMap:
         self.nbytes += contrib.nbytes
         self._bound()
         return rays, votes, reposed
+
+    @classmethod
+    def of(cls, config: MapperConfig, max_keyframes: int = 512, max_bytes: int = 512 * 2**20) -> KeyframeMap:
+        """Wired from a whole mapper configuration: its ``TsdfParams``, surface band and
+        ``repose_tolerance``."""
+        return cls(config.tsdf, config.surface_band, config.repose_tolerance, max_keyframes, max_bytes)
 
     def count(self, kind: str | None) -> None:
         """One more frame of ``kind`` seen (anything that is no keyframe counts as tracking)."""
@@ -296,7 +315,7 @@ class KeyframeMap:
         rel = np.linalg.inv(before) @ after
         angle = float(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
         moved = max(float(np.linalg.norm(rel[:3, 3])), angle * self.config.max_depth)
-        return moved > self.config.repose_tolerance
+        return moved > self.repose_tolerance
 
     def _bound(self) -> None:
         while len(self.records) > 1 and (len(self.records) > self.max_keyframes or self.nbytes > self.max_bytes):

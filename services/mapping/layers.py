@@ -65,14 +65,14 @@ class SemanticLayer:
 
 
 @njit(cache=True, nogil=True)
-def overlay(base_d: np.ndarray, base_w: np.ndarray, base_view: np.ndarray, base_label: np.ndarray,
-            base_vote: np.ndarray, top_d: np.ndarray, top_w: np.ndarray, top_view: np.ndarray, top_label: np.ndarray,
-            top_vote: np.ndarray, min_weight: float, band: float, out_d: np.ndarray, out_w: np.ndarray,
-            out_view: np.ndarray, out_label: np.ndarray, out_vote: np.ndarray) -> int:
-    """Flat (C-order) layers: ``out`` = ``top`` where it has seen a voxel (weight ≥ ``min_weight``)
-    and ``base`` has not or they disagree on an obstacle (TSDF ≤ ``band``), else ``base``
-    (``Mapper.layers``); one pass instead of a dozen whole-array operations. Returns the voxels
-    taken from ``top``."""
+def overlay(base: tuple, top: tuple, out: tuple, min_weight: float, band: float) -> int:
+    """Flat (C-order) layers, each (tsdf, weight, view, label, vote): ``out`` = ``top`` where it has
+    seen a voxel (weight ≥ ``min_weight``) and ``base`` has not or they disagree on an obstacle
+    (TSDF ≤ ``band``), else ``base`` (``Mapper.layers``); one pass instead of a dozen whole-array
+    operations. Returns the voxels taken from ``top``."""
+    base_d, base_w, base_view, base_label, base_vote = base
+    top_d, top_w, top_view, top_label, top_vote = top
+    out_d, out_w, out_view, out_label, out_vote = out
     n = 0
     for f in range(base_d.size):
         use = False

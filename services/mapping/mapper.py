@@ -61,10 +61,10 @@ from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import FloorParams, MapperConfig
 from .esdf_integrator import EsdfIntegrator
 from .free_floor import FreeFloorIntegrator, FreeFloorLayer
-from .keyframes import NEW, UPDATE, KeyframeMap
+from .keyframes import NEW, UPDATE, KeyframeData, KeyframeMap
 from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
 from .objects import MapReading
-from .occupancy import semantic_occupancy
+from .occupancy import OccupancyRule, semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
 from .projective_integrator import ProjectiveIntegrator
 from .semantic_integrator import SemanticIntegrator
@@ -130,7 +130,7 @@ class Mapper:
         self.frame_id = "map"
         self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
-        self.keyframes = KeyframeMap(self.config)  # the keyframe map-update protocol (keyframes.py)
+        self.keyframes = KeyframeMap.of(self.config)  # the keyframe map-update protocol (keyframes.py)
         # The present layer (module doc): made on the first current frame of the keyframe protocol.
         self.present: TsdfLayer | None = None
         self.present_semantic: SemanticLayer | None = None
@@ -381,11 +381,11 @@ class Mapper:
         ct, cs = self._composite
         t, sem, c = self.tsdf, self.semantic, self.config
         n = t.tsdf.size
-        self.overlaid = overlay(t.tsdf.reshape(n), t.weight.reshape(n), t.view.reshape(n, 3), sem.label.reshape(n),
-                                sem.vote.reshape(n), p.tsdf.reshape(n), p.weight.reshape(n), p.view.reshape(n, 3),
-                                ps.label.reshape(n), ps.vote.reshape(n), max(c.min_weight, 1e-12), c.surface_band,
-                                ct.tsdf.reshape(n), ct.weight.reshape(n), ct.view.reshape(n, 3), cs.label.reshape(n),
-                                cs.vote.reshape(n))
+
+        def flat(d: TsdfLayer, s: SemanticLayer) -> tuple[np.ndarray, ...]:
+            return d.tsdf.reshape(n), d.weight.reshape(n), d.view.reshape(n, 3), s.label.reshape(n), s.vote.reshape(n)
+
+        self.overlaid = overlay(flat(t, sem), flat(p, ps), flat(ct, cs), max(c.min_weight, 1e-12), c.surface_band)
         return ct, cs
 
     def overlay_mask(self) -> np.ndarray:
@@ -427,9 +427,9 @@ class Mapper:
         rays = votes = 0
         if self.keyframes.admit(kind, kid):
             assert kind in (NEW, UPDATE)
-            rays, votes, reposed = self.keyframes.integrate(
-                self.volume, self.tsdf, self.semantic, kind, kid, points, frame.confidence, frame.labels,
-                frame.T_WC, self.clock(stamp or time.time_ns()))
+            content = KeyframeData(points, frame.confidence, frame.labels, frame.T_WC)
+            rays, votes, reposed = self.keyframes.integrate(self.volume, self.tsdf, self.semantic, kind, kid, content,
+                                                            self.clock(stamp or time.time_ns()))
             if reposed:  # what was seen free was seen in the old frame of reference
                 self.clear_present()
                 self.free_floor.clear()
@@ -461,8 +461,8 @@ class Mapper:
             self.projective_integrator.integrate(scratch, tsdf, sem, arrays[0], arrays[1], arrays[2], arrays[3],
                                                  (2.0, 2.0, 0.5, 0.5))
         c = self.config
-        semantic_occupancy(tsdf, sem, self.label_to_group, c.min_weight, c.surface_band, 1, interior="solid",
-                           fill_steps=1)
+        semantic_occupancy(tsdf, sem, self.label_to_group,
+                           OccupancyRule(c.min_weight, c.surface_band, 1, interior="solid", fill_steps=1))
         self.esdf_integrator.warm_up()
 
     # -- outputs --------------------------------------------------------------------------------
@@ -471,10 +471,9 @@ class Mapper:
         c = self.config
         self.decay()
         tsdf, semantic = self.read = self.layers()
-        groups = semantic_occupancy(tsdf, semantic, self.label_to_group, c.min_weight, c.surface_band,
-                                    self.unknown_group_id if c.unknown_is_occupied else 0,
-                                    interior=c.obstacle_interior, fill_steps=c.fill_steps,
-                                    support_steps=c.support_steps)
+        rule = OccupancyRule(c.min_weight, c.surface_band, self.unknown_group_id if c.unknown_is_occupied else 0,
+                             c.obstacle_interior, c.fill_steps, c.support_steps)
+        groups = semantic_occupancy(tsdf, semantic, self.label_to_group, rule)
         if self.volume is not None:
             self._groups = (groups, self.volume.origin_index.copy())
         return groups
@@ -544,7 +543,7 @@ class Mapper:
     def _esdf3d(self, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The 3-D field, incrementally from the last one when the volume and margins are unchanged."""
         last = self._last3d
-        if self.config.esdf_update == "incremental" and last is not None and last[0].shape == groups.shape:
+        if last is not None and last[0].shape == groups.shape:
             dist, grp, _ = self.esdf_integrator.update(groups, self.margins, last[0], (last[1], last[2]))
         else:
             dist, grp = self.esdf_integrator.compute(groups, self.margins)

@@ -77,7 +77,8 @@ class MappingNode:
         self.mapper = Mapper(settings.mapper_config(), self.risk_store.risk)
         self._show_risk()
         self.mapper.warm_up()
-        self.tracker = ObjectTracker.warmed(self.mapper.config) if settings.object_tracking else None
+        c = self.mapper.config
+        self.tracker = ObjectTracker.warmed(c.objects, c.dynamic) if settings.object_tracking else None
         self.esdf3d_key = node.keys.key(settings.esdf3d_key)
         self.rejected = 0
         self.updates = 0

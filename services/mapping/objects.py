@@ -66,7 +66,7 @@ from scipy import ndimage
 
 from riskfield.protocol import TrackedObject
 
-from .config import MapperConfig
+from .config import DynamicParams, MapperConfig, ObjectParams
 from .layers import NEVER, NO_LABEL
 
 _EIGHT = np.ones((3, 3), dtype=bool)
@@ -111,13 +111,19 @@ def _reach(xy: np.ndarray, centre: np.ndarray, voxel_size: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _columns(groups: np.ndarray, labels: np.ndarray, tsdf: np.ndarray, weight: np.ndarray, hit: np.ndarray,
-             hit2: np.ndarray, k_lo: int, k_hi: int, group_ok: np.ndarray, is_movable: np.ndarray, min_weight: float,
-             voxel_size: float, use_tsdf: bool, use_hit: bool, use_hit2: bool
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One pass over the height band: per (i, j) column, its movable voxels' fraction sum (0: none),
-    fraction-weighted height sum, labelled-voxel count, a movable label and the newest ``hit`` of
-    its voxels (the later of ``hit`` and ``hit2``, the present layer's, when given)."""
+def _columns(grid: tuple, hits: tuple, lookup: tuple, band: tuple, numbers: tuple,
+             flags: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over the height band ``band`` = (k_lo, k_hi) of ``grid`` = (groups, labels, tsdf,
+    weight): per (i, j) column, its movable voxels' fraction sum (0: none), fraction-weighted height
+    sum, labelled-voxel count, a movable label and the newest ``hit`` of its voxels (the later of
+    ``hits`` = (hit, hit2), hit2 the present layer's, when given). ``lookup`` = (group_ok,
+    is_movable), ``numbers`` = (min_weight, voxel_size), ``flags`` = (use_tsdf, use_hit, use_hit2)."""
+    groups, labels, tsdf, weight = grid
+    hit, hit2 = hits
+    group_ok, is_movable = lookup
+    k_lo, k_hi = band
+    min_weight, voxel_size = numbers
+    use_tsdf, use_hit, use_hit2 = flags
     nx, ny = groups.shape[0], groups.shape[1]
     seen = np.full((nx, ny), NEVER, np.int32)
     frac = np.zeros((nx, ny), np.float64)
@@ -177,16 +183,16 @@ class MapReading:
     now_ms: int | None = None  # the map's clock (``Mapper.now_ms``)
 
 
-def detect(reading: MapReading, params: MapperConfig) -> list[Detection]:
-    """The movable objects of one map reading: its semantic occupancy (the mapper's per-voxel risk
-    group) with the semantic layer's labels, in its height band [k_lo, k_hi) of z voxels. With the
-    TSDF layer, observed voxels count by their inside fraction; with its ``hit`` times (and the
-    present layer's), each detection says when it was last seen."""
+def detect(reading: MapReading, params: ObjectParams, dynamic: DynamicParams) -> list[Detection]:
+    """The movable objects (``dynamic.dynamic_labels``) of one map reading: its semantic occupancy
+    (the mapper's per-voxel risk group) with the semantic layer's labels, in its height band
+    [k_lo, k_hi) of z voxels. With the TSDF layer, observed voxels count by their inside fraction;
+    with its ``hit`` times (and the present layer's), each detection says when it was last seen."""
     r = reading
     groups, labels, origin, voxel_size, label_to_group = r.occupancy, r.label, r.origin, r.voxel_size, r.label_to_group
     tsdf, weight, hit, present_hit = r.tsdf, r.weight, r.hit, r.present_hit
     k_range = r.band
-    movable = np.asarray(params.dynamic_indices, dtype=np.int64)
+    movable = np.asarray(dynamic.dynamic_indices, dtype=np.int64)
     k_lo, k_hi = max(0, k_range[0]), min(groups.shape[2], k_range[1])
     if movable.size == 0 or k_hi <= k_lo:
         return []
@@ -202,10 +208,10 @@ def detect(reading: MapReading, params: MapperConfig) -> list[Detection]:
     dummy = np.zeros((1, 1, 1), np.float32)
     no_hit = np.zeros((1, 1, 1), np.int32)
     body, frac, fz, seeds, col_label, col_seen = _columns(
-        groups, labels, tsdf if use_tsdf else dummy, weight if use_tsdf else dummy,
-        hit if use_hit else no_hit, present_hit if use_hit and present_hit is not None else no_hit, k_lo, k_hi,
-        group_ok, is_movable, float(r.min_weight), float(voxel_size), use_tsdf, use_hit,
-        use_hit and present_hit is not None)
+        (groups, labels, tsdf if use_tsdf else dummy, weight if use_tsdf else dummy),
+        (hit if use_hit else no_hit, present_hit if use_hit and present_hit is not None else no_hit),
+        (group_ok, is_movable), (k_lo, k_hi), (float(r.min_weight), float(voxel_size)),
+        (use_tsdf, use_hit, use_hit and present_hit is not None))
     if not seeds.any():
         return []
     # Every cell grows by a disc of half the merge gap (whole voxels, rounded up) and touching
@@ -283,8 +289,10 @@ class Track:
 class ObjectTracker:
     """Footprints of movable objects → tracks with velocities, across map updates (module doc)."""
 
-    def __init__(self, params: MapperConfig | None = None):
-        self.params = params or MapperConfig()
+    def __init__(self, params: ObjectParams | None = None, dynamic: DynamicParams | None = None):
+        """``params``: the tracker's own; ``dynamic``: which labels move and how long they are kept."""
+        self.params = params or ObjectParams()
+        self.dynamic = dynamic or DynamicParams()
         self.tracks: list[Track] = []
         self.stamp_ns = 0
         self.now_ms: int | None = None  # the map's clock at the last update (``Mapper.now_ms``)
@@ -294,7 +302,12 @@ class ObjectTracker:
         self._next_id = 0
 
     @classmethod
-    def warmed(cls, params: MapperConfig | None = None) -> ObjectTracker:
+    def of(cls, config: MapperConfig) -> ObjectTracker:
+        """Wired from a whole mapper configuration: its ``ObjectParams`` and ``DynamicParams``."""
+        return cls(config.objects, config.dynamic)
+
+    @classmethod
+    def warmed(cls, params: ObjectParams | None = None, dynamic: DynamicParams | None = None) -> ObjectTracker:
         """A tracker whose kernel is compiled (or loaded from numba's cache): for a node, before serving."""
         g = np.ones((3, 3, 1), np.uint8)
         lab = np.full((3, 3, 1), NO_LABEL, np.uint16)
@@ -302,10 +315,10 @@ class ObjectTracker:
         f = np.zeros((3, 3, 1), np.float32)
         lut = np.ones(65536, np.uint8)
         bare = MapReading(g, (0, 1), np.zeros(3), 0.05, lab, lut)
-        person = MapperConfig(dynamic_labels=("person",))
-        detect(replace(bare, tsdf=f, weight=f), person)
-        detect(bare, person)
-        return cls(params)
+        person = DynamicParams(dynamic_labels=("person",))
+        detect(replace(bare, tsdf=f, weight=f), ObjectParams(), person)
+        detect(bare, ObjectParams(), person)
+        return cls(params, dynamic)
 
     def reset(self) -> None:
         """Forget every track (ids keep counting up: never reused by one publisher)."""
@@ -319,8 +332,8 @@ class ObjectTracker:
         its height band, tracked, at the map's stamp (or ``stamp_ns``)."""
         if reading is None:
             return []
-        return self.update(reading.stamp_ns if stamp_ns is None else stamp_ns, detect(reading, self.params),
-                           reading.label_to_group, reading.now_ms)
+        stamp = reading.stamp_ns if stamp_ns is None else stamp_ns
+        return self.update(stamp, detect(reading, self.params, self.dynamic), reading.label_to_group, reading.now_ms)
 
     def update(self, stamp_ns: int, detections: list[Detection], label_to_group: np.ndarray | None = None,
                now_ms: int | None = None) -> list[TrackedObject]:
@@ -369,7 +382,7 @@ class ObjectTracker:
                 else:
                     self.standing[tr.id] = (tr.position.copy(), tr.radius, tr.seen_ms)
         if now_ms is not None:
-            oldest = now_ms - round(p.dynamic_persist_s * 1e3)
+            oldest = now_ms - round(self.dynamic.dynamic_persist_s * 1e3)
             self.standing = {k: v for k, v in self.standing.items() if v[2] is None or v[2] >= oldest}
         expire_ns = p.object_expire_s * 1e9
         self.tracks = [t for t in self.tracks if stamp_ns - t.last_ns <= expire_ns]
@@ -410,7 +423,7 @@ class ObjectTracker:
         body = self.params.object_body_radius
         out = {k: (pos.copy(), min(radius, body)) for k, (pos, radius, _) in self.standing.items()}
         if self.now_ms is not None:
-            oldest = self.now_ms - round(self.params.dynamic_moving_persist_s * 1e3)
+            oldest = self.now_ms - round(self.dynamic.dynamic_moving_persist_s * 1e3)
             for tr in self.tracks:
                 if tr.seen_ms is None or tr.seen_ms >= oldest:
                     out[tr.id] = (tr.position.copy(), min(tr.radius, body))

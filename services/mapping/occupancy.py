@@ -88,6 +88,8 @@ the inside of an obstacle reads as free space), for comparison.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -126,15 +128,17 @@ def _solid_at(f: int, state: np.ndarray, filled: np.ndarray, g: np.ndarray) -> b
 
 
 @njit(cache=True, nogil=True)
-def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.ndarray, lut: np.ndarray, min_w: float,
-           band: float, fill_steps: int, unknown_group: int, groups: np.ndarray, support_steps: int = 0,
-           sparse: bool = True) -> None:
-    """Fill ``groups`` (all zero on entry) with the solid semantic occupancy; see the module docstring.
+def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> None:
+    """Fill ``groups`` (all zero on entry) with the solid semantic occupancy of ``layers`` = (tsdf,
+    weight, view, label); see the module docstring. ``rule`` = (min_w, band, fill_steps,
+    unknown_group, support_steps, sparse), as ``OccupancyRule``'s.
 
     ``sparse``: the support pass visits only the (i, j) columns holding an observed obstacle voxel,
     the second pinhole pass only the neighbours of the voxels the first one closed, and the final
     pass only the voxels the wavefront reached (when ``unknown_group`` is 0) — the only ones these
     passes can change; ``False`` scans all of them (the reference, same result)."""
+    tsdf, weight, view, label = layers
+    min_w, band, fill_steps, unknown_group, support_steps, sparse = rule
     nx, ny, nz = tsdf.shape
     n = nx * ny * nz
     t = tsdf.reshape(n)
@@ -332,10 +336,22 @@ def _solid(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, label: np.nda
             g[f] = unknown_group
 
 
-def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group: np.ndarray, min_weight: float,
-                       surface_band: float, unknown_group: int = 0, interior: str = "solid",
-                       fill_steps: int = 0, support_steps: int = 0, sparse: bool = True) -> np.ndarray:
-    """Per-voxel obstacle group (uint8, 1-based risk group id, 0 = not an obstacle).
+class OccupancyRule(NamedTuple):
+    """How ``semantic_occupancy`` decides: the surface support (``min_weight``, ``surface_band``),
+    the interior, the fills and the unknown space's group (see ``semantic_occupancy``)."""
+
+    min_weight: float
+    surface_band: float
+    unknown_group: int = 0
+    interior: str = "solid"
+    fill_steps: int = 0
+    support_steps: int = 0
+    sparse: bool = True
+
+
+def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group: np.ndarray,
+                       rule: OccupancyRule) -> np.ndarray:
+    """Per-voxel obstacle group (uint8, 1-based risk group id, 0 = not an obstacle) by ``rule``.
 
     ``interior``: ``"solid"`` (observed negative-TSDF voxels join the obstacle of their nearest
     labelled surface) or ``"shell"`` (the surface band only). ``fill_steps`` > 0 (solid only)
@@ -345,12 +361,15 @@ def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group:
     never-observed voxels as obstacles of that group. ``sparse=False``: the whole-volume scans
     (the reference of the default's skipped work; the same result).
     """
+    min_weight, surface_band, unknown_group, interior = rule[:4]
     if interior == "solid":
         groups = np.zeros(tsdf.tsdf.shape, dtype=np.uint8)
         lut = np.ascontiguousarray(label_to_group, dtype=np.uint8)
-        _solid(np.ascontiguousarray(tsdf.tsdf), np.ascontiguousarray(tsdf.weight), np.ascontiguousarray(tsdf.view),
-               np.ascontiguousarray(semantic.label), lut, float(max(min_weight, 1e-12)), float(surface_band),
-               int(fill_steps), int(unknown_group), groups, int(support_steps), bool(sparse))
+        layers = (np.ascontiguousarray(tsdf.tsdf), np.ascontiguousarray(tsdf.weight), np.ascontiguousarray(tsdf.view),
+                  np.ascontiguousarray(semantic.label))
+        numbers = (float(max(min_weight, 1e-12)), float(surface_band), int(rule.fill_steps), int(unknown_group),
+                   int(rule.support_steps), bool(rule.sparse))
+        _solid(layers, lut, numbers, groups)
         return groups
     if interior != "shell":
         raise ValueError(f"interior {interior!r} is neither 'solid' nor 'shell'")

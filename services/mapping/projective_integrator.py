@@ -54,11 +54,24 @@ import numpy as np
 from numba import njit, prange
 
 from ..runtime.jit import threads
+from ..runtime.kernels import Layout, view1, view2
 from .config import TsdfParams
 from .layers import SemanticLayer, TsdfLayer
 from .pointmap import FrameRejected
 from .semantic_integrator import vote
 from .volume import Volume
+
+#: One frame's numbers as ``_integrate_projective`` reads them: the camera (rotation, centre,
+#: intrinsics fx, fy, cx, cy), the volume (origin, voxel size), ``TsdfParams``' thresholds and the
+#: farthest usable range, in a float64 buffer ...
+FLOATS = Layout("ProjectiveFloats", [("R", (3, 3)), ("camera", (3,)), ("origin", (3,)), ("K", (4,)),
+                                     ("voxel", (1,)), ("free_max", (1,)), ("trunc", (1,)), ("w_max", (1,)),
+                                     ("q_min", (1,)), ("r_min", (1,)), ("r_max", (1,)), ("band", (1,)),
+                                     ("carve_scale", (1,)), ("far", (1,))])
+#: ... and an int64 one: the clock (``TsdfLayer.hit``), the carving and voting switches, the block edge.
+INTS = Layout("ProjectiveInts", [("now", (1,)), ("carve", (1,)), ("vote", (1,)), ("block", (1,))])
+_PF, _PI = FLOATS.table(), INTS.table()
+_F, _I = FLOATS.slot, INTS.slot
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -80,14 +93,16 @@ def _far_range(points: np.ndarray, conf: np.ndarray, q_min: float, r_min: float,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, px: float, py: float, pz: float,
-                    r: float, x: float, y: float, z: float, q_min: float, trunc: float, reach: float,
-                    sdf: float) -> tuple[float, bool]:
-    """The band's signed distance from the voxel centre (x, y, z) to the plane of pixel (iv, iu),
-    ``(c − p)·n`` with the pointmap's normal n turned to the camera, and True; ``sdf`` (the range
-    difference) and False where the neighbours do not give a normal (image edge, invalid or across
-    a depth jump) or the point is farther than ``reach`` from the centre (the plane would reach
-    past a convex edge)."""
+def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, p: tuple, r: float, centre: tuple,
+                    limits: tuple, sdf: float) -> tuple[float, bool]:
+    """The band's signed distance from the voxel centre (x, y, z) to the plane of pixel (iv, iu)
+    whose point p = (px, py, pz) is at range r, ``(c − p)·n`` with the pointmap's normal n turned to
+    the camera, and True; ``sdf`` (the range difference) and False where the neighbours do not give
+    a normal (image edge, invalid or across a depth jump) or the point is farther than ``reach``
+    from the centre (the plane would reach past a convex edge). ``limits`` = (q_min, trunc, reach)."""
+    px, py, pz = p
+    x, y, z = centre
+    q_min, trunc, reach = limits
     if (x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2 > reach * reach:
         return sdf, False
     h, w = conf.shape
@@ -117,13 +132,24 @@ def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, px: 
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarray, R: np.ndarray, o: np.ndarray,
-                          origin: np.ndarray, vs: float, K: np.ndarray, tsdf: np.ndarray, weight: np.ndarray,
-                          view: np.ndarray, hit: np.ndarray, now: int, free_max: float, lab: np.ndarray,
-                          votes: np.ndarray, trunc: float, w_max: float,
-                          q_min: float, r_min: float, r_max: float, band: float, carve: bool, carve_scale: float,
-                          block: int, far: float, vote_labels: bool, counts: np.ndarray) -> None:
-    """Integrate one frame; ``counts[b] = (voxels updated, votes)`` of block b (see the module doc)."""
+def _integrate_projective(frame: tuple, layer: tuple, semantic: tuple, fl: np.ndarray, it: np.ndarray,
+                          counts: np.ndarray) -> None:
+    """Integrate ``frame`` = (points, confidence, labels) into ``layer`` = the ``TsdfLayer``'s (tsdf,
+    weight, view, hit) and ``semantic`` = the ``SemanticLayer``'s (label, vote), with the frame's
+    numbers ``fl``, ``it`` (``FLOATS``, ``INTS``); ``counts[b] = (voxels updated, votes)`` of block b
+    (see the module doc)."""
+    points, conf, labels = frame
+    tsdf, weight, view, hit = layer
+    lab, votes = semantic
+    # Copies of the small arrays the parallel loop reads; scalars read once.
+    R, o, origin = view2(fl, _PF, _F.R).copy(), view1(fl, _PF, _F.camera).copy(), view1(fl, _PF, _F.origin).copy()
+    K = view1(fl, _PF, _F.K).copy()
+    vs, free_max, trunc = view1(fl, _PF, _F.voxel)[0], view1(fl, _PF, _F.free_max)[0], view1(fl, _PF, _F.trunc)[0]
+    w_max, q_min = view1(fl, _PF, _F.w_max)[0], view1(fl, _PF, _F.q_min)[0]
+    r_min, r_max, band = view1(fl, _PF, _F.r_min)[0], view1(fl, _PF, _F.r_max)[0], view1(fl, _PF, _F.band)[0]
+    carve_scale, far = view1(fl, _PF, _F.carve_scale)[0], view1(fl, _PF, _F.far)[0]
+    now, carve = view1(it, _PI, _I.now)[0], view1(it, _PI, _I.carve)[0] != 0
+    vote_labels, block = view1(it, _PI, _I.vote)[0] != 0, view1(it, _PI, _I.block)[0]
     h, w = conf.shape
     nx, ny, nz = tsdf.shape
     fx, fy, cx, cy = K[0], K[1], K[2], K[3]
@@ -195,8 +221,8 @@ def _integrate_projective(points: np.ndarray, conf: np.ndarray, labels: np.ndarr
                         d, qq = trunc, q * carve_scale
                     else:
                         hit[i, j, k] = now
-                        sdf, planar = _point_to_plane(points, conf, iv, iu, px, py, pz, r, x, y, z, q_min, trunc,
-                                                      1.5 * vs, sdf)
+                        sdf, planar = _point_to_plane(points, conf, iv, iu, (px, py, pz), r, (x, y, z),
+                                                      (q_min, trunc, 1.5 * vs), sdf)
                         # The ray integrators give a surface voxel one observation per pixel whose
                         # ray meets it; this pass gives one per voxel, so it weighs it by the pixels
                         # the voxel covers — where its pixel's neighbours agree on a plane, not for
@@ -226,6 +252,8 @@ class ProjectiveIntegrator:
 
     def __init__(self, params: TsdfParams, surface_band: float):
         self.config, self.surface_band = params, surface_band  # as SemanticIntegrator's
+        self._floats = np.zeros(Layout.size(_PF))
+        self._ints = np.zeros(Layout.size(_PI), np.int64)
 
     def integrate(self, volume: Volume, tsdf: TsdfLayer, semantic: SemanticLayer | None, points: np.ndarray,
                   confidence: np.ndarray, labels: np.ndarray | None, T_WC: np.ndarray,
@@ -257,10 +285,20 @@ class ProjectiveIntegrator:
         for n in tsdf.tsdf.shape:
             nb *= (n + c.block_size - 1) // c.block_size
         counts = np.zeros((nb, 2), np.int64)
-        _integrate_projective(pts, conf, lab, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
-                              volume.origin.astype(np.float64), volume.voxel_size, K, tsdf.tsdf, tsdf.weight,
-                              tsdf.view, tsdf.hit, now_ms, c.max_free_weight, sem_lab, sem_w, tsdf.truncation,
-                              c.max_weight, c.min_confidence, c.min_depth, c.max_depth, self.surface_band, c.carve,
-                              c.carve_weight, c.block_size, far, vote_labels, counts)
+        fl, it = self._floats, self._ints
+        FLOATS.view(fl, _PF, "R")[:] = T[:3, :3]
+        FLOATS.view(fl, _PF, "camera")[:] = T[:3, 3]
+        FLOATS.view(fl, _PF, "origin")[:] = volume.origin
+        FLOATS.view(fl, _PF, "K")[:] = K
+        for name, value in (("voxel", volume.voxel_size), ("free_max", c.max_free_weight), ("trunc", tsdf.truncation),
+                            ("w_max", c.max_weight), ("q_min", c.min_confidence), ("r_min", c.min_depth),
+                            ("r_max", c.max_depth), ("band", self.surface_band), ("carve_scale", c.carve_weight),
+                            ("far", far)):
+            FLOATS.view(fl, _PF, name)[0] = value
+        for name, value in (("now", now_ms), ("carve", int(c.carve)), ("vote", int(vote_labels)),
+                            ("block", c.block_size)):
+            INTS.view(it, _PI, name)[0] = value
+        _integrate_projective((pts, conf, lab), (tsdf.tsdf, tsdf.weight, tsdf.view, tsdf.hit), (sem_lab, sem_w),
+                              fl, it, counts)
         total = counts.sum(axis=0)
         return int(total[0]), int(total[1])

@@ -21,10 +21,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..runtime.kernels import Layout, view1, view2
 from .config import TsdfParams
 from .layers import SemanticLayer
 from .raycast import pixel_ray, ray_voxels
 from .volume import Volume
+
+#: One frame's numbers as ``_integrate`` reads them: the camera (rotation, centre), the volume
+#: (origin, voxel size), the surface band and ``TsdfParams``' thresholds, in a float64 buffer, and
+#: the pixel stride in an int64 one.
+FLOATS = Layout("SemanticFloats", [("R", (3, 3)), ("camera", (3,)), ("origin", (3,)), ("voxel", (1,)),
+                                   ("band", (1,)), ("q_min", (1,)), ("r_min", (1,)), ("r_max", (1,))])
+INTS = Layout("SemanticInts", [("stride", (1,))])
+_SF, _SI = FLOATS.table(), INTS.table()
+_F, _I = FLOATS.slot, INTS.slot
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -39,13 +49,18 @@ def vote(label: int, weight: float, observed: int, q: float) -> tuple[int, float
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _integrate(points: np.ndarray, conf: np.ndarray, labels: np.ndarray, R: np.ndarray, o_world: np.ndarray,
-               origin: np.ndarray, vs: float, lab: np.ndarray, votes: np.ndarray, band: float, q_min: float,
-               r_min: float, r_max: float, stride: int) -> int:
+def _integrate(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray) -> int:
+    """Vote ``frame`` = (points, confidence, labels) into ``layer`` = the ``SemanticLayer``'s (label,
+    vote), with the frame's numbers ``fl``, ``it`` (``FLOATS``, ``INTS``); the vote count."""
+    points, conf, labels = frame
+    lab, votes = layer
+    R, vs, band = view2(fl, _SF, _F.R), view1(fl, _SF, _F.voxel)[0], view1(fl, _SF, _F.band)[0]
+    q_min, r_min, r_max = view1(fl, _SF, _F.q_min)[0], view1(fl, _SF, _F.r_min)[0], view1(fl, _SF, _F.r_max)[0]
+    stride = view1(it, _SI, _I.stride)[0]
     h, w = conf.shape
     shape = np.array(lab.shape, dtype=np.int64)
     buf = np.empty((shape.sum() + 4, 3), dtype=np.int64)
-    o = (o_world - origin) / vs
+    o = (view1(fl, _SF, _F.camera) - view1(fl, _SF, _F.origin)) / vs
     dw = np.empty(3)
     di = np.empty(3)
     n_votes = 0
@@ -77,15 +92,21 @@ class SemanticIntegrator:
         # the frame's sampling is the TSDF's (TsdfParams); labels are voted in the occupancy's
         # surface band (OccupancyParams.surface_band_vox × the voxel size), as in the paper
         self.config, self.surface_band = params, surface_band
+        self._floats = np.zeros(Layout.size(_SF))
+        self._ints = np.zeros(Layout.size(_SI), np.int64)
 
     def integrate(self, volume: Volume, layer: SemanticLayer, points: np.ndarray, confidence: np.ndarray,
                   labels: np.ndarray, T_WC: np.ndarray) -> int:
         """Vote one frame's labels into the voxels near each observed surface point; the vote count."""
-        c = self.config
+        c, fl, it = self.config, self._floats, self._ints
         T = np.asarray(T_WC, dtype=np.float64)
-        return int(_integrate(
-            np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32),
-            np.asarray(labels, dtype=np.uint16), np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
-            volume.origin.astype(np.float64), volume.voxel_size, layer.label, layer.vote, self.surface_band,
-            c.min_confidence, c.min_depth, c.max_depth, c.pixel_stride,
-        ))
+        FLOATS.view(fl, _SF, "R")[:] = T[:3, :3]
+        FLOATS.view(fl, _SF, "camera")[:] = T[:3, 3]
+        FLOATS.view(fl, _SF, "origin")[:] = volume.origin
+        for name, value in (("voxel", volume.voxel_size), ("band", self.surface_band), ("q_min", c.min_confidence),
+                            ("r_min", c.min_depth), ("r_max", c.max_depth)):
+            FLOATS.view(fl, _SF, name)[0] = value
+        INTS.view(it, _SI, "stride")[0] = c.pixel_stride
+        frame = (np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32),
+                 np.asarray(labels, dtype=np.uint16))
+        return int(_integrate(frame, (layer.label, layer.vote), fl, it))

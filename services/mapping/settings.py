@@ -15,12 +15,12 @@ from pydantic import Field
 from ..runtime.continuity import StateGateSettings
 from ..runtime.risk_file import RiskStateSettings
 from ..runtime.settings import NodeSettings
-from .config import REFERENCE_IMPLEMENTATIONS, MapperConfig
+from .config import REMOVED_SETTINGS, MapperConfig
 
 
 class MappingSettings(NodeSettings, MapperConfig, StateGateSettings, RiskStateSettings):
     SERVICE: ClassVar[str] = "mapping"
-    REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
+    REMOVED: ClassVar[dict[str, str]] = REMOVED_SETTINGS
 
     esdf_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
     """The ESDF is rebuilt and published at most this often on average (a token bucket, so a frame

@@ -30,68 +30,89 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..runtime.kernels import Layout, view1, view2
 from .config import TsdfParams
 from .layers import TsdfLayer
 from .raycast import pixel_ray, ray_voxels
 from .volume import Volume
 
+#: One integration's numbers as the kernels read them: the camera (rotation, centre), the volume
+#: (origin, voxel size) and ``TsdfParams``' thresholds, in a float64 buffer ...
+FLOATS = Layout("TsdfFloats", [("R", (3, 3)), ("camera", (3,)), ("origin", (3,)), ("voxel", (1,)),
+                               ("free_max", (1,)), ("trunc", (1,)), ("w_max", (1,)), ("q_min", (1,)),
+                               ("r_min", (1,)), ("r_max", (1,)), ("carve_scale", (1,))])
+#: ... and an int64 one: the grid's shape, the clock (``TsdfLayer.hit``) and the strides.
+INTS = Layout("TsdfInts", [("shape", (3,)), ("now", (1,)), ("stride", (1,)), ("carve", (1,)),
+                           ("carve_stride", (1,))])
+_TF, _TI = FLOATS.table(), INTS.table()
+_F, _I = FLOATS.slot, INTS.slot
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _update(tsdf: np.ndarray, weight: np.ndarray, i: int, j: int, k: int, d: float, q: float, w_max: float,
-            free: bool, free_max: float) -> None:
-    """One observation; a free-space one (``free``) raises the weight only up to ``free_max`` (or
-    keeps it, if already above): old free space must not drown a surface that appears in it."""
+            cap_free: float) -> None:
+    """One observation. The weight is capped at ``w_max``; a free-space one raises it only up to
+    ``cap_free`` (or keeps it, if already above): old free space must not drown a surface that
+    appears in it. A surface observation passes ``cap_free = w_max``."""
     w = weight[i, j, k]
     tsdf[i, j, k] = (w * tsdf[i, j, k] + q * d) / (w + q)
-    cap = w_max
-    if free:
-        cap = min(w_max, max(w, free_max))
+    cap = min(w_max, max(w, cap_free))
     w += q
     weight[i, j, k] = cap if w > cap else w
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _ray(tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, hit: np.ndarray, now: int, free_max: float,
-         o: np.ndarray, dw: np.ndarray, di: np.ndarray, vs: float, r: float, t0: float, t1: float, q: float,
-         trunc: float, w_max: float, shape: np.ndarray, buf: np.ndarray) -> int:
+def _ray(layer: tuple, fl: np.ndarray, it: np.ndarray, geo: np.ndarray, r: float, t0: float, t1: float,
+         q: float, buf: np.ndarray) -> int:
     """Update the voxels the ray ``o + t·dw`` crosses for t in [t0, t1], surface at range ``r``.
 
-    ``o`` is the camera centre in index units, ``dw`` the unit direction (world) and
-    ``di = dw / vs``; t is in metres. Voxels behind the surface (sdf < 0) keep the ray's
-    direction in ``view`` (×127, int8): the occupancy's fill of never-observed space behind
-    surfaces marches along it. Voxels in the band or behind it get ``hit = now``.
+    ``layer`` is the ``TsdfLayer``'s (tsdf, weight, view, hit); ``fl``, ``it`` the integration's
+    numbers (``FLOATS``, ``INTS``); ``geo`` the rows o (the camera centre in index units), dw (the
+    unit direction, world) and di = dw / vs; t is in metres. Voxels behind the surface (sdf < 0)
+    keep the ray's direction in ``view`` (×127, int8): the occupancy's fill of never-observed space
+    behind surfaces marches along it. Voxels in the band or behind it get ``hit = now``.
     """
-    n = ray_voxels(o, di, t0, t1, shape, buf)
+    tsdf, weight, view, hit = layer
+    vs, trunc = view1(fl, _TF, _F.voxel)[0], view1(fl, _TF, _F.trunc)[0]
+    w_max, free_max = view1(fl, _TF, _F.w_max)[0], view1(fl, _TF, _F.free_max)[0]
+    now = view1(it, _TI, _I.now)[0]
+    o, dw, di = geo[0], geo[1], geo[2]
+    n = ray_voxels(o, di, t0, t1, view1(it, _TI, _I.shape), buf)
     for m in range(n):
         i, j, k = buf[m, 0], buf[m, 1], buf[m, 2]
         tc = ((i - o[0]) * dw[0] + (j - o[1]) * dw[1] + (k - o[2]) * dw[2]) * vs
         sdf = r - tc
         if sdf < -trunc:
             continue
-        free = sdf > trunc
-        if free:
+        cap_free = w_max
+        if sdf > trunc:
             sdf = trunc
+            cap_free = free_max
         else:
             hit[i, j, k] = now
             if sdf < 0.0:
                 for a in range(3):
                     view[i, j, k, a] = np.int8(np.rint(127.0 * dw[a]))
-        _update(tsdf, weight, i, j, k, sdf, q, w_max, free, free_max)
+        _update(tsdf, weight, i, j, k, sdf, q, w_max, cap_free)
     return n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _integrate(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.ndarray, origin: np.ndarray,
-               vs: float, tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray, hit: np.ndarray, now: int,
-               free_max: float, trunc: float, w_max: float, q_min: float, r_min: float, r_max: float, stride: int,
-               carve: bool, carve_stride: int, carve_scale: float) -> int:
-    """Per-pixel rays: every ``stride``-th pixel updates its band, every ``carve_stride``-th carves."""
+def _integrate(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray) -> int:
+    """Per-pixel rays of ``frame`` = (points, confidence): every ``stride``-th pixel updates its
+    band, every ``carve_stride``-th carves."""
+    points, conf = frame
+    R = view2(fl, _TF, _F.R)
+    vs, trunc = view1(fl, _TF, _F.voxel)[0], view1(fl, _TF, _F.trunc)[0]
+    q_min, r_min, r_max = view1(fl, _TF, _F.q_min)[0], view1(fl, _TF, _F.r_min)[0], view1(fl, _TF, _F.r_max)[0]
+    carve_scale = view1(fl, _TF, _F.carve_scale)[0]
+    stride, carve = view1(it, _TI, _I.stride)[0], view1(it, _TI, _I.carve)[0] != 0
+    carve_stride = view1(it, _TI, _I.carve_stride)[0]
     h, w = conf.shape
-    shape = np.array(tsdf.shape, dtype=np.int64)
-    buf = np.empty((shape.sum() + 4, 3), dtype=np.int64)
-    o = (o_world - origin) / vs  # camera centre in index units
-    dw = np.empty(3)
-    di = np.empty(3)
+    buf = np.empty((view1(it, _TI, _I.shape).sum() + 4, 3), dtype=np.int64)
+    geo = np.empty((3, 3))
+    o, dw, di = geo[0], geo[1], geo[2]
+    o[:] = (view1(fl, _TF, _F.camera) - view1(fl, _TF, _F.origin)) / vs  # camera centre in index units
     used = 0
     for pass_ in range(2):
         if pass_ == 1 and not carve:
@@ -107,37 +128,39 @@ def _integrate(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.
                 if pass_ == 0:
                     if r > r_max:
                         continue
-                    n = _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r - trunc, r + trunc, q, trunc,
-                             w_max, shape, buf)
+                    n = _ray(layer, fl, it, geo, r, r - trunc, r + trunc, q, buf)
                 else:
                     t1 = min(r, r_max) - trunc
                     if t1 <= r_min:
                         continue
-                    n = _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r_min, t1, q * carve_scale,
-                             trunc, w_max, shape, buf)
+                    n = _ray(layer, fl, it, geo, r, r_min, t1, q * carve_scale, buf)
                 if n > 0:
                     used += 1
     return used
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_world: np.ndarray,
-                      origin: np.ndarray, vs: float, tsdf: np.ndarray, weight: np.ndarray, view: np.ndarray,
-                      hit: np.ndarray, now: int, free_max: float, trunc: float,
-                      w_max: float, q_min: float, r_min: float, r_max: float, stride: int, carve: bool,
-                      carve_scale: float, acc_q: np.ndarray, acc_n: np.ndarray, acc_p: np.ndarray,
-                      touched: np.ndarray) -> int:
-    """Merged rays: the pixels whose points fall in one voxel become one ray to their weighted mean.
+def _integrate_merged(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray, scratch: tuple) -> int:
+    """Merged rays of ``frame`` = (points, confidence): the pixels whose points fall in one voxel
+    become one ray to their weighted mean.
 
-    ``acc_*`` are all-zero scratch arrays over the flattened grid; they are zero again on return.
+    ``scratch`` = (acc_q, acc_n, acc_p, touched): all-zero arrays over the flattened grid (and one
+    index per pixel); they are zero again on return.
     """
+    points, conf = frame
+    acc_q, acc_n, acc_p, touched = scratch
+    R = view2(fl, _TF, _F.R)
+    vs, trunc = view1(fl, _TF, _F.voxel)[0], view1(fl, _TF, _F.trunc)[0]
+    q_min, r_min, r_max = view1(fl, _TF, _F.q_min)[0], view1(fl, _TF, _F.r_min)[0], view1(fl, _TF, _F.r_max)[0]
+    carve_scale = view1(fl, _TF, _F.carve_scale)[0]
+    stride, carve = view1(it, _TI, _I.stride)[0], view1(it, _TI, _I.carve)[0] != 0
     h, w = conf.shape
-    nx, ny, nz = tsdf.shape
-    shape = np.array(tsdf.shape, dtype=np.int64)
+    shape = view1(it, _TI, _I.shape)
+    nx, ny, nz = shape[0], shape[1], shape[2]
     buf = np.empty((shape.sum() + 4, 3), dtype=np.int64)
-    o = (o_world - origin) / vs
-    dw = np.empty(3)
-    di = np.empty(3)
+    geo = np.empty((3, 3))
+    o, dw, di = geo[0], geo[1], geo[2]
+    o[:] = (view1(fl, _TF, _F.camera) - view1(fl, _TF, _F.origin)) / vs
     pw = np.empty(3)
     n_touched = 0
     used = 0
@@ -157,12 +180,10 @@ def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_wor
                     di[a] = dw[a] / vs
                 n = 0
                 if r <= r_max:
-                    n += _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r - trunc, r + trunc, q, trunc,
-                              w_max, shape, buf)
+                    n += _ray(layer, fl, it, geo, r, r - trunc, r + trunc, q, buf)
                 t1 = min(r, r_max) - trunc
                 if carve and t1 > r_min:
-                    n += _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r_min, t1, q * carve_scale,
-                              trunc, w_max, shape, buf)
+                    n += _ray(layer, fl, it, geo, r, r_min, t1, q * carve_scale, buf)
                 if n > 0:
                     used += 1
                 continue
@@ -198,13 +219,11 @@ def _integrate_merged(points: np.ndarray, conf: np.ndarray, R: np.ndarray, o_wor
         for a in range(3):
             dw[a] /= r
             di[a] = dw[a] / vs
-        n = _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r - trunc, r + trunc, qs, trunc, w_max,
-                 shape, buf)
+        n = _ray(layer, fl, it, geo, r, r - trunc, r + trunc, qs, buf)
         t1 = r - trunc
         if carve and t1 > r_min:
             # One free-space observation per merged ray, of the pixels' mean confidence.
-            n += _ray(tsdf, weight, view, hit, now, free_max, o, dw, di, vs, r, r_min, t1, qs / cnt * carve_scale,
-                      trunc, w_max, shape, buf)
+            n += _ray(layer, fl, it, geo, r, r_min, t1, qs / cnt * carve_scale, buf)
         if n > 0:
             used += cnt
     return used
@@ -216,6 +235,8 @@ class TsdfIntegrator:
     def __init__(self, params: TsdfParams):
         self.config = params
         self._scratch: tuple[np.ndarray, ...] | None = None
+        self._floats = np.zeros(Layout.size(_TF))
+        self._ints = np.zeros(Layout.size(_TI), np.int64)
 
     def _buffers(self, n_voxels: int, n_pixels: int) -> tuple[np.ndarray, ...]:
         s = self._scratch
@@ -224,18 +245,29 @@ class TsdfIntegrator:
                                  np.zeros((n_voxels, 3), np.float32), np.empty(n_pixels, np.int64))
         return s
 
+    def _numbers(self, volume: Volume, layer: TsdfLayer, T: np.ndarray, now_ms: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ``FLOATS`` and ``INTS`` buffers of one frame."""
+        c, fl, it = self.config, self._floats, self._ints
+        FLOATS.view(fl, _TF, "R")[:] = T[:3, :3]
+        FLOATS.view(fl, _TF, "camera")[:] = T[:3, 3]
+        FLOATS.view(fl, _TF, "origin")[:] = volume.origin
+        for name, value in (("voxel", volume.voxel_size), ("free_max", c.max_free_weight),
+                            ("trunc", layer.truncation), ("w_max", c.max_weight), ("q_min", c.min_confidence),
+                            ("r_min", c.min_depth), ("r_max", c.max_depth), ("carve_scale", c.carve_weight)):
+            FLOATS.view(fl, _TF, name)[0] = value
+        INTS.view(it, _TI, "shape")[:] = layer.tsdf.shape
+        for name, value in (("now", int(now_ms)), ("stride", c.pixel_stride), ("carve", int(c.carve)),
+                            ("carve_stride", c.carve_stride)):
+            INTS.view(it, _TI, name)[0] = value
+        return fl, it
+
     def integrate(self, volume: Volume, layer: TsdfLayer, points: np.ndarray, confidence: np.ndarray,
                   T_WC: np.ndarray, now_ms: int = 0) -> int:
         """Fuse one frame seen at ``now_ms`` (the mapper's clock, for ``layer.hit``); returns the
         number of pixels whose rays reached the volume."""
-        c = self.config
-        T = np.asarray(T_WC, dtype=np.float64)
-        args = (np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32),
-                np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), volume.origin.astype(np.float64),
-                volume.voxel_size, layer.tsdf, layer.weight, layer.view, layer.hit, int(now_ms), c.max_free_weight,
-                layer.truncation, c.max_weight,
-                c.min_confidence, c.min_depth, c.max_depth, c.pixel_stride, c.carve)
-        if c.integration == "ray":
-            return int(_integrate(*args, c.carve_stride, c.carve_weight))
-        scratch = self._buffers(layer.tsdf.size, args[1].size)
-        return int(_integrate_merged(*args, c.carve_weight, *scratch))
+        fl, it = self._numbers(volume, layer, np.asarray(T_WC, dtype=np.float64), now_ms)
+        frame = (np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32))
+        arrays = (layer.tsdf, layer.weight, layer.view, layer.hit)
+        if self.config.integration == "ray":
+            return int(_integrate(frame, arrays, fl, it))
+        return int(_integrate_merged(frame, arrays, fl, it, self._buffers(layer.tsdf.size, frame[1].size)))

@@ -75,7 +75,7 @@ MODULE_EXTRAS: dict[str, str] = {
     "pymavlink": "robot",
     "evdev": "robot",
     "numba": "robot",
-    "edt": "dev",  # the mapping's reference transform only (esdf_edt = "edt"): tests and benches
+    "edt": "dev",  # the ESDF tests' oracle only (tests/oracles/esdf.py)
     "open3d": "sim",
     "PIL": "sim",
     "torch": "perception",

@@ -128,19 +128,15 @@ def _aliases(name: str, field: FieldInfo) -> list[str]:
     return []
 
 
-def reference_only(model: type[BaseModel]) -> Mapping[str, str]:
-    """Fields of a node's core configuration that are not settings (``NodeSettings.REFERENCE_ONLY``:
-    reference implementations kept for tests and benches) → what to use instead."""
-    return getattr(model, "REFERENCE_ONLY", {})
+def removed_settings(model: type[BaseModel]) -> Mapping[str, str]:
+    """Settings a node no longer has (``NodeSettings.REMOVED``) → what replaced them."""
+    return getattr(model, "REMOVED", {})
 
 
 def setting_names(model: type[BaseModel]) -> dict[str, FieldInfo]:
     """Every key a model accepts (field names and string aliases) → its field."""
     out: dict[str, FieldInfo] = {}
-    skip = reference_only(model)
     for name, field in model.model_fields.items():
-        if name in skip:
-            continue
         out[name] = field
         for a in _aliases(name, field):
             out[a] = field
@@ -156,9 +152,7 @@ def _env_vars(name: str, field: FieldInfo) -> list[str]:
 
 def env_names(model: type[BaseModel]) -> dict[str, FieldInfo]:
     """``RISKFIELD_*`` variable (upper case, before any ``__``) → the field it sets."""
-    skip = reference_only(model)
-    return {var: field for name, field in model.model_fields.items() if name not in skip
-            for var in _env_vars(name, field)}
+    return {var: field for name, field in model.model_fields.items() for var in _env_vars(name, field)}
 
 
 def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, where: str, path: str = "") -> None:
@@ -169,7 +163,7 @@ def check_keys(model: type[BaseModel], data: Mapping[str, Any], service: str, wh
         field = names.get(key)
         if field is None:
             raise UnknownSetting(path + key, service, where, [path + n for n in names],
-                                 reference_only(model).get(key))
+                                 removed_settings(model).get(key))
         sub = _model_of(field)
         if sub is not None and isinstance(value, Mapping):
             check_keys(sub, value, service, where, f"{path}{key}.")
@@ -246,7 +240,7 @@ def check_environment(model: type[NodeSettings], environ: Mapping[str, str] | No
             continue
         if head[len(ENV_PREFIX):] in NOT_SETTINGS or head in _known().env:
             continue
-        removed = reference_only(model).get(head[len(ENV_PREFIX):].lower())
+        removed = removed_settings(model).get(head[len(ENV_PREFIX):].lower())
         if removed is not None:
             raise UnknownSetting(upper, service, "environment variable", own, removed)
         _unknown(UnknownSetting(upper, service, "environment variable", [*own, *_known().env]))
@@ -282,7 +276,7 @@ class _FileSource(PydanticBaseSettingsSource):
             if key in known.sections or key in known.keys:
                 continue  # another service's section or setting: theirs to check
             _unknown(UnknownSetting(key, service, f"top level of {path}", [*fields, *known.sections],
-                                    reference_only(cls).get(key)))
+                                    removed_settings(cls).get(key)))
         for name in own_sections:
             section = data.get(name)
             if section is None:
@@ -328,9 +322,8 @@ class NodeSettings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid",
                                       use_attribute_docstrings=True)
     SERVICE: ClassVar[str] = ""
-    #: Fields of the core configuration a node's settings are composed of that are no settings:
-    #: reference implementations kept for tests and benches → what to use instead (the error says it).
-    REFERENCE_ONLY: ClassVar[dict[str, str]] = {}
+    #: Settings the node no longer has → what replaced them: setting one is an error that says it.
+    REMOVED: ClassVar[dict[str, str]] = {}
     mode: Literal["peer", "client", "router"] = "client"
     """Zenoh session mode: a client dials a router, a peer also talks to peers directly, a router routes."""
     connect: Annotated[list[str], NoDecode] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])

@@ -210,16 +210,6 @@ class QpParams(BaseModel):
     instead of braking blindly."""
 
 
-#: Settings the filter no longer has → what replaced them: setting one is an error saying this.
-REFERENCE_IMPLEMENTATIONS: dict[str, str] = {
-    "object_match_m": "removed: a moving object is no longer matched to the field's distance; each one on a "
-                      "collision course is its own row (collision_horizon_s, object_speed_sigma, max_object_rows)",
-    "backend": "removed: the filter's step is compiled (numba, in riskfield[robot]); its numpy rendering is a "
-               "test oracle",
-    "solver": "removed: the compiled step solves its QP exactly with the dual active-set method; OSQP is its "
-              "test oracle",
-}
-
 
 class MotionParams(BaseModel):
     """Moving obstacles (``map/objects``) and yielding (``model``'s module docstring): every tracked

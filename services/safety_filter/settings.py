@@ -13,7 +13,7 @@ from ..runtime.arbiter import MAX_PRIORITY, CommandMux, MuxInput
 from ..runtime.continuity import StateGateSettings
 from ..runtime.risk_file import RiskStateSettings
 from ..runtime.settings import NodeSettings, read_config_file
-from .config import REFERENCE_IMPLEMENTATIONS, FilterConfig
+from .config import FilterConfig
 from .scale_guard import ScaleGuardConfig
 
 #: Named filter configurations shipped with the package (``presets/<name>.yaml``, a config file's
@@ -45,7 +45,15 @@ def _default_sources() -> dict[str, RefSource]:
 
 class FilterSettings(NodeSettings, FilterConfig, StateGateSettings, RiskStateSettings):
     SERVICE: ClassVar[str] = "safety-filter"
-    REFERENCE_ONLY: ClassVar[dict[str, str]] = REFERENCE_IMPLEMENTATIONS
+    REMOVED: ClassVar[dict[str, str]] = {
+        "object_match_m": "removed: a moving object is no longer matched to the field's distance; each one on a "
+                          "collision course is its own row (collision_horizon_s, object_speed_sigma, "
+                          "max_object_rows)",
+        "backend": "removed: the filter's step is compiled (numba, in riskfield[robot]); its numpy rendering is a "
+                   "test oracle",
+        "solver": "removed: the compiled step solves its QP exactly with the dual active-set method; OSQP is its "
+                  "test oracle",
+    }
 
     map_timeout_s: Seconds = 0.3
     """A map whose content is older than this (plus clock_tolerance_s) makes the filter brake (stale_map)."""

@@ -1,7 +1,6 @@
-"""Functions in shipped code take fewer than ten parameters (parameter objects instead, and compiled
-kernels their arrays through a workspace). ``LEFT`` is what still takes more, with today's count: a
-function not in it that reaches ten fails, a listed one that grows fails, and one brought under ten
-must leave the list, so the list only shrinks."""
+"""No function in shipped code takes ten parameters or more, compiled kernels included: parameter
+objects instead, and compiled kernels their arrays through a workspace (``runtime.kernels.Layout``) or
+tuples grouped by role."""
 
 from __future__ import annotations
 
@@ -11,29 +10,6 @@ from pathlib import Path
 from .test_platforms import REPO, shipped_trees
 
 LIMIT = 10
-
-#: (file, qualified name) → parameters (``self``/``cls`` not counted), of the functions still at the limit.
-LEFT: dict[tuple[str, str], int] = {
-    ("services/mapping/esdf_kernels.py", "combine"): 10,
-    ("services/mapping/esdf_wave.py", "wave_update"): 22,
-    ("services/mapping/esdf_wave.py", "shift_maps"): 22,
-    ("services/mapping/esdf_wave.py", "_lower"): 20,
-    ("services/mapping/esdf_wave.py", "_refill"): 18,
-    ("services/mapping/esdf_wave.py", "values"): 14,
-    ("services/mapping/esdf_wave.py", "reset"): 10,
-    ("services/mapping/keyframes.py", "KeyframeMap.integrate"): 10,
-    ("services/mapping/layers.py", "overlay"): 17,
-    ("services/mapping/objects.py", "_columns"): 15,
-    ("services/mapping/occupancy.py", "_solid"): 12,
-    ("services/mapping/occupancy.py", "semantic_occupancy"): 10,
-    ("services/mapping/projective_integrator.py", "_integrate_projective"): 28,
-    ("services/mapping/projective_integrator.py", "_point_to_plane"): 15,
-    ("services/mapping/semantic_integrator.py", "_integrate"): 14,
-    ("services/mapping/tsdf_integrator.py", "_integrate_merged"): 24,
-    ("services/mapping/tsdf_integrator.py", "_integrate"): 21,
-    ("services/mapping/tsdf_integrator.py", "_ray"): 18,
-    ("services/mapping/tsdf_integrator.py", "_update"): 10,
-}
 
 
 def parameters(fn: ast.FunctionDef | ast.AsyncFunctionDef, method: bool) -> int:
@@ -61,14 +37,9 @@ def counts(path: Path, tree: ast.Module) -> dict[tuple[str, str], int]:
     return out
 
 
-def test_no_function_in_shipped_code_takes_ten_parameters_beyond_the_ones_left() -> None:
+def test_no_function_in_shipped_code_takes_ten_parameters() -> None:
     found = {k: n for path, tree in shipped_trees() for k, n in counts(path, tree).items() if n >= LIMIT}
-    new = {k: n for k, n in found.items() if k not in LEFT}
-    grew = {k: (LEFT[k], n) for k, n in found.items() if k in LEFT and n > LEFT[k]}
-    done = sorted(k for k in LEFT if k not in found)
-    assert not new, f"take a parameter object instead: {new}"
-    assert not grew, f"more parameters than before (before, now): {grew}"
-    assert not done, f"under {LIMIT} now (or gone): take them out of LEFT: {done}"
+    assert not found, f"take a parameter object instead: {found}"
 
 
 def test_the_count_sees_methods_nested_functions_and_every_kind_of_parameter() -> None:

@@ -255,23 +255,30 @@ def test_a_shared_file_is_accepted_by_a_node_started_from_the_cli(env, tmp_path)
     assert r.returncode == 3 and "no Zenoh router" in r.stderr, r.stderr  # past the settings, at the session
 
 
-def test_a_reference_implementation_is_no_setting_and_the_error_says_what_to_use(env, tmp_path):
-    """Oracles stay core parameters (tests and benches reach them), not node settings."""
-    from riskfield.services.mapping.config import MapperConfig
+def test_a_removed_reference_implementation_fails_naming_what_replaced_it(env, tmp_path):
+    """The ESDF's reference options are gone: as a setting (argument, file, variable) and as a core
+    parameter, each is refused with the message that names what replaced it."""
+    from pydantic import ValidationError
+
+    from riskfield.services.mapping.config import EsdfParams, MapperConfig
     from riskfield.services.mapping.settings import MappingSettings
 
-    assert MapperConfig(esdf_kernel="numpy").esdf_kernel == "numpy"
-    with pytest.raises(UnknownSetting, match=r"'esdf_kernel' is not a setting of mapping: the numpy path"):
+    with pytest.raises(ValidationError, match=r"'esdf_kernel' is not a parameter: removed: .*compiled passes"):
+        MapperConfig(esdf_kernel="numpy")
+    with pytest.raises(ValidationError, match=r"'esdf_update' is not a parameter: removed: .*incrementally"):
+        EsdfParams(esdf_update="full")
+    with pytest.raises(UnknownSetting, match=r"'esdf_kernel' is not a setting of mapping: removed: .*compiled"):
         MappingSettings(esdf_kernel="numpy")
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text("mapping:\n  esdf_edt: edt\n")
-    with pytest.raises(UnknownSetting, match=r"'esdf_edt' \(section 'mapping' .*\) is not a setting.*edt package"):
+    with pytest.raises(UnknownSetting, match=r"'esdf_edt' \(section 'mapping' .*\) is not a setting.*removed: .*"
+                                             r"distance_transform"):
         MappingSettings(config=cfg)
     env.setenv("RISKFIELD_ESDF_UPDATE", "full")
-    with pytest.raises(UnknownSetting, match=r"RISKFIELD_ESDF_UPDATE.*not a setting.*full recomputation"):
+    with pytest.raises(UnknownSetting, match=r"RISKFIELD_ESDF_UPDATE.*not a setting.*removed: .*esdf_incremental"):
         MappingSettings()
     env.delenv("RISKFIELD_ESDF_UPDATE")
-    assert MappingSettings(esdf_incremental="wave").mapper_config().esdf_kernel == "numba"  # a real option stays
+    assert MappingSettings(esdf_incremental="wave").mapper_config().esdf_incremental == "wave"  # a real option stays
 
 
 def test_the_filters_removed_settings_fail_naming_what_replaced_them(env, tmp_path):

@@ -32,8 +32,6 @@ def loadable() -> dict[str, type[NodeSettings]]:
 def settings_of(model: type[BaseModel], prefix: str = "") -> typing.Iterator[tuple[str, typing.Any]]:
     """Every key ``--set`` accepts: the fields, and a nested model's fields dotted."""
     for name, field in model.model_fields.items():
-        if name in getattr(model, "REFERENCE_ONLY", {}):
-            continue
         yield prefix + name, field
         sub = field.annotation
         if isinstance(sub, type) and issubclass(sub, BaseModel):

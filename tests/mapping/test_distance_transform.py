@@ -1,5 +1,5 @@
 """The compiled distance transform under the ESDF (``distance_transform``) against the ``edt`` package.
-The ESDF built on it against the ESDF built on ``edt`` (``esdf_edt``): ``test_esdf_kernels``."""
+The ESDF built on it against the ESDF built on ``edt`` (``oracles.esdf.EdtEsdf``): ``test_esdf_kernels``."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.esdf import EdtEsdf
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.distance_transform import edt, edt_of_label, inside_depth
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
@@ -104,12 +105,12 @@ def test_no_site_is_infinite_and_a_bad_grid_is_refused() -> None:
         edt(np.zeros(5, bool), 0.05)
 
 
-def test_deep_voxels_deeper_than_the_learnt_pad_grow_the_box() -> None:
-    """The depth box pad is learnt from the last call: a shallow solid, then a much deeper one; the
-    second call must find the pad too small, grow the box, and still give the exact depth."""
+def test_a_deep_solid_after_a_shallow_one_has_its_exact_depth() -> None:
+    """A shallow solid, then a much deeper one: nothing the first call leaves behind bounds the
+    second's inside depth."""
     cfg = MapperConfig(max_distance=2.0)
     esdf = EsdfIntegrator.of(cfg)
-    reference_esdf = EsdfIntegrator.of(MapperConfig(max_distance=2.0, esdf_edt="edt"))
+    reference_esdf = EdtEsdf.of(MapperConfig(max_distance=2.0))
     m = np.array([0.0, 0.0])
     shallow = np.zeros((60, 60, 60), np.uint8)
     shallow[10:14, 10:14, 10:14] = 1

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from oracles.esdf import FullEsdf
 from riskfield.protocol import RiskConfig
 from riskfield.services.geometry.shapes import Plane
 from riskfield.services.mapping.config import MapperConfig
@@ -79,8 +80,9 @@ def test_no_change_recomputes_nothing_and_a_local_edit_stays_local() -> None:
 def test_mapper_incremental_equals_full_over_a_sweep_of_frames(room: list, sweep) -> None:
     """Through the mapper (solid interiors, the fill, labels changing): the incremental 3-D grid after
     every frame is the full recompute's."""
-    mappers = [Mapper(MapperConfig(output="3d", half_extent=(1.5, 1.5, 1.0), max_distance=0.5, esdf_update=u),
-                      RiskConfig()) for u in ("incremental", "full")]
+    cfg = MapperConfig(output="3d", half_extent=(1.5, 1.5, 1.0), max_distance=0.5)
+    mappers = [Mapper(cfg, RiskConfig()) for _ in range(2)]
+    mappers[1].esdf_integrator = FullEsdf.of(cfg)
     for m in mappers:
         m.set_robot_position(np.zeros(3))
     scene = [*room, Plane((0, 1, 0), -1.2, room[0].label)]

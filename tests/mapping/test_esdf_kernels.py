@@ -1,4 +1,5 @@
-"""The compiled 3-D ESDF passes (``esdf_kernel = "numba"``) against the numpy path, on random group maps."""
+"""The compiled 3-D ESDF passes against the array path and the ``edt`` package (``oracles.esdf``), on
+random group maps."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.esdf import EdtEsdf, NumpyEsdf
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.esdf_integrator import EsdfIntegrator
 
@@ -37,8 +39,8 @@ def test_compiled_equals_numpy_path(blocks: list, noise: float, margins: tuple, 
     """The same distances and risk groups, bit for bit up to 1e-5 m."""
     groups = group_map((32, 28, 24), blocks, noise, seed)
     m = np.array([0.0, *margins])
-    fast = EsdfIntegrator.of(MapperConfig(max_distance=dmax, esdf_kernel="numba", threads=1))
-    slow = EsdfIntegrator.of(MapperConfig(max_distance=dmax, esdf_kernel="numpy", threads=1))
+    fast = EsdfIntegrator.of(MapperConfig(max_distance=dmax, threads=1))
+    slow = NumpyEsdf.of(MapperConfig(max_distance=dmax, threads=1))
     d, g = fast.compute(groups, m)
     d_ref, g_ref = slow.compute(groups, m)
     assert d.dtype == np.float32 and g.dtype == np.uint8
@@ -53,15 +55,14 @@ def test_compiled_equals_numpy_path(blocks: list, noise: float, margins: tuple, 
        dmax=st.sampled_from([0.3, 1.0, 2.0]), seed=st.integers(0, 2**16))
 def test_compiled_edt_equals_the_edt_package_under_the_field(blocks: list, noise: float, margins: tuple,
                                                              dmax: float, seed: int) -> None:
-    """The field on the compiled EDT (``esdf_edt = "compiled"``, deep interiors from the learnt box
-    pad) is the one on the ``edt`` package: in distance everywhere; in risk group wherever the two
-    best terms are not a float32 tie."""
+    """The field on the compiled EDT is the one on the ``edt`` package: in distance everywhere; in
+    risk group wherever the two best terms are not a float32 tie."""
     shape = (30, 26, 22)
     groups = group_map(shape, blocks, noise, seed)
     groups[groups > 3] = 0  # unknown ids are free in the field: the terms below see them so
     m = np.array([0.0, *margins])
     d, g = EsdfIntegrator.of(MapperConfig(max_distance=dmax)).compute(groups, m)
-    d_ref, g_ref = EsdfIntegrator.of(MapperConfig(max_distance=dmax, esdf_edt="edt")).compute(groups, m)
+    d_ref, g_ref = EdtEsdf.of(MapperConfig(max_distance=dmax)).compute(groups, m)
     np.testing.assert_allclose(d, d_ref, atol=1e-5, rtol=0)
     # Where the risk groups differ, the two groups' terms tie (equal margins, equidistant groups)
     # and float32 rounding picked differently: each group's term there, from the ``edt`` package.
@@ -89,7 +90,7 @@ def test_compiled_path_sees_deep_interiors_in_a_sub_box() -> None:
     m = np.array([0.0, 0.15, 0.05, 0.0])
     cfg = {"max_distance": 0.3}
     d, g = EsdfIntegrator.of(MapperConfig(**cfg)).compute(groups, m)
-    d_ref, g_ref = EsdfIntegrator.of(MapperConfig(esdf_kernel="numpy", **cfg)).compute(groups, m)
+    d_ref, g_ref = NumpyEsdf.of(MapperConfig(**cfg)).compute(groups, m)
     np.testing.assert_allclose(d, d_ref, atol=1e-5, rtol=0)
     np.testing.assert_array_equal(g, g_ref)
     assert d[46, 46, 11] < -0.2  # six voxels deep: −(0.3 − 0.025) − 0.15, clipped to −0.3

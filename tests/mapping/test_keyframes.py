@@ -80,7 +80,7 @@ def test_de_integration_is_the_exact_inverse(room: list, small_camera: Camera) -
     cfg = MapperConfig(pixel_stride=1)
     vol = Volume.centred(V, cfg.shape, np.zeros(3))
     layer = TsdfLayer(cfg.shape, cfg.truncation)
-    ci = ContributionIntegrator(cfg)
+    ci = ContributionIntegrator(cfg.tsdf, cfg.surface_band)
     a, b = poses()[0], poses()[1]
     ca, _, _ = ci.contribution(vol, *render(room, a, small_camera), a)
     cb, _, _ = ci.contribution(vol, *render(room, b, small_camera), b)
@@ -140,7 +140,7 @@ def test_tracked_frames_reach_the_present_layer_and_only_new_data_stamps(room: l
 
 def test_memory_is_bounded_and_frozen_keyframes_ignore_updates(room: list, small_camera: Camera) -> None:
     m = mapper()
-    m.keyframes = KeyframeMap(m.config, max_keyframes=2)
+    m.keyframes = KeyframeMap.of(m.config, max_keyframes=2)
     Ts = poses()
     for i, T in enumerate(Ts):
         m.integrate_frame(frame(room, small_camera, T, T, i, "keyframe_new"))

@@ -68,11 +68,17 @@ class Scene:
 
     def detect(self, params: MapperConfig | None = None, lut: np.ndarray = LUT, tsdf: bool = True) -> list[Detection]:
         extra = dict(tsdf=self.tsdf, weight=self.weight, min_weight=0.5, hit=self.hit) if tsdf else {}
-        return detect(MapReading(self.groups, BAND, ORIGIN, V, self.labels, lut, **extra), params or MapperConfig())
+        p = params or MapperConfig()
+        return detect(MapReading(self.groups, BAND, ORIGIN, V, self.labels, lut, **extra), p.objects, p.dynamic)
+
+
+def tracker_config(tracker: ObjectTracker) -> MapperConfig:
+    """The mapper configuration a tracker's parts make."""
+    return MapperConfig.compose(objects=tracker.params, dynamic=tracker.dynamic)
 
 
 def run(tracker: ObjectTracker, scenes: list[Scene], t0_ns: int = 10**18) -> list[list[TrackedObject]]:
-    return [tracker.update(t0_ns + n * STEP_NS, s.detect(tracker.params), LUT) for n, s in enumerate(scenes)]
+    return [tracker.update(t0_ns + n * STEP_NS, s.detect(tracker_config(tracker)), LUT) for n, s in enumerate(scenes)]
 
 
 def only(objs: list[TrackedObject]) -> TrackedObject:
@@ -96,7 +102,7 @@ def test_a_walker_is_tracked_where_the_newest_frame_sees_them_not_along_the_trai
         scene = Scene()
         for m in range(n + 1):  # every footprint since they set off, each seen when they were there
             scene.box(tuple(start + vel * 0.1 * m), (0.3, 0.45), heading + turn, PERSON, seen_ms=100 * m)
-        out = tracker.update(10**18 + n * STEP_NS, scene.detect(tracker.params), LUT, 100 * n)
+        out = tracker.update(10**18 + n * STEP_NS, scene.detect(tracker_config(tracker)), LUT, 100 * n)
     obj = only(out)
     truth = start + vel * 0.5
     assert math.hypot(obj.position[0] - truth[0], obj.position[1] - truth[1]) <= V
@@ -292,7 +298,7 @@ def test_two_people_on_any_crossing_paths_keep_their_ids(ha, hb, sa, sb, delay, 
 
 def test_a_person_leaving_view_ages_then_expires():
     p = MapperConfig()
-    tracker = ObjectTracker(p)
+    tracker = ObjectTracker.of(p)
     scenes = [Scene().box((-0.5 + 1.0 * 0.1 * n, 0.0), (0.3, 0.45), 0.0, PERSON) for n in range(6)]
     last = run(tracker, scenes)[-1]
     seen = only(last)
@@ -329,7 +335,7 @@ def test_a_person_unseen_for_a_few_maps_keeps_their_track():
 
 def test_young_tracks_report_no_velocity_until_enough_samples():
     p = MapperConfig(object_min_samples=3)
-    tracker = ObjectTracker(p)
+    tracker = ObjectTracker.of(p)
     out = run(tracker, [Scene().box((0.1 * n, 0.0), (0.3, 0.45), 0.0, PERSON) for n in range(4)])
     assert [o[0].velocity[0] for o in out[:2]] == [0.0, 0.0]
     assert [o[0].tracked_ms for o in out] == [0.0, 100.0, 200.0, 300.0]
@@ -342,7 +348,7 @@ def test_velocity_is_bounded_and_finite_whatever_the_centres_do(seed, jump):
     """Centres that jump (segmentation noise, a merge) never give a speed over the cap."""
     p = MapperConfig()
     rng = np.random.default_rng(seed)
-    tracker = ObjectTracker(p)
+    tracker = ObjectTracker.of(p)
     pos = np.zeros(3)
     for n in range(15):
         pos = pos + np.append(rng.uniform(-jump, jump, 2), 0.0)
@@ -386,7 +392,7 @@ def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero
     cam = PinholeCamera.centred(128, 96, 100.0)
     mapper = Mapper(MapperConfig())
     mapper.set_robot_position(np.zeros(3))
-    tracker = ObjectTracker(mapper.config)
+    tracker = ObjectTracker.of(mapper.config)
     for n, a in enumerate(np.linspace(-0.6, 0.6, 20)):
         T = look_at(np.array([0.0, 0.3 * np.sin(a), 0.5]), np.array([1.5, np.sin(a), 0.3]))
         pts, conf, lab = render(room, T, cam)
@@ -403,7 +409,7 @@ def test_protected_keeps_where_people_stand_and_who_is_seen_not_where_walkers_we
     protected for ``dynamic_persist_s`` after their track expired; a walker who stopped being seen
     is not, after ``dynamic_moving_persist_s``; where someone stood before walking off is not."""
     tracker = ObjectTracker()
-    p = tracker.params
+    p = tracker.dynamic
     T, Tw = round(p.dynamic_persist_s * 1e3), round(p.dynamic_moving_persist_s * 1e3)
 
     def seen(d: Detection, ms: int) -> Detection:

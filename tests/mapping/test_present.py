@@ -37,7 +37,7 @@ class Feed:
         self.m.set_robot_position(np.zeros(3))
         self.protocol, self.q, self.t = protocol, q, 1
         # as the node does: the tracker after each map update, then the walkers it gives up on
-        self.tracker = ObjectTracker(self.m.config) if track else None
+        self.tracker = ObjectTracker.of(self.m.config) if track else None
 
     def frame(self, scene: list, T: np.ndarray = AHEAD, q: float | None = None, dt_ns: int = STEP) -> None:
         pts, conf, lab = render(scene, T, CAM, confidence=self.q if q is None else q)

@@ -14,7 +14,7 @@ import pytest
 from riskfield.protocol import RiskConfig, ade20k
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
-from riskfield.services.mapping.occupancy import semantic_occupancy
+from riskfield.services.mapping.occupancy import OccupancyRule, semantic_occupancy
 
 V = 0.05
 BED, FLOOR = ade20k.index("bed"), ade20k.index("floor")
@@ -47,8 +47,8 @@ def layers(free_at: int | None = None) -> tuple[TsdfLayer, SemanticLayer]:
 def occupancy(support_steps: int, free_at: int | None = None) -> np.ndarray:
     tsdf, sem = layers(free_at)
     lut = RiskConfig().label_to_group()
-    return semantic_occupancy(tsdf, sem, lut, 0.5, 0.75 * V, interior="solid", fill_steps=10,
-                              support_steps=support_steps)
+    return semantic_occupancy(tsdf, sem, lut, OccupancyRule(0.5, 0.75 * V, interior="solid", fill_steps=10,
+                                                            support_steps=support_steps))
 
 
 def test_never_observed_space_below_an_obstacle_joins_it() -> None:
@@ -93,7 +93,7 @@ def test_the_sparse_scans_equal_the_whole_volume_scans(seed: int) -> None:
     lut = RiskConfig().label_to_group()
     for unknown_group in (0, 2):
         for fill, support in ((0, 0), (3, 0), (3, 4), (10, 20)):
-            args = (tsdf, sem, lut, 0.5, 0.75 * V, unknown_group, "solid", fill, support)
-            full = semantic_occupancy(*args, sparse=False)
-            np.testing.assert_array_equal(semantic_occupancy(*args), full)
+            rule = OccupancyRule(0.5, 0.75 * V, unknown_group, "solid", fill, support)
+            full = semantic_occupancy(tsdf, sem, lut, rule._replace(sparse=False))
+            np.testing.assert_array_equal(semantic_occupancy(tsdf, sem, lut, rule), full)
     assert full.any()

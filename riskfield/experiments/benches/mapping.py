@@ -14,10 +14,8 @@ A second table sets the current kernels beside the previous implementation, meas
 in the same run on the same frames: TSDF + semantic integration of a frame, projective (the frame's
 intrinsics, one voxel-centric pass) against the previous merged rays + per-pixel semantic rays, at
 full resolution and at the previous default stride 2; the 3-D ESDF after each frame,
-incremental (``EsdfIntegrator.update``) against the full recompute, and the compiled passes and EDT
-(``esdf_kernel = "numba"``, ``esdf_edt = "compiled"``) against the previous numpy glue around the ``edt``
-package, full and incremental, and the compiled EDT against the ``edt`` package alone; how many frames
-changed no occupancy (then the update is a copy); and the 2-D slice. The wavefront update
+incremental (``EsdfIntegrator.update``) against the full recompute; how many frames changed no
+occupancy (then the update is a copy); and the 2-D slice. The wavefront update
 (``esdf_incremental = "wave"``, opt-in) is timed beside the box update, with its largest deviation
 from the full recompute over the sweep; ``--node-wave`` also runs the 3-D node with it. First of all
 (the policy cannot be undone in a process), the 3-D ESDF under glibc's own heap policy against the
@@ -119,24 +117,18 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
                     p, c, la, t, intrinsics=kk), 1)[0])
         label = "full resolution" if stride == 1 else "pixel stride 2"
         out[f"tsdf+semantic, {label}"] = _ratio(walls)
-    # The 3-D ESDF after each frame (projective map, full resolution): the previous numpy glue around
-    # the ``edt`` package against the compiled passes and EDT, full recompute and incremental, and
-    # the previous default (full recompute) against the incremental update now.
+    # The 3-D ESDF after each frame (projective map, full resolution): the full recompute against
+    # the incremental update.
     m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d", **CUBE), RiskConfig())
     m.set_robot_position(np.zeros(3))
     m.warm_up()
     esdf = m.esdf_integrator
-    old = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_kernel="numpy", esdf_edt="edt", **CUBE))
-    with_edt = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_edt="edt", **CUBE))  # compiled glue, edt package
-    with_edt.warm_up()
     wave = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_incremental="wave", **CUBE))
     wave.warm_up()
     wave_ms: list[float] = []
     wave_err: list[float] = []  # max |d_wave − d_full| per frame
     wave_miss: list[int] = []  # voxels off by more than 1e-5 m per frame
-    full = {"previous": [], "now": []}
-    edt_full = {"previous": [], "now": []}
-    inc = {"previous": [], "now": []}
+    inc: list[float] = []
     walls = {"previous": [], "now": []}
     slice_ms: list[float] = []
     occ_ms: list[float] = []
@@ -147,22 +139,16 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
         t0 = time.perf_counter()
         groups = m.occupancy()
         occ_ms.append((time.perf_counter() - t0) * 1e3)
-        w_old, _ = _time(lambda g=groups: old.compute(g, m.margins), 1)
-        w_new, _ = _time(lambda g=groups: esdf.compute(g, m.margins), 1)
+        w_full, _ = _time(lambda g=groups: esdf.compute(g, m.margins), 1)
         field = esdf.compute(groups, m.margins)
         if prev is not None:
-            full["previous"].extend(w_old)
-            full["now"].extend(w_new)
-            edt_full["previous"].extend(_time(lambda g=groups: with_edt.compute(g, m.margins), 1)[0])
-            edt_full["now"].extend(w_new)
-            inc["previous"].extend(_time(lambda g=groups, p=prev: old.update(g, m.margins, p[0], p[1]), 1)[0])
             w_inc = _time(lambda g=groups, p=prev: esdf.update(g, m.margins, p[0], p[1]), 1)[0]
-            inc["now"].extend(w_inc)
+            inc.extend(w_inc)
             wave_ms.extend(_time(lambda g=groups, p=prev: wave.update(g, m.margins, p[0], p[1]), 1)[0])
             err = np.abs(wave.update(groups, m.margins, groups, field)[0] - field[0])  # no change: a copy
             wave_err.append(float(err.max()))
             wave_miss.append(int((err > 1e-5).sum()))
-            walls["previous"].extend(w_old)
+            walls["previous"].extend(w_full)
             walls["now"].extend(w_inc)
             unchanged += int(np.array_equal(groups, prev[0]))
             k_lo, k_hi, _ = m.band_indices()
@@ -184,12 +170,9 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
         wave_err.append(float(err.max()))
         wave_miss.append(int((err > 1e-5).sum()))
         prev = (groups, field)
-    out["ESDF 3-D full recompute (numpy glue + edt package → compiled passes + compiled EDT)"] = _ratio(full)
-    out["ESDF 3-D full recompute (edt package → compiled EDT, both with compiled passes)"] = _ratio(edt_full)
-    out["ESDF 3-D incremental after a frame (numpy glue + edt package → compiled)"] = _ratio(inc)
-    out["ESDF 3-D after a frame (previous full → incremental now)"] = _ratio(walls)
-    out["ESDF 3-D after a frame (previous full → incremental now)"]["frames_without_change"] = unchanged
-    out["ESDF 3-D incremental after a frame (box → wave, opt-in)"] = _ratio({"previous": inc["now"], "now": wave_ms})
+    out["ESDF 3-D after a frame (full recompute → incremental)"] = _ratio(walls)
+    out["ESDF 3-D after a frame (full recompute → incremental)"]["frames_without_change"] = unchanged
+    out["ESDF 3-D incremental after a frame (box → wave, opt-in)"] = _ratio({"previous": inc, "now": wave_ms})
     out["ESDF 3-D incremental after a frame (box → wave, opt-in)"].update(
         max_error_m=max(wave_err, default=0.0), voxels_off_per_frame_max=max(wave_miss, default=0),
         frames_with_voxels_off=sum(1 for n in wave_miss if n > 0))
@@ -392,7 +375,7 @@ def main(
     groups = mapper.occupancy()
     k_lo, k_hi, _ = mapper.band_indices()
     # The tracker after each map update (10 Hz stamps): the room's person and animal, tracked.
-    tracker = ObjectTracker.warmed(mapper.config)
+    tracker = ObjectTracker.warmed(mapper.config.objects, mapper.config.dynamic)
     stamps = iter(range(10**9, 10**18, 100_000_000))
     results["objects"] = _stats(_time(lambda: tracker.update_map(mapper.reading(groups), next(stamps)), repeat))
     tracked = tracker.update_map(mapper.reading(groups), next(stamps))
@@ -434,7 +417,7 @@ def main(
     for name, r in comparison.items():
         ctable.add_row(name, f"{r['previous_ms']:.2f}", f"{r['now_ms']:.2f}", f"{r['ratio']:.2f}×")
     console.print(ctable)
-    still = comparison["ESDF 3-D after a frame (previous full → incremental now)"]
+    still = comparison["ESDF 3-D after a frame (full recompute → incremental)"]
     wv = comparison["ESDF 3-D incremental after a frame (box → wave, opt-in)"]
     console.print(f"wave vs full recompute over both sweeps: max |Δd| {wv['max_error_m'] * 1e3:.3f} mm; voxels off by "
                   f"> 1e-5 m: at most {wv['voxels_off_per_frame_max']} per frame, in {wv['frames_with_voxels_off']} of "
