@@ -916,11 +916,11 @@ def section_body(summary: dict[str, Any]) -> list[str]:
             f"`{summary['command']}`: {summary['wall_time_s']:.0f} s wall for {summary['sim_time_s']:.0f} s simulated; "
             f"the filter core (FilterConfig({'evade=True' if summary.get('evade') else ''})) in closed loop at "
             "50 Hz, ESDF (5 cm, planar) rebuilt at 10 Hz from the world "
-            "0.1 s before, tracks 0.1 s old with N(0, σ) velocity noise (σ 0.15 m/s; `noise`: the tracker's "
-            "measured 0.09–0.29), the LIMO's "
+            "0.1 s before, tracks 0.1 s old with N(0, σ) velocity noise (σ 0.15 m/s; `noise`: σ drawn in the "
+            "range of the tracker's errors, `NOISE_SIGMA`), the LIMO's "
             "acceleration limits and a 0.04 s command delay (`riskfield/experiments/crowd_core.py` defines each "
             "family and metric; `emerging`'s 1–2 s lead counts from the camera's first sight of the person "
-            "walking, not standing beside the path, since 71a6ae5). Targets: 0 at-fault, 0 static contacts, "
+            "walking, not standing beside the path). Targets: 0 at-fault, 0 static contacts, "
             "idle displacement and blind reverse 0.00 m, "
             "success ≥ 95 % where the goal is reachable (idle families have none: –).", "",
             *(["Episodes that miss a target (family, target: seeds):", "", *missed] if missed

@@ -381,15 +381,16 @@ def replay_path(console: Any, frames: int = 250, warmup: int = 20, camera_hz: fl
     from .demo.run import camera_pipeline
 
     console.print(f"[bold]latency bench, replay path[/bold]: recording {frames} frames of the demo's room "
-                  "(today's and the compact frame)")
+                  "(the full-size and the compact frame)")
     t0 = time.perf_counter()
     rec = record(frames, camera_hz)
     size = rec.summary()
     console.print(f"recorded in {time.perf_counter() - t0:.0f} s: perception/frame "
-                  f"{size['full_frame_bytes_median'] / 1e6:.2f} MB today → "
+                  f"{size['full_frame_bytes_median'] / 1e6:.2f} MB full-size → "
                   f"{size['compact_frame_bytes_median'] / 1e3:.0f} KB compact; sim/truth "
                   f"{size['truth_bytes_full'] / 1e6:.2f} MB → {size['truth_bytes_strided'] / 1e3:.0f} KB; "
-                  f"reconstruction error against today's frame at {ERROR_RANGE_M[0]:g}–{ERROR_RANGE_M[1]:g} m: median "
+                  f"reconstruction error against the full-size frame at {ERROR_RANGE_M[0]:g}–{ERROR_RANGE_M[1]:g} m: "
+                  "median "
                   f"{size['error_m_median'] * 1e3:.2f} mm, p99 {size['error_m_p99'] * 1e3:.2f} mm, max "
                   f"{size['error_m_max'] * 1e3:.2f} mm over {size['error_pixels']} pixels; codec round trip "
                   + ", ".join(f"{k} {v['median']:.2f} / {v['p99']:.2f} ms"
@@ -398,7 +399,7 @@ def replay_path(console: Any, frames: int = 250, warmup: int = 20, camera_hz: fl
                               for k, v in size["sim_backend_process_ms"].items() if v))
     for k, m in size["map_agreement"].items():
         if m.get("comparable"):
-            console.print(f"ESDF slice after {frames} frames, today's frames vs {k.replace('_', ' ')}: |Δ distance| "
+            console.print(f"ESDF slice after {frames} frames, full-size frames vs {k.replace('_', ' ')}: |Δ distance| "
                           f"within 1 m of obstacles, outside them: median {m['abs_diff_m_median'] * 100:.1f} cm, p99 "
                           f"{m['abs_diff_m_p99'] * 100:.1f} cm; obstacle cells IoU {m['obstacle_iou']:.3f}")
     core = core_costs(rec)

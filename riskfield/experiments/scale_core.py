@@ -282,7 +282,7 @@ def section_body(summary: dict[str, Any]) -> list[str]:
         f"{POSE_NOISE * 1e3:.0f} mm of tracking jitter, the default depth and label noise, 0.4 m/s towards a wall "
         "(`riskfield/experiments/scale_core.py` defines the loop and each metric; the map is the wall where the "
         "newest aligned frame puts it, no mapper). *anchored*: SLAM's world placed once at the first image and "
-        "never rescaled (the former behaviour; a negative gap is a collision); *aligned*: perception's online "
+        "never rescaled (alignment off; a negative gap is a collision); *aligned*: perception's online "
         "estimate (Umeyama over a 1.5 m window, the floor plane before moving) and the filter's shrunk distance "
         "and 0.2 m/s cap until it converges. Errors: the mapped wall's distance from the robot minus the true one, "
         "in odometry's frame (the filter's: with 1 % slip its metre is 1.01 true ones; the map is right when it "

@@ -33,7 +33,7 @@ The replay path (``--path replay``, ``experiments.replay``): recorded compact pe
 published into mapping and the safety filter, so that neither the simulator's rendering nor
 perception's backend competes for the CPU: frame published → the first ``cmd/safe`` computed on an
 ESDF that contains it, per frame, with every stage's distribution from the same run, the frame's
-size and error against today's, and the mapping core's CPU time per frame (the design's share).
+size and error against the full-size frame, and the mapping core's CPU time per frame (the design's share).
 Target: p99 ≤ 60 ms.
 """
 

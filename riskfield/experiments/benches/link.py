@@ -15,7 +15,7 @@ robot keys, as a robot's filter does; two such sites run side by side, one with 
 LZ4 compression (``RouterSettings.compression``), one without.
 
 Each ``--encodings`` entry is one run of the stack with the simulator's ``image_encoding`` set to it
-(default: ``jpeg``, today's default, then ``rgb8``, the raw images: before / after from one command).
+(default: ``jpeg``, the simulator's default, then ``rgb8``, the raw images: before / after from one command).
 Writes ``summary.json`` and ``table.md`` to ``--out``; exits 1 when the first encoding's run is over
 budget.
 """
