@@ -22,14 +22,15 @@ distance is +inf.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-from ..runtime import jit
+from ..runtime.jit import threads as thread_count
+from ..runtime.kernels import jit
 
 _INF = 1 << 30  # "no site on this line yet": larger than any squared distance in a grid of < 2^14 voxels a side
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _envelope(f: np.ndarray, a: int, b: int, v: np.ndarray, z: np.ndarray) -> int:
     """The lower envelope of the parabolas f[p] + (q − p)² over the p in [a, b] with f[p] < _INF
     (outside [a, b] f is not read: no site can be there): its last index k (−1 when there is no
@@ -63,7 +64,7 @@ def _envelope(f: np.ndarray, a: int, b: int, v: np.ndarray, z: np.ndarray) -> in
     return k
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _segment_end(z: np.ndarray, j: int, k: int, n: int) -> int:
     """The last q in [0, n) that parabola j of an envelope of k + 1 holds. The envelope is read out
     segment by segment, a branch-free inner loop per parabola instead of a boundary test per q
@@ -71,7 +72,7 @@ def _segment_end(z: np.ndarray, j: int, k: int, n: int) -> int:
     return n - 1 if j == k else min(n - 1, int(np.floor(z[j + 1])))
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _backward_squared(g: np.ndarray, i: int, j: int, nz: int) -> None:
     """Pass 1's second sweep of the column g[i, j, :], which holds the distances to the last site
     before each voxel (0 on the sites): the smaller of that and the distance to the next site,
@@ -86,7 +87,7 @@ def _backward_squared(g: np.ndarray, i: int, j: int, nz: int) -> None:
         g[i, j, k] = e * e if e < _INF else _INF
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.ndarray, hi: np.ndarray,
          out: np.ndarray) -> None:
     """The sites are the voxels where (labels == label) == equal, all inside the box [lo, hi]
@@ -165,7 +166,7 @@ def _edt(labels: np.ndarray, label: int, equal: bool, voxel: np.float32, lo: np.
                     q += 1
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _runs(f: np.ndarray, a: int, b: int, o: np.ndarray, v: np.ndarray, z: np.ndarray) -> None:
     """The envelope pass of ``_inside`` on the line f[a..b]: the zeros are sites; each maximal run of
     non-zero entries is the envelope of itself and the zeros bounding it (a site beyond a bounding
@@ -196,7 +197,7 @@ def _runs(f: np.ndarray, a: int, b: int, o: np.ndarray, v: np.ndarray, z: np.nda
                 r += 1
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def _inside(labels: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: np.ndarray, voxel: np.float32) -> None:
     """``inside_depth``: the three passes of ``_edt`` with the free voxels (label 0) as the sites,
     each line's envelopes built only over its runs of occupied voxels, in the box [lo, hi] that
@@ -268,7 +269,7 @@ def inside_depth(labels: np.ndarray, depth: np.ndarray, lo: np.ndarray, hi: np.n
     bhi = np.minimum(np.asarray(hi, np.int64) + 1, shape - 1)
     if np.any(bhi < blo):
         return
-    with jit.threads(threads):
+    with thread_count(threads):
         _inside(labels, blo, bhi, depth, np.float32(voxel))
 
 
@@ -292,7 +293,7 @@ def edt_of_label(labels: np.ndarray, label: int, equal: bool, voxel: float, thre
         raise ValueError(f"edt: a 2-D or 3-D uint8 grid, got shape {shape} {labels.dtype}")
     lo, hi = _site_box(labels, site_box)
     out = np.empty(labels.shape, np.float32)
-    with jit.threads(threads):
+    with thread_count(threads):
         _edt(labels, int(label), bool(equal), np.float32(voxel), lo, hi, out)
     return out.reshape(shape)
 

@@ -15,10 +15,12 @@ bounds in registers, not arrays.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from ..runtime.kernels import jit
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def scan(groups: np.ndarray, n_groups: int, voxel: np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                                         np.ndarray]:
     """One pass over the group map: voxels per group, per-group bounding boxes, and the inside depth
@@ -87,7 +89,7 @@ def scan(groups: np.ndarray, n_groups: int, voxel: np.float32) -> tuple[np.ndarr
     return counts, glo, ghi, depth
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def base_term(groups: np.ndarray, depth: np.ndarray, e: np.ndarray, base: int, half: np.float32,
               m_min: np.float32) -> np.ndarray:
     """The union term, in place of ``e``: on entry ``e`` is the distance to the nearest voxel of the
@@ -114,7 +116,7 @@ def base_term(groups: np.ndarray, depth: np.ndarray, e: np.ndarray, base: int, h
     return dist
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _merge_boxes(plo: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The box [lo, hi) holding the per-plane inclusive boxes (plo[n], phi[n]) of a parallel pass."""
     lo = np.array([1 << 40, 1 << 40, 1 << 40], dtype=np.int64)
@@ -126,7 +128,7 @@ def _merge_boxes(plo: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return lo, hi + 1
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def reach_box(e_union: np.ndarray, tlo: np.ndarray, thi: np.ndarray, llo: np.ndarray, lhi: np.ndarray,
               slack: np.float32, far: np.float32, voxel: np.float32) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box [lo, hi) of the voxels of the loose box [llo, lhi) whose distance to the tight box
@@ -158,7 +160,7 @@ def reach_box(e_union: np.ndarray, tlo: np.ndarray, thi: np.ndarray, llo: np.nda
     return _merge_boxes(plo, phi)
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def combine(box: tuple, g: int, base: int, numbers: tuple) -> None:
     """Fold group g's term into (dist, grp) on a box, ``box`` = (groups, depth, s, dist, grp): ``s``
     is e_g there (the EDT of the box); ``numbers`` = (half, m_g, off) float32, off = float32(v/2 +
@@ -180,7 +182,7 @@ def combine(box: tuple, g: int, base: int, numbers: tuple) -> None:
                     grp[i, j, k] = g
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def clip(dist: np.ndarray, grp: np.ndarray, dmax: np.float32) -> None:
     """d ≥ max_distance → max_distance with group 0 (nothing in range); d below −max_distance → −max_distance."""
     nx, ny, nz = dist.shape
@@ -195,7 +197,7 @@ def clip(dist: np.ndarray, grp: np.ndarray, dmax: np.float32) -> None:
                     dist[i, j, k] = -dmax
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def diff_box(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box [lo, hi) of the voxels where two group maps differ (lo > hi − 1 when none), in
     one parallel pass instead of a difference mask and three reductions."""

@@ -47,9 +47,8 @@ over a built map (a camera revisiting a room) 5–9× less.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from ..runtime.kernels import Layout, view1, view2
+from ..runtime.kernels import Layout, jit, view1, view2
 
 #: The wave's workspace, one flat buffer per element type: the two maps (site, key and the cells'
 #: linked lists), the group map ``state``, the field, the wave's queue and dirty list, the key
@@ -87,7 +86,7 @@ def slot(ws: tuple[np.ndarray, ...], name: str) -> np.ndarray:
     raise KeyError(name)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _unlink(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, m: int, x: int) -> None:
     s = site[m, x]
     if s < 0:
@@ -105,7 +104,7 @@ def _unlink(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray
     prv[m, x] = -1
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _link(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, m: int, x: int, s: int) -> None:
     site[m, x] = s
     prv[m, x] = -1
@@ -116,7 +115,7 @@ def _link(site: np.ndarray, nxt: np.ndarray, prv: np.ndarray, head: np.ndarray, 
     head[m, s] = x
 
 
-@njit(cache=True, nogil=True)
+@jit
 def reset(ws: tuple, dmax: np.float32) -> None:
     """The empty map: all voxels free (each its own free site), no obstacle sites, d = max_distance."""
     i32, u8, f32, f64, i64, tb = ws
@@ -143,7 +142,7 @@ def reset(ws: tuple, dmax: np.float32) -> None:
     counts[0] = n
 
 
-@njit(cache=True, nogil=True)
+@jit
 def count_changes(state: np.ndarray, new: np.ndarray, n_groups: int) -> int:
     """Voxels whose group differs (ids ≥ ``n_groups`` count as free, as in ``wave_update``)."""
     n = 0
@@ -155,7 +154,7 @@ def count_changes(state: np.ndarray, new: np.ndarray, n_groups: int) -> int:
     return n
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _push(queue: np.ndarray, inq: np.ndarray, qt: int, y: int) -> int:
     if inq[y] == 0:
         inq[y] = 1
@@ -166,7 +165,7 @@ def _push(queue: np.ndarray, inq: np.ndarray, qt: int, y: int) -> int:
     return qt
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def _mark(dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, y: int) -> int:
     if dirty[y] == 0:
         dirty[y] = 1
@@ -175,7 +174,7 @@ def _mark(dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, y: int) -> in
     return n_dirty
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _refill(ws: tuple, m: int, nr: int, qt: int) -> int:
     """Voxels ``buf[:nr]`` of map m that lost their site: each takes the best site its 26 neighbours
     hold (a site voxel is first its own again) and is queued for the lower wave (tail ``qt``).
@@ -228,7 +227,7 @@ def _refill(ws: tuple, m: int, nr: int, qt: int) -> int:
     return qt
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _lower(ws: tuple, m: int, qt: int, n_dirty: int) -> int:
     """The FIFO wave of map m from the queued voxels (head at 0, tail ``qt``): a neighbour takes the
     popped voxel's site when its key drops and stays within ``lim``. Returns the number of voxels
@@ -286,7 +285,7 @@ def _lower(ws: tuple, m: int, qt: int, n_dirty: int) -> int:
     return n_dirty
 
 
-@njit(cache=True, nogil=True)
+@jit
 def wave_update(ws: tuple, new: np.ndarray) -> tuple[int, int]:
     """Bring the maps from the group map ``state`` to ``new`` (flat, uint8; ids ≥ ``weight.size`` are
     free, as in the oracle) and list the voxels whose value may have changed in ``dirty_list``.
@@ -360,7 +359,7 @@ def wave_update(ws: tuple, new: np.ndarray) -> tuple[int, int]:
     return n_ch, n_dirty
 
 
-@njit(cache=True, nogil=True)
+@jit
 def shift_maps(ws: tuple, di: int, dj: int, dk: int) -> None:
     """Move the maps with the volume: new[i] = old[i + δ] (``volume.shift_array``). Voxels entering
     the grid are free with no obstacle site; sites left behind are lost, and the voxels that had
@@ -447,7 +446,7 @@ def shift_maps(ws: tuple, di: int, dj: int, dk: int) -> None:
             dirty[x] = 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def values(ws: tuple, n_vox: int, base: int, half: np.float32, dmax: np.float32) -> None:
     """d and risk_group on ``dirty_list[:n_vox]`` (all voxels when ``n_vox`` < 0) from the maps (see
     the module docstring), in the oracle's float32 steps: ``off[g]`` = float32(v/2 + m_g) as the

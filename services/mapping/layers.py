@@ -13,8 +13,8 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..runtime.kernels import jit
 from .volume import shift_array
 
 NEVER = np.iinfo(np.int32).min // 2
@@ -64,7 +64,7 @@ class SemanticLayer:
         self.vote.fill(0.0)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def overlay(base: tuple, top: tuple, out: tuple, min_weight: float, band: float) -> int:
     """Flat (C-order) layers, each (tsdf, weight, view, label, vote): ``out`` = ``top`` where it has
     seen a voxel (weight ≥ ``min_weight``) and ``base`` has not or they disagree on an obstacle

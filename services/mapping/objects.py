@@ -61,11 +61,11 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from numba import njit
 from scipy import ndimage
 
 from riskfield.protocol import TrackedObject
 
+from ..runtime.kernels import jit
 from .config import DynamicParams, MapperConfig, ObjectParams
 from .layers import NEVER, NO_LABEL
 
@@ -110,7 +110,7 @@ def _reach(xy: np.ndarray, centre: np.ndarray, voxel_size: float) -> float:
     return float(np.hypot(*(xy - centre[:2]).T).max()) + 0.5 * voxel_size
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _columns(grid: tuple, hits: tuple, lookup: tuple, band: tuple, numbers: tuple,
              flags: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One pass over the height band ``band`` = (k_lo, k_hi) of ``grid`` = (groups, labels, tsdf,

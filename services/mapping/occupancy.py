@@ -91,8 +91,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from ..runtime.kernels import jit
 from .layers import NO_LABEL, SemanticLayer, TsdfLayer
 from .raycast import ray_voxels
 
@@ -105,7 +105,7 @@ def surface_support(tsdf: TsdfLayer, min_weight: float, surface_band: float) -> 
     return (tsdf.weight >= max(min_weight, 1e-12)) & (np.abs(tsdf.tsdf) <= surface_band)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _enqueue_by_priority(cand: np.ndarray, n_cand: int, g: np.ndarray, queue: np.ndarray) -> int:
     """Counting sort of the candidate voxels by group id (1 = highest risk first, ``_FREE`` last)
     into ``queue``: a FIFO wavefront then hands every tie to the earlier (riskier) group."""
@@ -121,13 +121,13 @@ def _enqueue_by_priority(cand: np.ndarray, n_cand: int, g: np.ndarray, queue: np
     return n_cand
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _solid_at(f: int, state: np.ndarray, filled: np.ndarray, g: np.ndarray) -> bool:
     """Voxel ``f`` is part of an obstacle: filled, or observed interior / surface of an obstacle group."""
     return filled[f] or (state[f] == 3 and g[f] != _FREE and g[f] != 0)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> None:
     """Fill ``groups`` (all zero on entry) with the solid semantic occupancy of ``layers`` = (tsdf,
     weight, view, label); see the module docstring. ``rule`` = (min_w, band, fill_steps,

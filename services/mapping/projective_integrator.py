@@ -51,10 +51,10 @@ default: see its note in ``config.py``).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..runtime.jit import threads
-from ..runtime.kernels import Layout, view1, view2
+from ..runtime.kernels import Layout, jit, view1, view2
 from .config import TsdfParams
 from .layers import SemanticLayer, TsdfLayer
 from .pointmap import FrameRejected
@@ -74,7 +74,7 @@ _PF, _PI = FLOATS.table(), INTS.table()
 _F, _I = FLOATS.slot, INTS.slot
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def _far_range(points: np.ndarray, conf: np.ndarray, q_min: float, r_min: float, r_max: float) -> float:
     """Largest range (capped at ``r_max``) of the usable pixels; −1 when none is."""
     h = conf.shape[0]
@@ -92,7 +92,7 @@ def _far_range(points: np.ndarray, conf: np.ndarray, q_min: float, r_min: float,
     return rows.max()
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, p: tuple, r: float, centre: tuple,
                     limits: tuple, sdf: float) -> tuple[float, bool]:
     """The band's signed distance from the voxel centre (x, y, z) to the plane of pixel (iv, iu)
@@ -131,7 +131,7 @@ def _point_to_plane(points: np.ndarray, conf: np.ndarray, iv: int, iu: int, p: t
     return min(max(d, -trunc), trunc), True
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+@jit(parallel=True, error_model="numpy")
 def _integrate_projective(frame: tuple, layer: tuple, semantic: tuple, fl: np.ndarray, it: np.ndarray,
                           counts: np.ndarray) -> None:
     """Integrate ``frame`` = (points, confidence, labels) into ``layer`` = the ``TsdfLayer``'s (tsdf,

@@ -9,12 +9,13 @@ the grid, and returns how many. Compiled with numba; plain numpy arrays in and o
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..runtime.kernels import jit
 
 _EPS = 1e-9
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def pixel_ray(points: np.ndarray, conf: np.ndarray, R: np.ndarray, v: int, u: int, q_min: float, r_min: float,
               dw: np.ndarray) -> tuple[float, float]:
     """Confidence ``q`` and range ``r`` of pixel (v, u), its world-frame unit ray direction
@@ -36,7 +37,7 @@ def pixel_ray(points: np.ndarray, conf: np.ndarray, R: np.ndarray, v: int, u: in
     return q, r
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def clip_to_box(o: np.ndarray, d: np.ndarray, t0: float, t1: float, shape: np.ndarray) -> tuple[float, float]:
     """Slab test of the segment against the grid box [−½, n − ½)³ (index units); empty → t0 > t1."""
     for a in range(3):
@@ -57,7 +58,7 @@ def clip_to_box(o: np.ndarray, d: np.ndarray, t0: float, t1: float, shape: np.nd
     return t0, t1
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _axis_init(o: float, d: float, tm: float, n: int) -> tuple[int, int, float, float]:
     """Start voxel, step, t of the first boundary crossing and t between crossings on one axis."""
     i = int(np.floor(o + tm * d + 0.5))
@@ -72,7 +73,7 @@ def _axis_init(o: float, d: float, tm: float, n: int) -> tuple[int, int, float, 
     return i, 0, np.inf, np.inf
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def ray_voxels(o: np.ndarray, d: np.ndarray, t0: float, t1: float, shape: np.ndarray, out: np.ndarray) -> int:
     """Voxels crossed by ``o + t·d`` for t in [t0, t1] (``o``, ``d`` in index units), into ``out`` (M×3).
 

@@ -19,9 +19,8 @@ that supports the surface has been labelled by the pixels that observed it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from ..runtime.kernels import Layout, view1, view2
+from ..runtime.kernels import Layout, jit, view1, view2
 from .config import TsdfParams
 from .layers import SemanticLayer
 from .raycast import pixel_ray, ray_voxels
@@ -37,7 +36,7 @@ _SF, _SI = FLOATS.table(), INTS.table()
 _F, _I = FLOATS.slot, INTS.slot
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def vote(label: int, weight: float, observed: int, q: float) -> tuple[int, float]:
     """One application of the vote rule; returns the new (label, weight)."""
     if observed == label:
@@ -48,7 +47,7 @@ def vote(label: int, weight: float, observed: int, q: float) -> tuple[int, float
     return label, weight
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _integrate(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray) -> int:
     """Vote ``frame`` = (points, confidence, labels) into ``layer`` = the ``SemanticLayer``'s (label,
     vote), with the frame's numbers ``fl``, ``it`` (``FLOATS``, ``INTS``); the vote count."""

@@ -28,9 +28,8 @@ casts every pixel's own ray as described above (carving every ``carve_stride``-t
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from ..runtime.kernels import Layout, view1, view2
+from ..runtime.kernels import Layout, jit, view1, view2
 from .config import TsdfParams
 from .layers import TsdfLayer
 from .raycast import pixel_ray, ray_voxels
@@ -48,7 +47,7 @@ _TF, _TI = FLOATS.table(), INTS.table()
 _F, _I = FLOATS.slot, INTS.slot
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _update(tsdf: np.ndarray, weight: np.ndarray, i: int, j: int, k: int, d: float, q: float, w_max: float,
             cap_free: float) -> None:
     """One observation. The weight is capped at ``w_max``; a free-space one raises it only up to
@@ -61,7 +60,7 @@ def _update(tsdf: np.ndarray, weight: np.ndarray, i: int, j: int, k: int, d: flo
     weight[i, j, k] = cap if w > cap else w
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _ray(layer: tuple, fl: np.ndarray, it: np.ndarray, geo: np.ndarray, r: float, t0: float, t1: float,
          q: float, buf: np.ndarray) -> int:
     """Update the voxels the ray ``o + t·dw`` crosses for t in [t0, t1], surface at range ``r``.
@@ -97,7 +96,7 @@ def _ray(layer: tuple, fl: np.ndarray, it: np.ndarray, geo: np.ndarray, r: float
     return n
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _integrate(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray) -> int:
     """Per-pixel rays of ``frame`` = (points, confidence): every ``stride``-th pixel updates its
     band, every ``carve_stride``-th carves."""
@@ -139,7 +138,7 @@ def _integrate(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray) -> in
     return used
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@jit(error_model="numpy")
 def _integrate_merged(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray, scratch: tuple) -> int:
     """Merged rays of ``frame`` = (points, confidence): the pixels whose points fall in one voxel
     become one ray to their weighted mean.

@@ -17,9 +17,15 @@ import numpy as np
 from .jit import HAVE_NUMBA, numba
 
 
-def jit(fn):
-    """``numba.njit`` with the on-disk cache (compiled once per install), or ``fn`` itself without numba."""
-    return numba.njit(cache=True, nogil=True)(fn) if HAVE_NUMBA else fn
+def jit(fn=None, **options):
+    """``numba.njit`` with the on-disk cache (compiled once per install) and without the GIL, plus
+    numba's ``options`` (``parallel``, ``inline``, ``error_model``): the one decorator of every
+    kernel. Without numba, ``fn`` itself. ``@jit`` and ``@jit(**options)`` both work."""
+
+    def wrap(f):
+        return numba.njit(cache=True, nogil=True, **options)(f) if HAVE_NUMBA else f
+
+    return wrap if fn is None else wrap(fn)
 
 
 class Layout:
