@@ -21,7 +21,9 @@ plus EfficientViT would plausibly give:
   perception aligns to (``OdometrySlip``).
 
 θ is the angle between the viewing ray and the surface normal, estimated from the pointmap
-itself (cross product of neighbouring points), as a real pipeline would have to.
+itself (cross product of neighbouring points), as a real pipeline would have to. The per-pixel
+part (incidence, noise, confidence) runs in compiled kernels (``kernels.incidence_kernel``,
+``kernels.depth_noise_kernel``) on numpy's random draws.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ import numpy as np
 
 from riskfield.protocol import CERTAIN_CONFIDENCE, ade20k
 
-from .kernels import HAVE_NUMBA
+from ..runtime.jit import require_numba
+from . import kernels
 
 _I = ade20k.INDEX
 #: Plausible confusions of a segmentation network: class → classes it is mistaken for.
@@ -82,38 +85,6 @@ class DegradationConfig:
         return self.noise_a + self.noise_b * z * z
 
 
-def normals_from_pointmap(points: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit surface normals (H, W, 3) facing the camera, from neighbouring points, and where
-    they are defined (the pixel and its horizontal and vertical neighbours valid)."""
-    p = np.asarray(points, np.float32)
-    # Central differences inside, one-sided at the image border (edge-padded copies).
-    pp = np.pad(p, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    vp = np.pad(valid, 1, mode="edge")
-    dx = pp[1:-1, 2:] - pp[1:-1, :-2]
-    dy = pp[2:, 1:-1] - pp[:-2, 1:-1]
-    ok = valid & vp[1:-1, 2:] & vp[1:-1, :-2] & vp[2:, 1:-1] & vp[:-2, 1:-1]
-    n = np.empty_like(p)
-    n[..., 0] = dx[..., 1] * dy[..., 2] - dx[..., 2] * dy[..., 1]
-    n[..., 1] = dx[..., 2] * dy[..., 0] - dx[..., 0] * dy[..., 2]
-    n[..., 2] = dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0]
-    norm = np.sqrt(n[..., 0] ** 2 + n[..., 1] ** 2 + n[..., 2] ** 2)
-    ok &= norm > 1e-12
-    # Divide by ±norm: unit length, and flipped to face the camera (n·p < 0).
-    facing = n[..., 0] * p[..., 0] + n[..., 1] * p[..., 1] + n[..., 2] * p[..., 2]
-    n /= np.where(ok, np.where(facing > 0, -norm, norm), np.float32(1.0))[..., None]
-    return n, ok
-
-
-def cos_incidence(points: np.ndarray, normals: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """|cos| of the angle between each pixel's viewing ray and the surface normal (1 where the
-    normal is unknown, so unknown geometry is not penalised twice)."""
-    p = np.asarray(points, np.float32)
-    r = np.sqrt(p[..., 0] ** 2 + p[..., 1] ** 2 + p[..., 2] ** 2)
-    dot = normals[..., 0] * p[..., 0] + normals[..., 1] * p[..., 1] + normals[..., 2] * p[..., 2]
-    c = np.abs(dot) / np.where(r > 0, r, np.float32(1.0))
-    return np.where(ok, np.clip(c, 0.0, 1.0), 1.0)
-
-
 def boundary_mask(labels: np.ndarray, width: int) -> np.ndarray:
     """Pixels within ``width`` pixels (Chebyshev) of a different label."""
     edge = np.zeros(labels.shape, bool)
@@ -149,44 +120,24 @@ class Observation:
 
 
 class Degrader:
-    def __init__(self, config: DegradationConfig | None = None, seed: int = 0, compiled: bool = HAVE_NUMBA):
+    def __init__(self, config: DegradationConfig | None = None, seed: int = 0):
+        require_numba("the degradation model")
         self.config = config or DegradationConfig()
-        #: per-pixel arithmetic in compiled kernels (``kernels``), bit-identical; False: numpy
-        self.compiled = compiled
         self.rng = np.random.default_rng(seed)
         self.drift = np.eye(4)
 
     def observe(self, points: np.ndarray, labels: np.ndarray, T_WC: np.ndarray, valid: np.ndarray) -> Observation:
         cfg = self.config
-        valid = valid & (points[..., 2] > 0)
+        valid = np.ascontiguousarray(valid & (points[..., 2] > 0))
         z = np.where(valid, points[..., 2], 0.0).astype(np.float64)
-        if self.compiled:
-            return self._observe_compiled(points, labels, T_WC, valid, z)
-        normals, n_ok = normals_from_pointmap(points, valid)
-        cos = cos_incidence(points, normals, n_ok)
-        sigma = cfg.sigma(z) / np.maximum(cos, 0.2)
-        noise = self.rng.standard_normal(z.shape) * sigma
-        scale = np.where(valid, (z + noise) / np.where(z > 0, z, 1.0), 0.0)
-        scale = np.maximum(scale, 0.05)  # a point never crosses behind the camera
-        noisy = (points * scale[..., None]).astype(np.float32)
-        noisy[~valid] = 0.0
-        conf = np.where(valid, 1.0 + cfg.c_gain * cos * np.exp(-z / cfg.z_scale), 0.0).astype(np.float32)
-        return Observation(noisy, conf, self.degrade_labels(labels, valid), self._drifted(T_WC), valid)
-
-    def _observe_compiled(self, points: np.ndarray, labels: np.ndarray, T_WC: np.ndarray, valid: np.ndarray,
-                          z: np.ndarray) -> Observation:
-        from .kernels import depth_noise_kernel, incidence_kernel
-
-        cfg = self.config
         p = np.ascontiguousarray(points, np.float32)
-        valid = np.ascontiguousarray(valid)
         cos = np.empty(valid.shape, np.float32)
-        incidence_kernel(p, valid, cos)
-        normal = self.rng.standard_normal(z.shape)  # the same draws, in the same order, as the numpy path
+        kernels.incidence_kernel(p, valid, cos)
+        normal = self.rng.standard_normal(z.shape)  # drawn here, not in the kernel: numpy's stream
         e = np.exp(-z / cfg.z_scale)
         noisy, conf = np.empty(p.shape, np.float32), np.empty(valid.shape, np.float32)
-        depth_noise_kernel((p, valid, z, cos), (normal, e), (float(cfg.noise_a), float(cfg.noise_b), float(cfg.c_gain)),
-                           (noisy, conf))
+        kernels.depth_noise_kernel((p, valid, z, cos), (normal, e),
+                                   (float(cfg.noise_a), float(cfg.noise_b), float(cfg.c_gain)), (noisy, conf))
         return Observation(noisy, conf, self.degrade_labels(labels, valid), self._drifted(T_WC), valid)
 
     def degrade_labels(self, labels: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:

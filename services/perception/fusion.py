@@ -1,4 +1,4 @@
-"""The paper's keyframe fusion rules, as pure numpy functions over flattened keyframe pixels.
+"""The paper's keyframe fusion rules over flattened keyframe pixels, and the fused state of a keyframe.
 
 Layout follows MASt3R-SLAM: a keyframe's pointmap is ``X (H·W, 3)`` in its own camera frame with
 confidence ``C (H·W,)``; matches are given per **keyframe** pixel ξ: ``idx_f2k[ξ]`` is the linear
@@ -14,6 +14,10 @@ Semantics, eq. (7)–(8) — a vote weight per keyframe pixel, with q the match 
     w ← w + q   if the matched frame label agrees with the keyframe label ℓ
     w ← w − q   otherwise;   when w < 0:  ℓ ← the observed label,  w ← −w
 
+The ``mast3r`` backend votes with the numpy functions here (its geometry is MASt3R-SLAM's own);
+the ``sim`` backend fuses both in one compiled pass (``kernels.fuse_kernel``) into a
+:class:`KeyframeFusion`.
+
 The paper only says the label is replaced "when the weight becomes negative"; we then keep the
 surplus −w as the new label's weight (so one confident contradicting observation replaces a
 weakly held label, but a label held by many votes needs as many contrary votes to flip).
@@ -25,24 +29,6 @@ import numpy as np
 
 #: MASt3R-SLAM's default threshold on the match quality for trusted matches (``tracking.Q_conf``).
 Q_CONF = 1.5
-
-
-def fuse_pointmap(X_k: np.ndarray, C_k: np.ndarray, X: np.ndarray, C: np.ndarray,
-                  mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. (2) for every pixel where ``mask`` holds (all if None); returns new ``(X̃, C̃)``.
-
-    ``X_k, X``: (N, 3); ``C_k, C``: (N,) or (N, 1), non-negative. Pixels where both confidences
-    are zero keep their old point (nothing to average)."""
-    # Weights in float64: a tiny confidence must not lose the point's precision.
-    C_k1 = C_k.reshape(-1).astype(np.float64)
-    C1 = C.reshape(-1).astype(np.float64)
-    if mask is None:
-        mask = np.ones(C1.shape, bool)
-    C1 = np.where(mask, C1, 0.0)
-    total = C_k1 + C1
-    safe = np.where(total > 0, total, 1.0)
-    X_new = np.where((total > 0)[:, None], (C_k1[:, None] * X_k + C1[:, None] * X) / safe[:, None], X_k)
-    return X_new.astype(X_k.dtype, copy=False), total.astype(C_k.dtype, copy=False).reshape(C_k.shape)
 
 
 def vote_fuse(labels_k: np.ndarray, weights_k: np.ndarray, observed: np.ndarray, q: np.ndarray,
@@ -80,15 +66,6 @@ def transfer_labels(labels_frame: np.ndarray, idx_f2k: np.ndarray, valid_match_k
     return flat[idx], trusted, np.where(trusted, q, 0.0)
 
 
-def scatter_to_frame(values_k: np.ndarray, idx_f2k: np.ndarray, trusted: np.ndarray, into: np.ndarray) -> np.ndarray:
-    """The reverse direction, for publishing the current frame with fused labels: a copy of the
-    frame array ``into`` (H·W or H×W) with ``values_k[ξ]`` written at ``idx_f2k[ξ]`` for trusted
-    keyframe pixels ξ."""
-    out = into.copy().reshape(-1)
-    out[idx_f2k.reshape(-1)[trusted]] = values_k.reshape(-1)[trusted]
-    return out.reshape(into.shape)
-
-
 class KeyframeFusion:
     """Fused state of one keyframe: pointmap, confidence, labels and vote weights (flattened)."""
 
@@ -101,18 +78,3 @@ class KeyframeFusion:
         self.labels = np.array(labels, np.uint16).reshape(-1)
         self.weights = np.broadcast_to(np.asarray(label_weight, np.float32), self.C.shape).copy()
         self.updates = 0
-
-    def fuse(self, X_in_k: np.ndarray, C: np.ndarray, labels_frame: np.ndarray | None, idx_f2k: np.ndarray,
-             valid_match_k: np.ndarray, Qk: np.ndarray, Q_conf: float = Q_CONF) -> np.ndarray:
-        """One tracked frame: its pointmap expressed in the keyframe frame and matched to keyframe
-        pixels (``X_in_k``, ``C`` per keyframe pixel), and its label map through ``idx_f2k``.
-        Returns the trusted-match mask."""
-        observed, trusted, q = transfer_labels(
-            labels_frame if labels_frame is not None else np.zeros(1, np.uint16),
-            idx_f2k if labels_frame is not None else np.zeros_like(idx_f2k), valid_match_k, Qk, Q_conf)
-        self.X, self.C = fuse_pointmap(self.X, self.C, X_in_k.reshape(-1, 3).astype(np.float32),
-                                       C.reshape(-1).astype(np.float32), trusted)
-        if labels_frame is not None:
-            self.labels, self.weights = vote_fuse(self.labels, self.weights, observed.astype(np.uint16), q, trusted)
-        self.updates += 1
-        return trusted

@@ -1,11 +1,9 @@
 """Compiled per-pixel kernels of the ``sim`` backend: keyframe matching, fusion, the current
-frame's message and the depth noise in one pass each, without the numpy path's full-frame
-temporaries.
-
-They compute exactly what the numpy reference does (``SimBackend`` and ``Degrader`` with
-``compiled=False``: ``SimBackend.match``, ``transform_points`` + ``KeyframeFusion.fuse``,
-``SimBackend._message``, ``Degrader.observe``), in the same dtypes and operation order, so their
-outputs are bit-identical (tests/perception/test_kernels.py checks this on real frames).
+frame's message and the depth noise, in one pass each without full-frame temporaries. They are
+the backend's only implementation of these steps (``SimBackend.match``, ``._fuse``,
+``._current_frame``, ``Degrader.observe``); the numpy renderings in tests/oracles/sim_perception.py
+are their test oracles, in the same dtypes and operation order, and the published frames are
+byte-identical (tests/perception/test_kernels.py).
 
 A kernel takes its arrays grouped by role in tuples (keyframe, truth, frame, matches, out), not
 one argument each; the groups are not a flat :class:`~..runtime.kernels.Layout` workspace because
@@ -68,7 +66,7 @@ if HAVE_NUMBA:
     @njit(cache=True, nogil=True)
     def fuse_kernel(T_KC: np.ndarray, frame: tuple, matches: tuple, Q_conf: float, state: tuple,
                     out: tuple) -> None:
-        """One tracked frame fused into a keyframe (eq. 2 and 7–8, ``KeyframeFusion.fuse``): the
+        """One tracked frame fused into a keyframe (eq. 2 and 7–8 of ``fusion``, ``SimBackend._fuse``): the
         frame's point matched to keyframe pixel ξ, moved into the keyframe frame by ``T_KC``
         (float64, stored as float32 like ``transform_points(..., np.float32)``), averaged by
         confidence with the keyframe's; its label votes over trusted matches (valid, Qk > Q_conf).
@@ -76,7 +74,7 @@ if HAVE_NUMBA:
         ``frame`` = (points (H·W, 3) float32, confidence (H·W,) float32, labels (H·W,) uint16);
         ``matches`` = (idx, valid, Qk) of :func:`match_kernel`; ``state`` = the keyframe's (X, C,
         labels, weights); ``out`` = new arrays of the same (a message built from the previous state
-        keeps it, as with the numpy path's new arrays) and ``trusted`` (N,) bool."""
+        keeps it) and ``trusted`` (N,) bool."""
         points, conf, labels_frame = frame
         idx, valid_match, Qk = matches
         X, C, labels, weights = state
@@ -109,7 +107,8 @@ if HAVE_NUMBA:
     @njit(cache=True, nogil=True)
     def incidence_kernel(points: np.ndarray, valid: np.ndarray, cos: np.ndarray) -> None:
         """|cos| of the viewing ray to the surface normal per pixel, the normal from neighbouring
-        points (``degrade.normals_from_pointmap`` then ``cos_incidence``, in float32 like them)."""
+        points: central differences, one-sided at the border, in float32 (the oracle's
+        ``normals_from_pointmap`` then ``cos_incidence``)."""
         h, w = valid.shape
         one, tiny = np.float32(1.0), np.float32(1e-12)
         for v in range(h):
@@ -146,7 +145,7 @@ if HAVE_NUMBA:
 
         ``frame`` = (points (H, W, 3) float32, valid (H, W), z (H, W) float64, |cos| of incidence
         (H, W) float32); ``draws`` = (the standard normal draw, ``exp(−z / z_scale)``), both
-        computed by numpy, for identical bits; ``model`` = (noise_a, noise_b, c_gain) of
+        computed by numpy (its random stream); ``model`` = (noise_a, noise_b, c_gain) of
         ``DegradationConfig``; ``out`` = (noisy points, confidence), float32."""
         points, valid, z, cos = frame
         normal, e = draws
@@ -174,15 +173,15 @@ if HAVE_NUMBA:
     @njit(cache=True, nogil=True)
     def current_frame_kernel(T_CK: np.ndarray, keyframe: tuple, matches: tuple, Q_conf: float,
                              with_points: bool, frame: tuple) -> None:
-        """The current frame's message (``SimBackend._message``): over trusted matches (valid and
-        Qk > Q_conf), the keyframe's fused label ``labels_k[ξ]`` written at its frame pixel
-        ``idx[ξ]`` (``fusion.scatter_to_frame``) and, ``with_points``, its fused point moved into the
-        camera by ``T_CK`` (float64, stored as float32 like ``transform_points(..., np.float32)``).
+        """The current frame's message (``SimBackend._current_frame``): over trusted matches (valid
+        and Qk > Q_conf), the keyframe's fused label ``labels_k[ξ]`` written at its frame pixel
+        ``idx[ξ]`` and, ``with_points``, its fused point moved into the camera by ``T_CK`` (float64,
+        stored as float32 like ``transform_points(..., np.float32)``).
 
         ``keyframe`` = its fused (X (N, 3) float32, labels_k (N,) uint16); ``matches`` = (idx, valid,
         Qk) of :func:`match_kernel`; ``frame`` = the frame's own copies of (points (H·W, 3) float32,
         labels (H·W,) uint16), written in place: a pixel two keyframe pixels land on keeps the later
-        one, as numpy's fancy assignment does."""
+        one."""
         X, labels_k = keyframe
         idx, valid_match, Qk = matches
         points, labels = frame

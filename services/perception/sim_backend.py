@@ -43,10 +43,11 @@ from riskfield.protocol.messages import Header
 from ..geometry.camera import PinholeCamera
 from ..geometry.transforms import inverse as _inv
 from ..geometry.transforms import transform_points
+from ..runtime.jit import require_numba
+from . import kernels
 from .backend import Labeller, image_rgb
 from .degrade import DegradationConfig, Degrader, Observation, SlamErrorConfig, SlamWorld
-from .fusion import Q_CONF, KeyframeFusion, scatter_to_frame
-from .kernels import HAVE_NUMBA
+from .fusion import Q_CONF, KeyframeFusion
 
 
 @dataclass(frozen=True)
@@ -97,12 +98,10 @@ class Matches:
 class SimBackend:
     needs_truth = True
 
-    def __init__(self, config: SimBackendConfig | None = None, labeller: Labeller | None = None,
-                 compiled: bool = HAVE_NUMBA):
+    def __init__(self, config: SimBackendConfig | None = None, labeller: Labeller | None = None):
+        require_numba("the sim backend")
         self.config = config or SimBackendConfig()
-        #: match and fuse with the compiled kernels (``kernels``); False: the numpy reference
-        self.compiled = compiled
-        self.degrader = Degrader(self.config.degradation, self.config.seed, compiled)
+        self.degrader = Degrader(self.config.degradation, self.config.seed)
         self.labeller = labeller
         self.keyframe: _Keyframe | None = None
         self.n_keyframes = 0
@@ -119,8 +118,6 @@ class SimBackend:
         """Compile (or load from numba's cache) the kernels before the first camera frame: a
         throwaway backend of the same configuration fuses two frames of a plane, decoded from the
         wire like the node's (read-only arrays are a kernel signature of their own)."""
-        if not self.compiled:
-            return
         h, w = 12, 16
         v, u = np.mgrid[0:h, 0:w].astype(np.float64)
         points = np.stack([(u - w / 2) / w, (v - h / 2) / w, np.ones((h, w))], axis=-1) * 2.0
@@ -130,46 +127,25 @@ class SimBackend:
         compact = truth.model_copy(update={"points": None, "depth": points[..., 2].astype(np.float32),
                                            "intrinsics": (w / 2, w / 2, w / 2, h / 2)})
         for t in (truth, compact):
-            scratch = SimBackend(self.config, compiled=True)
+            scratch = SimBackend(self.config)
             for i in range(2):
                 scratch.process(None, decode(encode(t), PerceptionFrame), i + 1)
 
     # -- the steps ------------------------------------------------------------------------------
     def match(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray, T_WC_true: np.ndarray,
               C_t: np.ndarray) -> Matches:
-        """Keyframe pixel → current pixel by reprojecting true keyframe points (see module doc)."""
-        h, w = truth_valid.shape
-        if self.compiled:
-            return self._match_compiled(kf, truth_points, truth_valid, T_WC_true, C_t)
-        pc = transform_points(_inv(T_WC_true), kf.world_true)
-        z = pc[:, 2]
-        front = kf.valid & (z > 1e-6)
-        uv, _ = self._camera.project(np.where(front[:, None], pc, [0.0, 0.0, 1.0]))
-        u = np.rint(uv[:, 0]).astype(np.int64)
-        v = np.rint(uv[:, 1]).astype(np.int64)
-        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        idx = np.where(inside, v * w + u, 0)
-        z_here = truth_points.reshape(-1, 3)[idx, 2]
-        seen = inside & truth_valid.reshape(-1)[idx]
-        tol = self.config.depth_tol_abs + self.config.depth_tol_rel * z
-        valid = seen & (np.abs(z_here - z) < tol)
-        Qk = np.where(valid, np.sqrt(kf.C0 * C_t.reshape(-1)[idx]), 0.0)
-        overlap = float(valid.sum()) / max(1, int(kf.valid.sum()))
-        return Matches(idx, valid, Qk, overlap)
-
-    def _match_compiled(self, kf: _Keyframe, truth_points: np.ndarray, truth_valid: np.ndarray,
-                        T_WC_true: np.ndarray, C_t: np.ndarray) -> Matches:
-        from .kernels import match_kernel
-
+        """Keyframe pixel → current pixel by reprojecting true keyframe points (see module doc;
+        ``kernels.match_kernel``)."""
         h, w = truth_valid.shape
         n = kf.world_true.shape[0]
         idx, valid, Qk = np.empty(n, np.int64), np.empty(n, bool), np.empty(n, np.float64)
         cam = self._camera
         truth = (np.ascontiguousarray(truth_points).reshape(-1, 3), np.ascontiguousarray(truth_valid).reshape(-1),
                  np.ascontiguousarray(C_t, np.float32).reshape(-1))
-        n_valid = match_kernel(np.ascontiguousarray(_inv(T_WC_true)), (kf.world_true, kf.valid, kf.C0), truth,
-                               (h, w, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy)),
-                               (float(self.config.depth_tol_abs), float(self.config.depth_tol_rel)), (idx, valid, Qk))
+        n_valid = kernels.match_kernel(np.ascontiguousarray(_inv(T_WC_true)), (kf.world_true, kf.valid, kf.C0), truth,
+                                       (h, w, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy)),
+                                       (float(self.config.depth_tol_abs), float(self.config.depth_tol_rel)),
+                                       (idx, valid, Qk))
         return Matches(idx, valid, Qk, float(n_valid) / max(1, int(kf.valid.sum())))
 
     def _intrinsics(self, points: np.ndarray, valid: np.ndarray,
@@ -287,25 +263,20 @@ class SimBackend:
         return n
 
     def _fuse(self, kf: _Keyframe, m: Matches, obs: Observation, T_WC_true: np.ndarray) -> None:
+        """The frame fused into the keyframe over trusted matches (module doc, step 3;
+        ``kernels.fuse_kernel``): new arrays, so a message built from the previous state keeps it."""
         T_KC = _inv(kf.T_WK_true) @ T_WC_true  # the tracker's relative pose estimate
-        if self.compiled:
-            from .kernels import fuse_kernel
-
-            f = kf.fusion
-            trusted = np.empty(f.C.shape, bool)
-            X, C, labels, weights = (np.empty_like(a) for a in (f.X, f.C, f.labels, f.weights))
-            frame = (np.ascontiguousarray(obs.points, np.float32).reshape(-1, 3),
-                     np.ascontiguousarray(obs.confidence, np.float32).reshape(-1),
-                     np.ascontiguousarray(obs.labels, np.uint16).reshape(-1))
-            fuse_kernel(np.ascontiguousarray(T_KC), frame, (m.idx_f2k, m.valid_match_k, m.Qk),
-                        float(self.config.Q_conf), (f.X, f.C, f.labels, f.weights), (X, C, labels, weights, trusted))
-            f.X, f.C, f.labels, f.weights = X, C, labels, weights
-            f.updates += 1
-            self.last_matches = m
-            return
-        X_in_k = transform_points(T_KC, obs.points.reshape(-1, 3)[m.idx_f2k], np.float32)
-        kf.fusion.fuse(X_in_k, obs.confidence.reshape(-1)[m.idx_f2k], obs.labels, m.idx_f2k, m.valid_match_k,
-                       m.Qk, self.config.Q_conf)
+        f = kf.fusion
+        trusted = np.empty(f.C.shape, bool)
+        X, C, labels, weights = (np.empty_like(a) for a in (f.X, f.C, f.labels, f.weights))
+        frame = (np.ascontiguousarray(obs.points, np.float32).reshape(-1, 3),
+                 np.ascontiguousarray(obs.confidence, np.float32).reshape(-1),
+                 np.ascontiguousarray(obs.labels, np.uint16).reshape(-1))
+        kernels.fuse_kernel(np.ascontiguousarray(T_KC), frame, (m.idx_f2k, m.valid_match_k, m.Qk),
+                            float(self.config.Q_conf), (f.X, f.C, f.labels, f.weights),
+                            (X, C, labels, weights, trusted))
+        f.X, f.C, f.labels, f.weights = X, C, labels, weights
+        f.updates += 1
         self.last_matches = m
 
     def _updates(self, kf: _Keyframe | None, m: Matches | None, obs: Observation, points: np.ndarray,
@@ -361,28 +332,22 @@ class SimBackend:
         header = Header(stamp_ns=stamp_ns, frame_id=self.config.frame_id)
         cam = self._camera  # the keyframe's pixel grid is the camera's: the same intrinsics
         K = (cam.fx, cam.fy, cam.cx, cam.cy)
-        labels, points = obs.labels, obs.points
-        if m is not None and self.compiled:
-            from .kernels import current_frame_kernel
-
-            keyframe_points = self.config.publish == "keyframe"
-            labels = np.array(obs.labels, np.uint16)
-            if keyframe_points:
-                points = np.array(obs.points, np.float32)
-            matches = (m.idx_f2k.reshape(-1), m.valid_match_k.reshape(-1), m.Qk.reshape(-1))
-            frame = (points.reshape(-1, 3), labels.reshape(-1))  # views of the copies above, written in place
-            current_frame_kernel(np.ascontiguousarray(_inv(T_WC_true) @ kf.T_WK_true), (f.X, f.labels), matches,
-                                 float(self.config.Q_conf), keyframe_points, frame)
-        elif m is not None:
-            trusted = m.valid_match_k & (m.Qk > self.config.Q_conf)
-            labels = scatter_to_frame(f.labels, m.idx_f2k, trusted, obs.labels)
-            if self.config.publish == "keyframe":
-                # The fused keyframe points where the frame still sees them (a trusted match passed
-                # the occlusion test against this frame's depth), in this camera's frame.
-                T_CK = _inv(T_WC_true) @ kf.T_WK_true
-                X = transform_points(T_CK, f.X.reshape(-1, 3)[trusted], np.float32)
-                flat = np.array(obs.points, np.float32).reshape(-1, 3)
-                flat[m.idx_f2k.reshape(-1)[trusted]] = X
-                points = flat.reshape(obs.points.shape)
+        labels, points = (obs.labels, obs.points) if m is None else self._current_frame(kf, obs, m, T_WC_true)
         return PerceptionFrame(header=header, T_WC=obs.T_WC, points=points, confidence=obs.confidence,
                                labels=labels, keyframe_id=f.id, intrinsics=K)
+
+    def _current_frame(self, kf: _Keyframe, obs: Observation, m: Matches,
+                       T_WC_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's (labels, points) with the keyframe's fused labels written back at trusted
+        matches and, ``publish = "keyframe"``, its fused points there (eq. 2's denoised geometry
+        where the frame still sees it, moved into this camera), ``kernels.current_frame_kernel``;
+        copies, the observation's own arrays untouched."""
+        f = kf.fusion
+        keyframe_points = self.config.publish == "keyframe"
+        labels = np.array(obs.labels, np.uint16)
+        points = np.array(obs.points, np.float32) if keyframe_points else obs.points
+        matches = (m.idx_f2k.reshape(-1), m.valid_match_k.reshape(-1), m.Qk.reshape(-1))
+        frame = (points.reshape(-1, 3), labels.reshape(-1))  # views of the copies above, written in place
+        kernels.current_frame_kernel(np.ascontiguousarray(_inv(T_WC_true) @ kf.T_WK_true), (f.X, f.labels), matches,
+                                     float(self.config.Q_conf), keyframe_points, frame)
+        return labels, points

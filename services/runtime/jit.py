@@ -1,11 +1,11 @@
 """numba where it is installed: the one optional import behind the compiled kernels, and what a
 node says while numba compiles.
 
-The filter's compiled step (``fields.compiled``, ``safety_filter.compiled``) and the simulated
-camera path's kernels (``perception.kernels``, ``simulator.kernels``) run compiled when numba is
-there and fall back to their numpy reference paths (same results, tested) when an install left
-it out (``pip install ".[robot]"`` on a platform without a numba wheel). Mapping needs numba and
-imports it directly.
+The simulated camera path (``perception.kernels``, ``simulator.kernels``) and the filter's
+compiled step (``safety_filter.compiled``) run only compiled: where their kernels are built
+without numba, a ``ModuleNotFoundError`` for ``numba`` (:func:`require_numba`) stops the node at
+start with the runtime's one-line install hint (``service.missing_extra``). Mapping imports numba
+directly. The extras that run them (``robot``, ``mapping``, ``sim``) install it.
 
 Every kernel is ``cache=True``: numba keeps its machine code on disk and a later process loads it
 instead of compiling. Where (numba/core/caching.py, ``CacheImpl._locator_classes``, first that
@@ -40,7 +40,14 @@ except ImportError:  # pragma: no cover - exercised on installs without numba
     njit = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "CompileWatch", "kernels", "njit", "numba", "threads", "watch_compiles"]
+__all__ = ["HAVE_NUMBA", "CompileWatch", "kernels", "njit", "numba", "require_numba", "threads", "watch_compiles"]
+
+
+def require_numba(what: str) -> None:
+    """Raise ``ModuleNotFoundError`` (``name="numba"``) when numba is not installed: ``what`` runs
+    in compiled kernels only, and the runtime turns the error into its install hint."""
+    if not HAVE_NUMBA:
+        raise ModuleNotFoundError(f"No module named 'numba' ({what} runs compiled kernels only)", name="numba")
 
 #: The logger (and log-line name) of compile progress; ``COMPILING`` starts each such line, which
 #: is what a launcher reading a node's output looks for (``processes.Child.compiling``).
@@ -66,7 +73,7 @@ def threads(n: int) -> Iterator[None]:
 
 def kernels() -> list[Any]:
     """The numba dispatchers (``@njit`` functions) defined by the riskfield modules loaded now."""
-    if "numba" not in sys.modules:  # never import numba just to find there is nothing compiled
+    if not HAVE_NUMBA or "numba" not in sys.modules:  # never import numba to find nothing compiled
         return []
     from numba.core.dispatcher import Dispatcher
 
@@ -158,7 +165,7 @@ def watch_compiles() -> CompileWatch | None:
     """The process's :class:`CompileWatch`, registered with numba on first call; None when numba is
     not loaded (a node without kernels must not pay numba's import for this)."""
     global _WATCH
-    if "numba" not in sys.modules:
+    if not HAVE_NUMBA or "numba" not in sys.modules:
         return None
     if _WATCH is None:
         from numba.core import event

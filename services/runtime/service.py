@@ -139,12 +139,16 @@ def load_service(name: str, runnable: bool = True) -> ServiceSpec:
                 raise ModuleNotFoundError(f"No module named {needed!r}", name=needed)
     except ModuleNotFoundError as exc:
         if exc.name and not exc.name.startswith("riskfield"):
-            top = exc.name.split(".")[0]
-            hint = install_hint(top, name)
-            raise ServiceUnavailable(f"service {name!r} needs the Python package {top!r}"
-                                     f"{': ' + hint if hint else ''}") from exc
+            raise needs_package(name, exc.name) from exc
         raise ServiceUnavailable(f"service {name!r} is not available in this build ({exc})") from exc
     return spec
+
+
+def needs_package(service: str, module: str) -> ServiceUnavailable:
+    """The one-line error of a service missing an optional package, with the install hint."""
+    top = module.split(".")[0]
+    hint = install_hint(top, service)
+    return ServiceUnavailable(f"service {service!r} needs the Python package {top!r}{': ' + hint if hint else ''}")
 
 
 def build_settings(spec: ServiceSpec, overrides: dict[str, Any] | None = None) -> NodeSettings:
@@ -176,6 +180,11 @@ def run_service(name: str, overrides: dict[str, Any] | None = None, *, duration_
             restore()
         try:
             handle = spec.setup(node, settings)
+        except ModuleNotFoundError as exc:  # a package the setup needs (numba where it builds a kernel)
+            node.close()
+            if exc.name and not exc.name.startswith("riskfield"):
+                raise needs_package(name, exc.name) from exc
+            raise
         except BaseException:
             node.close()
             raise

@@ -24,7 +24,8 @@ import numpy as np
 from riskfield.protocol import ade20k
 
 from ..geometry.camera import PinholeCamera
-from .kernels import HAVE_NUMBA
+from ..runtime.jit import require_numba
+from . import kernels
 from .scene import NO_LABEL, Snapshot
 
 
@@ -43,13 +44,10 @@ def _palette() -> np.ndarray:
 PALETTE = _palette()
 
 
-#: Any uint16 label → RGB in [0, 1] (black for labels outside ADE20K, e.g. "nothing hit").
+#: Any uint16 label → RGB in [0, 1] (black for labels outside ADE20K, e.g. "nothing hit"): the
+#: shading kernel's colour table.
 _LUT = np.zeros((65536, 3), np.float32)
 _LUT[: ade20k.NUM_CLASSES] = PALETTE[: ade20k.NUM_CLASSES]
-
-
-def class_colour(label: np.ndarray) -> np.ndarray:
-    return _LUT[np.asarray(label, np.uint16)]
 
 
 @dataclass
@@ -71,74 +69,42 @@ class Render:
         return self.depth > 0
 
 
-def _rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    # Not ``v @ R.T``: a BLAS gemm with a 3-wide inner dimension stalls on a busy machine.
-    # (geometry.transforms.transform_points is the same product plus a translation, in float64;
-    # this one keeps the rays' float32 and skips the translation, once per pixel per frame.)
-    out = np.empty_like(v)
-    for i in range(3):
-        out[..., i] = R[i, 0] * v[..., 0] + R[i, 1] * v[..., 1] + R[i, 2] * v[..., 2]
-    return out
-
-
 @dataclass
 class Renderer:
     camera: PinholeCamera = field(default_factory=PinholeCamera)
     ambient: float = 0.25
     max_depth: float = 50.0
-    #: shade in one compiled pass (``kernels.shade_kernel``, the same bytes); False: numpy
-    compiled: bool = HAVE_NUMBA
 
     def __post_init__(self) -> None:
+        require_numba("the renderer")
         self._rays = self.camera.rays()
         self._inv_len = (1.0 / np.linalg.norm(self._rays, axis=-1)).astype(np.float32)
 
     def render(self, snapshot: Snapshot, T_WC: np.ndarray) -> Render:
-        """Cast one ray per pixel from the camera pose ``T_WC`` (4x4 camera → world)."""
+        """Cast one ray per pixel from the camera pose ``T_WC`` (4x4 camera → world) and shade the
+        hits in one compiled pass (``kernels.shade_kernel``); in an empty scene every ray misses."""
         T_WC = np.asarray(T_WC, np.float64)
         R = T_WC[:3, :3].astype(np.float32)
-        if self.compiled and not snapshot.empty:
-            return self._render_compiled(snapshot, T_WC, R)
-        dirs = _rotate(R, self._rays)
-        hits = snapshot.cast(T_WC[:3, 3].astype(np.float32), dirs)
-        ok = hits.t <= self.max_depth  # inf (no hit) fails this too
-        depth = np.where(ok, hits.t, np.float32(0.0))
-        points = self._rays * depth[..., None]
-        labels = np.where(ok, hits.label, NO_LABEL)
-        normals = hits.normal  # zero where nothing was hit
-        normals[~ok] = 0.0  # and beyond max_depth
-        # Lambert: head-light |n·view| (both faces lit) plus light from above.
-        n_dot_d = normals[..., 0] * dirs[..., 0] + normals[..., 1] * dirs[..., 1] + normals[..., 2] * dirs[..., 2]
-        lambert = np.abs(n_dot_d) * self._inv_len
-        sky = np.clip(normals[..., 2], 0.0, 1.0)
-        shade = (255.0 * self.ambient) + (255.0 * (1.0 - self.ambient)) * np.minimum(0.8 * lambert + 0.2 * sky, 1.0)
-        rgb = (class_colour(labels) * shade[..., None] + 0.5).astype(np.uint8)  # black where nothing was hit
-        return Render(
-            rgb=rgb,
-            depth=depth,
-            points=points,
-            labels=labels,
-            normals=normals,
-            object=np.where(ok, hits.object, -1).astype(np.int32),
-            T_WC=T_WC,
-        )
-
-    def _render_compiled(self, snapshot: Snapshot, T_WC: np.ndarray, R: np.ndarray) -> Render:
-        from .kernels import pack_rays_kernel, shade_kernel
-
         h, w = self._rays.shape[:2]
         n = h * w
         rays = np.empty((n, 6), np.float32)
-        pack_rays_kernel(R, T_WC[:3, 3].astype(np.float32), self._rays.reshape(-1, 3), rays)
-        out = snapshot.cast_packed(rays)
+        kernels.pack_rays_kernel(R, T_WC[:3, 3].astype(np.float32), self._rays.reshape(-1, 3), rays)
+        out = snapshot.cast_packed(rays) if not snapshot.empty else _misses(n)
         dirs = rays[:, 3:]
         depth, labels, obj = np.empty(n, np.float32), np.empty(n, np.uint16), np.empty(n, np.int32)
         points, normals, rgb = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8)
-        shade_kernel((out["t_hit"], out["geometry_ids"], out["primitive_ids"], out["primitive_normals"]),
-                     (self._rays.reshape(-1, 3), dirs, self._inv_len.reshape(-1)),
-                     (snapshot.offsets, snapshot.object_index, snapshot.triangle_labels, _LUT),
-                     (float(self.max_depth), int(NO_LABEL), 255.0 * self.ambient, 255.0 * (1.0 - self.ambient)),
-                     (depth, points, labels, normals, rgb, obj))
+        kernels.shade_kernel((out["t_hit"], out["geometry_ids"], out["primitive_ids"], out["primitive_normals"]),
+                             (self._rays.reshape(-1, 3), dirs, self._inv_len.reshape(-1)),
+                             (snapshot.offsets, snapshot.object_index, snapshot.triangle_labels, _LUT),
+                             (float(self.max_depth), int(NO_LABEL), 255.0 * self.ambient, 255.0 * (1.0 - self.ambient)),
+                             (depth, points, labels, normals, rgb, obj))
         return Render(rgb=rgb.reshape(h, w, 3), depth=depth.reshape(h, w), points=points.reshape(h, w, 3),
                       labels=labels.reshape(h, w), normals=normals.reshape(h, w, 3), object=obj.reshape(h, w),
                       T_WC=T_WC)
+
+
+def _misses(n: int) -> dict[str, np.ndarray]:
+    """open3d's ``cast_rays`` output for ``n`` rays that hit nothing (an empty scene has no
+    raycaster to ask): ``t_hit`` inf, the ids and normals never read."""
+    return {"t_hit": np.full(n, np.inf, np.float32), "geometry_ids": np.zeros(n, np.uint32),
+            "primitive_ids": np.zeros(n, np.uint32), "primitive_normals": np.zeros((n, 3), np.float32)}

@@ -1,10 +1,11 @@
-"""The renderer's per-pixel shading in one compiled pass over open3d's raw ray-cast output.
+"""The renderer's per-pixel work in compiled passes over open3d's raw ray-cast output: the rays
+packed for open3d (``pack_rays_kernel``) and each hit shaded into depth, pointmap, label, normal,
+object index and colour (``shade_kernel``), without full-frame temporaries between the camera stamp
+and the image. They are the renderer's only implementation (``camera.Renderer``); the numpy
+rendering in tests/oracles/sim_camera.py is their test oracle (tests/simulator/test_render_kernel.py
+checks the bytes).
 
-``shade_kernel`` computes exactly what ``Snapshot.cast`` + ``Renderer.render`` do in numpy (same
-float32/float64 steps, same order: tests/simulator/test_render_kernel.py checks the bytes), without
-their ~20 full-frame temporaries, all of them between the camera stamp and the image.
-
-Its arrays come grouped by role in tuples (hits, camera, scene, out), not one argument each; not a
+``shade_kernel``'s arrays come grouped by role in tuples (hits, camera, scene, out), not one argument each; not a
 flat :class:`~..runtime.kernels.Layout` workspace, because they differ in dtype, the hits are
 open3d's and the outputs leave in the frame, so there is nothing a workspace could keep.
 """
@@ -66,7 +67,7 @@ if HAVE_NUMBA:
     @njit(cache=True, nogil=True)
     def pack_rays_kernel(R: np.ndarray, origin: np.ndarray, rays_cam: np.ndarray, out: np.ndarray) -> None:
         """open3d's (N, 6) ray rows: the camera origin and each camera-frame ray rotated into the
-        world by ``R`` (float32, ``camera._rotate``'s sums in its order)."""
+        world by ``R`` (float32 sums ``R[i,0]·v0 + R[i,1]·v1 + R[i,2]·v2``, in that order)."""
         for k in range(rays_cam.shape[0]):
             v0, v1, v2 = rays_cam[k, 0], rays_cam[k, 1], rays_cam[k, 2]
             out[k, 0], out[k, 1], out[k, 2] = origin[0], origin[1], origin[2]

@@ -9,9 +9,9 @@ Ground truth from it:
   ``shapes`` are closed, walls and floor are disjoint slabs, and objects are lifted ``LIFT``
   above the floor so no two meshes share a face. Loaded scans (``mesh_io``) are usually open:
   use ``distance`` (unsigned) for them.
-* ``cast(origins, directions)`` — first hit per ray: distance along the ray (in units of the
-  direction's length), world normal, ADE20K label (per object, or per triangle for loaded
-  meshes) and the index of the object hit.
+* ``cast_packed(rays)`` — open3d's first hit per ray; the renderer (``camera.Renderer``) reads
+  the ADE20K label (per object, or per triangle for loaded meshes) and the index of the object
+  hit from the snapshot's tables (``offsets``, ``triangle_labels``, ``object_index``).
 
 The raycasting structure is rebuilt only when the set of present objects or the pose of a
 moving one changes; static scenes are built once.
@@ -197,22 +197,6 @@ class SceneObject:
         return transform(self.mesh, self.pose_at(t))
 
 
-@dataclass
-class Hits:
-    """First hit of every ray (leading shape of the rays): ``t`` (inf where nothing was hit),
-    world ``normal`` (zero where nothing), ``label`` (``NO_LABEL`` where nothing) and
-    ``object`` (index into ``Scene.objects``, -1 where nothing)."""
-
-    t: np.ndarray
-    normal: np.ndarray
-    label: np.ndarray
-    object: np.ndarray
-
-    @property
-    def hit(self) -> np.ndarray:
-        return np.isfinite(self.t)
-
-
 class Snapshot:
     """The scene frozen at one instant, ready for ray casting and distance queries."""
 
@@ -239,39 +223,13 @@ class Snapshot:
         self.n_triangles = n
         self.empty = not obj_index
 
-    def cast_raw(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
-        """open3d's ``cast_rays`` output (``t_hit``, ``geometry_ids``, ``primitive_ids``,
-        ``primitive_normals``, …) as flat numpy arrays, one entry per ray; a non-empty scene only."""
-        origins = np.asarray(origins, np.float32)
-        directions = np.asarray(directions, np.float32)
-        shape = np.broadcast_shapes(origins.shape, directions.shape)[:-1]
-        rays = np.empty((*shape, 6), np.float32)
-        rays[..., :3] = origins
-        rays[..., 3:] = directions
-        return self.cast_packed(rays.reshape(-1, 6))
-
     def cast_packed(self, rays: np.ndarray) -> dict[str, np.ndarray]:
-        """``cast_raw`` of rays already packed as open3d wants them: (N, 6) float32 rows of origin
-        and direction, C-contiguous (open3d wraps the buffer without a copy)."""
+        """open3d's ``cast_rays`` output (``t_hit``, ``geometry_ids``, ``primitive_ids``,
+        ``primitive_normals``, …) as flat numpy arrays, one entry per ray, for rays packed as open3d
+        wants them: (N, 6) float32 rows of origin and direction, C-contiguous (open3d wraps the
+        buffer without a copy); a non-empty scene only."""
         out = self.raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
         return {k: v.numpy() for k, v in out.items()}
-
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
-        """First hits of rays ``origins + t·directions`` (both ``(..., 3)``, broadcastable)."""
-        shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))[:-1]
-        if self.empty:
-            return Hits(np.full(shape, np.inf, np.float32), np.zeros((*shape, 3), np.float32),
-                        np.full(shape, NO_LABEL, np.uint16), np.full(shape, -1, np.int32))
-        out = self.cast_raw(origins, directions)
-        t_hit = out["t_hit"]
-        hit = np.isfinite(t_hit)
-        # Misses carry INVALID_ID: route them to the sentinel entries at the end of the tables.
-        gid = np.where(hit, out["geometry_ids"], len(self.object_index) - 1)
-        flat = np.where(hit, self.offsets[gid] + out["primitive_ids"], self.n_triangles)
-        normal = out["primitive_normals"]
-        normal[~hit] = 0.0
-        return Hits(t_hit.reshape(shape), normal.reshape(*shape, 3), self.triangle_labels[flat].reshape(shape),
-                    self.object_index[gid].reshape(shape))
 
     def _points(self, points: np.ndarray) -> tuple[o3d.core.Tensor, tuple[int, ...]]:
         p = np.asarray(points, np.float32)
@@ -356,9 +314,6 @@ class Scene:
 
     def signed_distance(self, points: np.ndarray, t: float = 0.0) -> np.ndarray:
         return self.at(t).signed_distance(points)
-
-    def cast(self, origins: np.ndarray, directions: np.ndarray, t: float = 0.0) -> Hits:
-        return self.at(t).cast(origins, directions)
 
     def bounds(self, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds of everything present at ``t``."""

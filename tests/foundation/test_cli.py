@@ -174,6 +174,17 @@ def test_bench_without_its_extra_is_one_install_line():
     assert "Traceback" not in r.stderr and "pip install 'riskfield[robot]'" in r.stderr, r.stderr
 
 
+@pytest.mark.parametrize("service", ["perception", "simulator"])
+def test_run_without_numba_is_one_install_line(service, router_endpoint):
+    """The simulated camera path runs compiled kernels only: without numba the node stops in its
+    setup, where the kernels are built, with the service's install hint."""
+    r = _run_without(("numba",), "run", service, "--connect", router_endpoint, "--duration", "1", timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == f"service {service!r} needs the Python package 'numba': " \
+                                                "pip install 'riskfield[sim]'", r.stderr
+
+
 def test_bench_name_help_shows_that_benchmarks_options():
     r = _run("bench", "safety", "--help")
     assert r.returncode == 0, r.stderr

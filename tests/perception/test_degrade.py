@@ -6,13 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from riskfield.services.perception.degrade import (
-    DegradationConfig,
-    Degrader,
-    boundary_mask,
-    cos_incidence,
-    normals_from_pointmap,
-)
+from oracles.sim_perception import cos_incidence, normals_from_pointmap
+from riskfield.services.perception import kernels
+from riskfield.services.perception.degrade import DegradationConfig, Degrader, boundary_mask
 
 
 def plane(depth: float, h: int = 120, w: int = 160, f: float = 100.0, tilt: float = 0.0) -> np.ndarray:
@@ -60,6 +56,9 @@ def test_normals_of_a_plane():
     np.testing.assert_allclose(n[60, 80], -expect, atol=1e-3)
     c = cos_incidence(pts, n, ok)
     assert c[60, 80] == pytest.approx(abs(np.dot(-expect, pts[60, 80] / np.linalg.norm(pts[60, 80]))), abs=1e-3)
+    compiled = np.empty(pts.shape[:2], np.float32)
+    kernels.incidence_kernel(pts, np.ones(pts.shape[:2], bool), compiled)
+    np.testing.assert_array_equal(compiled, c)  # the kernel the degrader runs
 
 
 def test_boundary_mask_width():

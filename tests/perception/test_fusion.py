@@ -1,5 +1,6 @@
 """The paper's fusion rules: eq. (2) pointmap fusion, eq. (7)-(8) vote fusion, label transfer
-through idx_f2k exactly as MASt3R-SLAM defines it."""
+through idx_f2k exactly as MASt3R-SLAM defines it; the numpy renderings of eq. (2) and of the
+keyframe fusion (``oracles.sim_perception``) and the sim backend's kernels that run them."""
 
 from __future__ import annotations
 
@@ -9,14 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from riskfield.services.perception.fusion import (
-    KeyframeFusion,
-    fuse_pointmap,
-    match_confidence,
-    scatter_to_frame,
-    transfer_labels,
-    vote_fuse,
-)
+from oracles.sim_perception import fuse, fuse_pointmap, scatter_to_frame
+from riskfield.services.perception import kernels
+from riskfield.services.perception.fusion import KeyframeFusion, match_confidence, transfer_labels, vote_fuse
 
 finite = st.floats(-100, 100, allow_nan=False, width=32)
 conf = st.floats(0, 50, allow_nan=False, width=32)
@@ -104,14 +100,31 @@ def test_match_confidence_is_mast3r_qk():
 
 def test_scatter_back_to_frame():
     frame = np.zeros((2, 3), np.uint16)
-    out = scatter_to_frame(np.array([7, 8, 9], np.uint16), np.array([5, 0, 2]), np.array([True, False, True]), frame)
+    values, idx, trusted = np.array([7, 8, 9], np.uint16), np.array([5, 0, 2]), np.array([True, False, True])
+    out = scatter_to_frame(values, idx, trusted, frame)
     assert out.tolist() == [[0, 0, 9], [0, 0, 7]] and frame.sum() == 0
+    labels = frame.copy().reshape(-1)  # the sim backend's kernel, labels only (no points)
+    kernels.current_frame_kernel(np.eye(4), (np.zeros((3, 3), np.float32), values), (idx, trusted, np.full(3, 2.0)),
+                                 1.5, False, (np.zeros((6, 3), np.float32), labels))
+    np.testing.assert_array_equal(labels.reshape(2, 3), out)
 
 
 def test_keyframe_fusion_object():
-    kf = KeyframeFusion(3, 1, 3, np.zeros((3, 3)), np.ones(3), np.array([1, 1, 1]), label_weight=0.5)
-    trusted = kf.fuse(np.ones((3, 3)), np.array([1.0, 1.0, 1.0]), np.array([[2, 1, 2]], np.uint16),
-                      np.array([0, 1, 2]), np.array([True, True, False]), np.array([2.0, 2.0, 2.0]))
+    def keyframe() -> KeyframeFusion:
+        return KeyframeFusion(3, 1, 3, np.zeros((3, 3)), np.ones(3), np.array([1, 1, 1]), label_weight=0.5)
+
+    kf = keyframe()
+    points, conf, labels = np.ones((3, 3), np.float32), np.ones(3, np.float32), np.array([[2, 1, 2]], np.uint16)
+    idx, valid, Qk = np.array([0, 1, 2]), np.array([True, True, False]), np.array([2.0, 2.0, 2.0])
+    trusted = fuse(kf, points, conf, labels, idx, valid, Qk)
     assert trusted.tolist() == [True, True, False]
     np.testing.assert_allclose(kf.X[:, 0], [0.5, 0.5, 0.0])
     assert kf.labels.tolist() == [2, 1, 1] and kf.updates == 1
+    # the sim backend's kernel (T_KC the identity: the frame's points are the keyframe's)
+    k = keyframe()
+    out = (*(np.empty_like(a) for a in (k.X, k.C, k.labels, k.weights)), np.empty(3, bool))
+    kernels.fuse_kernel(np.eye(4), (points, conf, labels.reshape(-1)), (idx, valid, Qk), 1.5,
+                        (k.X, k.C, k.labels, k.weights), out)
+    for name, x, y in zip(("X", "C", "labels", "weights", "trusted"), (kf.X, kf.C, kf.labels, kf.weights, trusted),
+                          out, strict=True):
+        np.testing.assert_array_equal(x, y, err_msg=name)

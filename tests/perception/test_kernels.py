@@ -1,19 +1,19 @@
-"""The sim backend's compiled kernels (``perception.kernels``) against the numpy reference: the
-published frames are byte-identical, in every publish mode, with noise, label errors and drift."""
+"""The sim backend's compiled kernels (``perception.kernels``) against their numpy renderings
+(``oracles.sim_perception``): the published frames are byte-identical, in every publish mode, with
+noise, label errors and drift."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from oracles.sim_perception import NumpyDegrader, NumpySimBackend
 from riskfield.protocol import PerceptionFrame, encode
 from riskfield.services.perception.degrade import DegradationConfig, Degrader
-from riskfield.services.perception.kernels import HAVE_NUMBA
 from riskfield.services.perception.sim_backend import SimBackend, SimBackendConfig
+from riskfield.services.runtime import jit
 from riskfield.services.simulator.scenario import load_scenario
 from riskfield.services.simulator.world import World
-
-pytestmark = pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed")
 
 SCENE = {"room": {"size": [6.0, 5.0]}, "camera": {"width": 160, "height": 120},
          "robot": {"type": "limo", "start": [-1.5, 0.0, 0.0]},
@@ -39,7 +39,7 @@ def test_compiled_backend_publishes_the_same_bytes_as_numpy(publish: str) -> Non
     deg = DegradationConfig(p_confuse=0.5, p_salt=0.01, drift_t=0.01, drift_yaw=0.01)
     cfg = SimBackendConfig(degradation=deg, publish=publish, kf_min_overlap=0.8, correct_every=2, seed=3)
     frames = truths(14)
-    ref, fast = SimBackend(cfg, compiled=False), SimBackend(cfg, compiled=True)
+    ref, fast = NumpySimBackend(cfg), SimBackend(cfg)
     for i, truth in enumerate(frames):
         a = [encode(f) for f in ref.process(None, truth, i + 1)]
         b = [encode(f) for f in fast.process(None, truth, i + 1)]
@@ -57,7 +57,15 @@ def test_compiled_degradation_matches_numpy_on_random_pointmaps() -> None:
         points[rng.random((h, w)) < 0.1] = 0.0
         valid = (rng.random((h, w)) < 0.9) & (points[..., 2] > 0)
         labels = rng.integers(0, 150, (h, w)).astype(np.uint16)
-        a = Degrader(seed=1, compiled=False).observe(points, labels, np.eye(4), valid)
-        b = Degrader(seed=1, compiled=True).observe(points, labels, np.eye(4), valid)
+        a = NumpyDegrader(seed=1).observe(points, labels, np.eye(4), valid)
+        b = Degrader(seed=1).observe(points, labels, np.eye(4), valid)
         for name in ("points", "confidence", "labels", "T_WC", "valid"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_without_numba_the_backend_names_what_to_install(monkeypatch):
+    monkeypatch.setattr(jit, "HAVE_NUMBA", False)  # an install without numba
+    for build in (SimBackend, Degrader):
+        with pytest.raises(ModuleNotFoundError) as info:
+            build()
+        assert info.value.name == "numba"

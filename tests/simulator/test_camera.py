@@ -13,7 +13,7 @@ from riskfield.protocol.platforms import LIMO, CameraMount
 from riskfield.services.geometry.camera import PinholeCamera, T_base_camera
 from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.simulator import procedural, shapes
-from riskfield.services.simulator.camera import Renderer, class_colour
+from riskfield.services.simulator.camera import PALETTE, Renderer
 from riskfield.services.simulator.scene import NO_LABEL, Scene, SceneObject
 
 CAM = PinholeCamera.from_fov(64, 48, 90.0)
@@ -87,7 +87,7 @@ def test_render_labels_misses_and_shading():
     ball = f.labels == 119
     colours = f.rgb[ball].astype(float)
     assert colours.std(axis=0).sum() > 5  # shading varies with the normal over the sphere
-    base = class_colour(np.array([119]))[0] * 255
+    base = PALETTE[119] * 255
     assert np.all(colours <= base + 1)  # shading only darkens the class colour
     empty = Renderer(CAM).render(Scene([SceneObject("b", 41, shapes.box(1, 1, 1), pose_matrix(0, 0, 10))])
                                  .at(0.0), T_WC)

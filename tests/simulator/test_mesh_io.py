@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from oracles.sim_camera import cast
 from riskfield.protocol import ade20k
 from riskfield.services.simulator import shapes
 from riskfield.services.simulator.mesh_io import (
@@ -88,8 +89,8 @@ def test_loaded_mesh_becomes_a_scene_object_with_per_triangle_labels(tmp_path):
     assert obj.watertight and obj.triangle_labels is not None
     scene = Scene([obj])
     assert scene.signed_distance(np.array([[0, 0, 0.5]]))[0] == pytest.approx(-0.5, abs=1e-5)
-    hits = scene.cast(np.array([[0, 0, 5.0], [0, 0, -5.0], [5, 0, 0.5], [-5, 0, 0.5]]),
-                      np.array([[0, 0, -1.0], [0, 0, 1.0], [-1, 0, 0], [1, 0, 0]]))
+    hits = cast(scene.at(), np.array([[0, 0, 5.0], [0, 0, -5.0], [5, 0, 0.5], [-5, 0, 0.5]]),
+                np.array([[0, 0, -1.0], [0, 0, 1.0], [-1, 0, 0], [1, 0, 0]]))
     assert set(hits.label.tolist()) <= {15, 7} and len(set(hits.label.tolist())) == 2
 
 

@@ -1,6 +1,6 @@
 """Scenes: primitives are watertight, ground-truth signed distance matches analytic distances,
-ray casting returns the right labels, motion and appearance work, procedural rooms are
-deterministic and non-overlapping."""
+ray casting through the snapshot's tables returns the right labels, motion and appearance work,
+procedural rooms are deterministic and non-overlapping."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.sim_camera import cast
 from riskfield.protocol import ade20k
 from riskfield.services.geometry.transforms import pose_matrix
 from riskfield.services.simulator import procedural, shapes
@@ -77,12 +78,13 @@ def test_cast_returns_hit_distance_normal_label_and_object():
                                                         pose_matrix(2.0, 0, 0.001))])
     o = np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0.5], [0, 0, 0.5]])
     d = np.array([[1, 0, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]], float)
-    h = scene.cast(o, d)
+    h = cast(scene.at(), o, d)
     np.testing.assert_allclose(h.t, [1.75, 3.0, 0.5, 2.0], atol=1e-5)
     assert h.label.tolist() == [126, 0, 3, 5]
     assert scene.objects[h.object[0]].name == "dog"
     np.testing.assert_allclose(np.abs(h.normal[0]), [1, 0, 0], atol=1e-6)
-    miss = Scene([SceneObject("b", 41, shapes.box(1, 1, 1))]).cast(np.array([0, 0, -0.5]), np.array([0, 0, -1.0]))
+    box = Scene([SceneObject("b", 41, shapes.box(1, 1, 1))])
+    miss = cast(box.at(), np.array([0, 0, -0.5]), np.array([0, 0, -1.0]))
     assert not miss.hit and miss.label == NO_LABEL and miss.object == -1
 
 
@@ -92,7 +94,7 @@ def test_per_triangle_labels_are_looked_up():
     up = np.einsum("ij,ij->i", np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), [[0, 0, 1]] * len(t)) > 0
     labels[up] = 7
     scene = Scene([SceneObject("m", 15, (v, t), triangle_labels=labels)])
-    h = scene.cast(np.array([[0, 0, 3.0], [3, 0, 0.5]]), np.array([[0, 0, -1.0], [-1, 0, 0]]))
+    h = cast(scene.at(), np.array([[0, 0, 3.0], [3, 0, 0.5]]), np.array([[0, 0, -1.0], [-1, 0, 0]]))
     assert h.label.tolist() == [7, 15]
 
 

@@ -26,6 +26,9 @@ from riskfield.services.simulator.world import World
 
 app = typer.Typer(add_completion=False)
 
+#: One ray from the origin along +x, packed as open3d takes it (origin, direction).
+RAY = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]], np.float32)
+
 
 def _time(fn: Callable[[], object], n: int) -> dict[str, float]:
     fn()  # warm-up
@@ -54,7 +57,7 @@ def sim(out: Annotated[Path, typer.Option(help="Folder for summary.json.")] = Pa
 
     def rebuild() -> None:
         t[0] += 0.1  # the walker moved: a new raycasting scene (its BVH is built on the first query)
-        world.scene.at(t[0]).cast(np.zeros(3), np.array([1.0, 0.0, 0.0]))
+        world.scene.at(t[0]).cast_packed(RAY)
 
     results["scene rebuild + first ray (moving object)"] = _time(rebuild, n)
     pts = np.random.default_rng(0).uniform([-3.5, -3.5, 0], [3.5, 3.5, 2.5], (10_000, 3))
