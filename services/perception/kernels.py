@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.jit import HAVE_NUMBA, njit
+from ..runtime.jit import HAVE_NUMBA
+from ..runtime.kernels import jit
 
 if HAVE_NUMBA:
 
-    @njit(cache=True, nogil=True)
+    @jit
     def match_kernel(T_CW: np.ndarray, keyframe: tuple, truth: tuple, camera: tuple, tol: tuple,
                      out: tuple) -> int:
         """Per keyframe pixel: reproject its true world point into the current camera (``T_CW``),
@@ -63,7 +64,7 @@ if HAVE_NUMBA:
                 n_valid += 1
         return n_valid
 
-    @njit(cache=True, nogil=True)
+    @jit
     def fuse_kernel(T_KC: np.ndarray, frame: tuple, matches: tuple, Q_conf: float, state: tuple,
                     out: tuple) -> None:
         """One tracked frame fused into a keyframe (eq. 2 and 7–8 of ``fusion``, ``SimBackend._fuse``): the
@@ -104,7 +105,7 @@ if HAVE_NUMBA:
                     wk = -wk
                 weights_out[k] = np.float32(wk)
 
-    @njit(cache=True, nogil=True)
+    @jit
     def incidence_kernel(points: np.ndarray, valid: np.ndarray, cos: np.ndarray) -> None:
         """|cos| of the viewing ray to the surface normal per pixel, the normal from neighbouring
         points: central differences, one-sided at the border, in float32 (the oracle's
@@ -139,7 +140,7 @@ if HAVE_NUMBA:
                 c = abs(dot) / (r if r > 0 else one)
                 cos[v, u] = min(max(c, np.float32(0.0)), one)
 
-    @njit(cache=True, nogil=True)
+    @jit
     def depth_noise_kernel(frame: tuple, draws: tuple, model: tuple, out: tuple) -> None:
         """Range noise along each pixel's ray and the confidence (``Degrader.observe``).
 
@@ -170,7 +171,7 @@ if HAVE_NUMBA:
                     noisy[v, u, j] = np.float32(np.float64(points[v, u, j]) * s)
                 conf[v, u] = np.float32(1.0 + np.float64(g * c) * e[v, u])
 
-    @njit(cache=True, nogil=True)
+    @jit
     def current_frame_kernel(T_CK: np.ndarray, keyframe: tuple, matches: tuple, Q_conf: float,
                              with_points: bool, frame: tuple) -> None:
         """The current frame's message (``SimBackend._current_frame``): over trusted matches (valid

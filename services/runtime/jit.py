@@ -29,18 +29,15 @@ from contextlib import contextmanager
 from typing import Any
 
 numba: Any
-njit: Any
 try:
     import numba
-    from numba import njit
 
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - exercised on installs without numba
     numba = None
-    njit = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "CompileWatch", "kernels", "njit", "numba", "require_numba", "threads", "watch_compiles"]
+__all__ = ["HAVE_NUMBA", "CompileWatch", "kernels", "numba", "require_numba", "threads", "watch_compiles"]
 
 
 def require_numba(what: str) -> None:

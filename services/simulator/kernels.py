@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.jit import HAVE_NUMBA, njit
+from ..runtime.jit import HAVE_NUMBA
+from ..runtime.kernels import jit
 
 if HAVE_NUMBA:
 
-    @njit(cache=True, nogil=True)
+    @jit
     def shade_kernel(hits: tuple, camera: tuple, scene: tuple, shading: tuple, out: tuple) -> None:
         """Per ray k (flattened pixels): depth, camera-frame point ``rays·depth``, label, world normal,
         object index (zero / ``no_label`` / −1 where nothing was hit within ``max_depth``) and the
@@ -64,7 +65,7 @@ if HAVE_NUMBA:
             for c in range(3):
                 rgb[k, c] = np.uint8(lut[lab, c] * shade + half)
 
-    @njit(cache=True, nogil=True)
+    @jit
     def pack_rays_kernel(R: np.ndarray, origin: np.ndarray, rays_cam: np.ndarray, out: np.ndarray) -> None:
         """open3d's (N, 6) ray rows: the camera origin and each camera-frame ray rotated into the
         world by ``R`` (float32 sums ``R[i,0]·v0 + R[i,1]·v1 + R[i,2]·v2``, in that order)."""
