@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.kernels import Layout, jit, view1, view3
+from ..runtime.jit import jit
+from ..runtime.kernels import Layout, view1, view3
 from . import spline as field_spline
 from .grid import EsdfField
 from .grid import axis_weights as trilinear_weights

@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
+from ..runtime.jit import jit
 from ..runtime.jit import threads as thread_count
-from ..runtime.kernels import jit
 
 _INF = 1 << 30  # "no site on this line yet": larger than any squared distance in a grid of < 2^14 voxels a side
 

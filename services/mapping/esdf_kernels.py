@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..runtime.kernels import jit
+from ..runtime.jit import jit
 
 
 @jit(parallel=True, error_model="numpy")

@@ -48,7 +48,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.kernels import Layout, jit, view1, view2
+from ..runtime.jit import jit
+from ..runtime.kernels import Layout, view1, view2
 
 #: The wave's workspace, one flat buffer per element type: the two maps (site, key and the cells'
 #: linked lists), the group map ``state``, the field, the wave's queue and dirty list, the key

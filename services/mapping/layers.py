@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.kernels import jit
+from ..runtime.jit import jit
 from .volume import shift_array
 
 NEVER = np.iinfo(np.int32).min // 2

@@ -65,7 +65,7 @@ from scipy import ndimage
 
 from riskfield.protocol import TrackedObject
 
-from ..runtime.kernels import jit
+from ..runtime.jit import jit
 from .config import DynamicParams, MapperConfig, ObjectParams
 from .layers import NEVER, NO_LABEL
 

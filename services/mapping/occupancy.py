@@ -92,7 +92,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..runtime.kernels import jit
+from ..runtime.jit import jit
 from .layers import NO_LABEL, SemanticLayer, TsdfLayer
 from .raycast import ray_voxels
 

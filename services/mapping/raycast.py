@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.kernels import jit
+from ..runtime.jit import jit
 
 _EPS = 1e-9
 

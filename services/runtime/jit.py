@@ -1,11 +1,11 @@
-"""numba where it is installed: the one optional import behind the compiled kernels, and what a
-node says while numba compiles.
+"""numba where it is installed: the one optional import behind the compiled kernels, the one
+decorator every kernel has (:func:`jit`), and what a node says while numba compiles.
 
 The simulated camera path (``perception.kernels``, ``simulator.kernels``) and the filter's
 compiled step (``safety_filter.compiled``) run only compiled: where their kernels are built
 without numba, a ``ModuleNotFoundError`` for ``numba`` (:func:`require_numba`) stops the node at
-start with the runtime's one-line install hint (``service.missing_extra``). Mapping imports numba
-directly. The extras that run them (``robot``, ``mapping``, ``sim``) install it.
+start with the runtime's one-line install hint (``service.missing_extra``). The extras that run
+them (``robot``, ``mapping``, ``sim``) install it.
 
 Every kernel is ``cache=True``: numba keeps its machine code on disk and a later process loads it
 instead of compiling. Where (numba/core/caching.py, ``CacheImpl._locator_classes``, first that
@@ -37,7 +37,18 @@ except ImportError:  # pragma: no cover - exercised on installs without numba
     numba = None
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "CompileWatch", "kernels", "numba", "require_numba", "threads", "watch_compiles"]
+__all__ = ["HAVE_NUMBA", "CompileWatch", "jit", "kernels", "numba", "require_numba", "threads", "watch_compiles"]
+
+
+def jit(fn=None, **options):
+    """``numba.njit`` with the on-disk cache (compiled once per install) and without the GIL, plus
+    numba's ``options`` (``parallel``, ``inline``, ``error_model``): the one decorator of every
+    kernel. Without numba, ``fn`` itself. ``@jit`` and ``@jit(**options)`` both work."""
+
+    def wrap(f):
+        return numba.njit(cache=True, nogil=True, **options)(f) if HAVE_NUMBA else f
+
+    return wrap if fn is None else wrap(fn)
 
 
 def require_numba(what: str) -> None:

@@ -2,8 +2,6 @@
 :func:`view1`, :func:`view2`, :func:`view3` carve them inside a kernel, so every compiled path (the
 field query, the filter step, the mapping, perception and simulator kernels) takes a few flat
 buffers and a table instead of one argument per array.
-
-Without numba the same functions run as Python (:func:`jit` returns the function itself).
 """
 
 from __future__ import annotations
@@ -14,18 +12,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from .jit import HAVE_NUMBA, numba
-
-
-def jit(fn=None, **options):
-    """``numba.njit`` with the on-disk cache (compiled once per install) and without the GIL, plus
-    numba's ``options`` (``parallel``, ``inline``, ``error_model``): the one decorator of every
-    kernel. Without numba, ``fn`` itself. ``@jit`` and ``@jit(**options)`` both work."""
-
-    def wrap(f):
-        return numba.njit(cache=True, nogil=True, **options)(f) if HAVE_NUMBA else f
-
-    return wrap if fn is None else wrap(fn)
+from .jit import HAVE_NUMBA, jit
 
 
 class Layout:

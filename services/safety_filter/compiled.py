@@ -44,8 +44,8 @@ import numpy as np
 
 from ..fields.compiled import QUERY_SCRATCH_SIZE, kernel_view, query_point
 from ..fields.grid import EsdfField
-from ..runtime.jit import HAVE_NUMBA
-from ..runtime.kernels import Layout, jit, view1, view2, view3
+from ..runtime.jit import HAVE_NUMBA, jit
+from ..runtime.kernels import Layout, view1, view2, view3
 from . import model as mdl
 from .model import GAIN_COLUMNS, OBJECT_COLUMNS, YIELD, DescInts
 from .state import FilterState

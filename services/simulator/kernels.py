@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..runtime.jit import HAVE_NUMBA
-from ..runtime.kernels import jit
+from ..runtime.jit import HAVE_NUMBA, jit
 
 if HAVE_NUMBA:
 

@@ -11,9 +11,9 @@ from riskfield.protocol import EsdfGrid, decode, encode
 from riskfield.services.fields import AnalyticField, EsdfField, to_esdf, to_grid_message
 from riskfield.services.fields import compiled as fc
 from riskfield.services.geometry.shapes import Plane, Sphere
-from riskfield.services.runtime import kernels
+from riskfield.services.runtime import jit, kernels
 
-pytestmark = pytest.mark.skipif(not kernels.HAVE_NUMBA, reason="numba is not installed")
+pytestmark = pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba is not installed")
 
 INTERPOLATIONS = ["trilinear", "catmull_rom", "bspline", "bspline_smooth"]
 
@@ -62,8 +62,8 @@ def test_a_decoded_message_gives_the_same_kernel_arrays():
     assert b[0].dtype == np.float64 and b[0].flags.writeable and b[1].dtype == np.uint8 and b[1].flags.writeable
 
 
-if kernels.HAVE_NUMBA:
-    @kernels.numba.njit  # no on-disk cache: a test leaves nothing behind
+if jit.HAVE_NUMBA:
+    @jit.numba.njit  # no on-disk cache: a test leaves nothing behind
     def _stamp_slots(fbuf, ftab, ibuf, itab, k1, k2, k3):
         """Through the compiled views: slot k1 (1-D) += 1, k2 (2-D) [i, j] += 10 i + j, k3 (3-D)
         [i, j, l] -= 100 i + 10 j + l on the float buffer, and the int slot 0 (1-D) += its index.
