@@ -897,4 +897,5 @@ class CompiledStep:
             field = EsdfField(np.ones(shape, np.float32), (0.0, 0.0, 0.0), 0.1, interpolation="bspline_smooth")
             state = FilterState(np.array([0.15, 0.15, 0.0 if planar else 0.15]))
             self.run(state, np.zeros(self.n), np.zeros(3), field, table)
+        points_kernel(self.wf, self.wi, self.lf, self.li, self.dl)  # the phase a field's own query follows
         self._field = None

@@ -106,21 +106,28 @@ def test_compiled_step_equals_the_numpy_step(model, seed):
         assert_same(fast.filter(s, u_ref, field, ang), slow.filter(s, u_ref, field, ang))
 
 
-@pytest.mark.parametrize("model", MODELS)
-def test_the_compiled_step_intervenes_and_relaxes_like_the_numpy_step(model):
-    # Not vacuous: the random cases above include interventions, slack steps and brakes.
-    rng = np.random.default_rng(7)
+def outcomes_alike(model: str, field, rng: np.random.Generator, steps: int) -> set:
+    """The default filter's step and its oracle on ``steps`` random states and references: the
+    same result each time; returns the outcomes seen (``intervening``, None or a fallback)."""
     planar = model in ("unicycle", "single2d")
-    field = random_field(rng, planar, "bspline_smooth")
     fast = SafetyFilter(FilterConfig(model=model))  # type: ignore[arg-type]
     slow = ReferenceFilter(fast)
     seen = set()
-    for _ in range(400):
+    for _ in range(steps):
         s = random_state(rng, planar)
         u_ref = rng.uniform(fast.model.lo, fast.model.hi)
         a, b = fast.filter(s, u_ref, field), slow.filter(s, u_ref, field)
         assert_same(a, b)
         seen.add("intervening" if a.intervening and a.fallback is None else a.fallback)
+    return seen
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_the_compiled_step_intervenes_and_relaxes_like_the_numpy_step(model):
+    # Not vacuous: the random cases above include interventions, slack steps and brakes.
+    rng = np.random.default_rng(7)
+    field = random_field(rng, model in ("unicycle", "single2d"), "bspline_smooth")
+    seen = outcomes_alike(model, field, rng, 400)
     assert {"intervening", None, "outside_map"} <= seen, seen
 
 
@@ -177,16 +184,9 @@ def test_analytic_fields_are_queried_by_the_caller_and_stepped_alike(model):
     shapes = [Sphere(tuple(rng.uniform([0.4, -0.4, -0.1], [1.2, 0.4, 0.1])), 0.25, label=1, planar=planar),
               Plane.through((0.0, -0.8, 0.0), (math.sin(0.3), math.cos(0.3), 0.0), label=2)]
     field = AnalyticField(shapes, groups=GROUPS)
-    fast = SafetyFilter(FilterConfig(model=model))  # type: ignore[arg-type]
-    slow = ReferenceFilter(fast)
+    SafetyFilter(FilterConfig(model=model))  # type: ignore[arg-type]
     before = len(compiled.points_kernel.signatures)
-    seen = set()
-    for _ in range(200):
-        s = random_state(rng, planar)
-        u_ref = rng.uniform(fast.model.lo, fast.model.hi)
-        a, b = fast.filter(s, u_ref, field), slow.filter(s, u_ref, field)
-        assert_same(a, b)
-        seen.add("intervening" if a.intervening and a.fallback is None else a.fallback)
+    seen = outcomes_alike(model, field, rng, 200)
     assert "intervening" in seen, seen
     assert len(compiled.points_kernel.signatures) == before  # loaded at construction
 
