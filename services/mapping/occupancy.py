@@ -56,7 +56,7 @@ the first observed voxel (or the map's edge), so the inside of an obstacle reads
 deep, also where only one face was seen — a 1.2 m sofa seen end-on is negative 0.3, 0.8 and 1.1 m
 inside, its gradient pointing out of the shadow (back to the seen face, up or sideways: wherever
 observed or unshadowed space is nearest), never further in along the line of sight. A bounded fill
-(0.5 m, the previous default) left the inside free again past τ + D, with the gradient pointing
+(0.5 m, say) leaves the inside free again past τ + D, with the gradient pointing
 further in: a look-ahead point that overshot the fill was pushed deeper. The trade-off: the fill
 also closes the never-observed space behind an obstacle — the part of a doorway hidden behind its
 jamb, the floor behind a sofa, the space behind a thin pole — until a camera looks into it; the
@@ -79,11 +79,13 @@ that no ray ever crossed reads solid until a camera looks under it. ``"free"`` l
 fill did not claim is also an obstacle, of the ``unknown_group``.
 
 Cost: two passes over the grid, and work in proportion to the obstacle voxels (the wavefront, the
-marches from the interior's border and the closing around the filled voxels); about 2 ms for
-the benchmark room in 101³ voxels.
+marches from the interior's border and the closing around the filled voxels: the passes after
+the wavefront visit only the columns, neighbours and voxels these can change; the whole-volume
+scans are the tests' oracle, ``tests/oracles/occupancy.py``); about 2 ms for the benchmark room in
+101³ voxels.
 
-``obstacle_interior = "shell"`` keeps the former behaviour (only the surface band is occupied;
-the inside of an obstacle reads as free space), for comparison.
+``obstacle_interior = "shell"`` occupies only the surface band: the inside of an obstacle reads as
+free space.
 """
 
 from __future__ import annotations
@@ -131,14 +133,15 @@ def _solid_at(f: int, state: np.ndarray, filled: np.ndarray, g: np.ndarray) -> b
 def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> None:
     """Fill ``groups`` (all zero on entry) with the solid semantic occupancy of ``layers`` = (tsdf,
     weight, view, label); see the module docstring. ``rule`` = (min_w, band, fill_steps,
-    unknown_group, support_steps, sparse), as ``OccupancyRule``'s.
+    unknown_group, support_steps), as ``OccupancyRule``'s.
 
-    ``sparse``: the support pass visits only the (i, j) columns holding an observed obstacle voxel,
+    Sparse: the support pass visits only the (i, j) columns holding an observed obstacle voxel,
     the second pinhole pass only the neighbours of the voxels the first one closed, and the final
     pass only the voxels the wavefront reached (when ``unknown_group`` is 0) — the only ones these
-    passes can change; ``False`` scans all of them (the reference, same result)."""
+    passes can change. The same passes over the whole volume are the tests' oracle
+    (``tests/oracles/occupancy.py``), which gives the same result."""
     tsdf, weight, view, label = layers
-    min_w, band, fill_steps, unknown_group, support_steps, sparse = rule
+    min_w, band, fill_steps, unknown_group, support_steps = rule
     nx, ny, nz = tsdf.shape
     n = nx * ny * nz
     t = tsdf.reshape(n)
@@ -254,12 +257,11 @@ def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> N
             # an obstacle (free space, the floor) disarms it.
             # Only a column with an observed obstacle voxel arms the budget; those voxels are in
             # the wavefront's queue (state 3 is set nowhere else before this pass).
-            column = np.ones(nx * ny, np.bool_) if not sparse else np.zeros(nx * ny, np.bool_)
-            if sparse:
-                for m in range(tail):
-                    f = queue[m]
-                    if g[f] != _FREE and g[f] != 0:
-                        column[f // nz] = True
+            column = np.zeros(nx * ny, np.bool_)
+            for m in range(tail):
+                f = queue[m]
+                if g[f] != _FREE and g[f] != 0:
+                    column[f // nz] = True
             for i in range(nx):
                 for j in range(ny):
                     if not column[i * ny + j]:
@@ -284,8 +286,8 @@ def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> N
         # Close the pinholes the diverging marches leave: twice, a never-observed voxel between
         # two obstacle voxels (filled or observed interior) along an axis. Only neighbours of
         # filled voxels can qualify, and a voxel a pass does not close has the same neighbours
-        # at the next pass unless one of them was closed: so the second pass (``sparse``) looks
-        # only around the voxels the first one closed.
+        # at the next pass unless one of them was closed: so the second pass looks only around the
+        # voxels the first one closed.
         n_filled = n_marked
         first = 0
         for _ in range(2):
@@ -318,11 +320,10 @@ def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> N
             for m in range(n_old, n_filled):
                 filled[cand[m]] = True
                 state[cand[m]] = 2
-            if sparse:
-                first = n_old
+            first = n_old
         for m in range(n_filled):
             state[cand[m]] = 3
-    if sparse and unknown_group <= 0:
+    if unknown_group <= 0:
         # The free mark is only ever set by the wavefront (fills and pinholes copy obstacle groups).
         for m in range(tail):
             f = queue[m]
@@ -346,7 +347,6 @@ class OccupancyRule(NamedTuple):
     interior: str = "solid"
     fill_steps: int = 0
     support_steps: int = 0
-    sparse: bool = True
 
 
 def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group: np.ndarray,
@@ -358,8 +358,7 @@ def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group:
     also fills never-observed voxels up to that many voxel steps behind an obstacle's observed
     interior, and ``support_steps`` > 0 (with ``fill_steps`` > 0) never-observed voxels up to that
     many voxels straight below an observed obstacle voxel. ``unknown_group`` > 0 marks the remaining
-    never-observed voxels as obstacles of that group. ``sparse=False``: the whole-volume scans
-    (the reference of the default's skipped work; the same result).
+    never-observed voxels as obstacles of that group.
     """
     min_weight, surface_band, unknown_group, interior = rule[:4]
     if interior == "solid":
@@ -368,7 +367,7 @@ def semantic_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group:
         layers = (np.ascontiguousarray(tsdf.tsdf), np.ascontiguousarray(tsdf.weight), np.ascontiguousarray(tsdf.view),
                   np.ascontiguousarray(semantic.label))
         numbers = (float(max(min_weight, 1e-12)), float(surface_band), int(rule.fill_steps), int(unknown_group),
-                   int(rule.support_steps), bool(rule.sparse))
+                   int(rule.support_steps))
         _solid(layers, lut, numbers, groups)
         return groups
     if interior != "shell":
