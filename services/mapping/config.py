@@ -68,6 +68,30 @@ class VolumeParams(BaseModel):
         return tuple(2 * round(h / self.voxel_size) + 1 for h in self.half_extent)  # type: ignore[return-value]
 
 
+#: Parameters that chose a reference implementation, removed: setting one (a node setting,
+#: ``MappingSettings.REMOVED``, or a core parameter) is an error that names what replaced it.
+REMOVED_SETTINGS: dict[str, str] = {
+    "esdf_update": "removed: the 3-D grid is updated incrementally (esdf_incremental chooses how) and "
+                   "recomputed in full only where it has no previous grid (the first map, a moved volume, "
+                   "new margins)",
+    "esdf_kernel": "removed: the 3-D field always runs the compiled passes (esdf_kernels); the numpy path "
+                   "is the tests' oracle (tests/oracles/esdf.py)",
+    "esdf_edt": "removed: the distance transforms are always the compiled ones (distance_transform); the "
+                "edt package is the tests' oracle (tests/oracles/esdf.py)",
+    "carve_stride": "removed: it strided the per-pixel carving rays of integration 'ray', now the tests' oracle "
+                    "(tests/oracles/tsdf.py); every merged ray carves (integration 'merged') and the projective "
+                    "pass carves every voxel in view in front of the surface",
+}
+_TSDF_REMOVED = ("carve_stride",)
+_ESDF_REMOVED = ("esdf_update", "esdf_kernel", "esdf_edt")
+
+def _refuse_removed(data: dict, keys: tuple[str, ...]) -> None:
+    """Raise for the first of the removed parameters ``keys`` that ``data`` sets, naming what replaced it."""
+    for key in keys:
+        if key in data:
+            raise ValueError(f"{key!r} is not a parameter: {REMOVED_SETTINGS[key]}")
+
+
 class TsdfParams(BaseModel):
     """TSDF integration of a pointmap (projective, weighted by confidence; free-space carving)."""
 
@@ -79,7 +103,7 @@ class TsdfParams(BaseModel):
     """Cap of a voxel's accumulated weight, so the map can still follow moving people and pets:
     the TSDF is a running mean over the last few frames' worth of confidence. A person who stood
     3 s clears 2–9 frames after leaving at confidence 10–1.5 (``tests/mapping/test_present.py``).
-    20 clears in 1–4 but lets the carving rays of the ray integrators (frames without intrinsics,
+    20 clears in 1–4 but lets the carving rays of the ray-based integration (frames without intrinsics,
     e.g. ``mast3r``) erode surfaces seen up close. Under the keyframe protocol it caps the present
     layer; the keyframes' own sums are uncapped (``keyframes.py``)."""
     min_confidence: NonNeg = 0.1
@@ -90,11 +114,10 @@ class TsdfParams(BaseModel):
     """Points farther than this (m, along the ray) only carve free space up to it."""
     pixel_stride: Annotated[int, Field(ge=1, le=64)] = 2
     """Integrate every n-th pixel in each image direction (a 5 cm voxel at 2.5 m spans ~8 px)."""
-    integration: Literal["projective", "merged", "ray"] = "projective"
+    integration: Literal["projective", "merged"] = "projective"
     """``projective``: frames with intrinsics project the voxels in view into the pointmap, TSDF and
     label votes in one pass (``projective_integrator.py``), other frames take ``merged``;
-    ``merged``: one ray per voxel the frame's points fall in; ``ray``: one per pixel (slowest; kept as
-    the reference the other two are tested against)."""
+    ``merged``: every frame casts one ray per voxel its points fall in (``tsdf_integrator.py``)."""
     block_size: Annotated[int, Field(ge=2, le=64)] = 8
     """``projective``: voxels per block edge; only blocks meeting the view frustum are visited."""
     integration_threads: Annotated[int, Field(ge=1, le=64)] = 1
@@ -103,8 +126,6 @@ class TsdfParams(BaseModel):
     it took 70–80 ms (every parallel loop waits for its slowest thread)."""
     carve: bool = True
     """Also update free space from the camera to the surface band (clears moved obstacles)."""
-    carve_stride: Annotated[int, Field(ge=1, le=64)] = 4
-    """``ray`` integration only: every n-th pixel carves."""
     carve_weight: Annotated[float, Field(gt=0, le=100.0)] = 1.0
     """Weight of a free-space observation relative to its pixel's confidence."""
     max_free_weight: Pos = 3.0
@@ -116,6 +137,17 @@ class TsdfParams(BaseModel):
     50 would take 2 s at 7). Lower shows single-frame outliers as obstacles."""
     max_pixels: Annotated[int, Field(gt=0)] = 4_000_000
     """Frames with more pixels than this are rejected as absurd."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _removed_tsdf(cls, data: object) -> object:
+        if isinstance(data, dict):
+            _refuse_removed(data, _TSDF_REMOVED)
+            if data.get("integration") == "ray":
+                raise ValueError("integration 'ray' is removed: frames with intrinsics take 'projective', the "
+                                 "others 'merged' (one ray per voxel the frame's points fall in); one ray per pixel "
+                                 "is the tests' oracle of both (tests/oracles/tsdf.py)")
+        return data
 
     @model_validator(mode="after")
     def _depth_range(self) -> TsdfParams:
@@ -165,19 +197,6 @@ class OccupancyParams(BaseModel):
     """Risk group of unknown voxels; ``None`` → the risk config's default group, else its last group."""
 
 
-#: ``EsdfParams`` fields that chose a reference implementation, removed: setting one (a node setting,
-#: ``MappingSettings.REMOVED``, or a core parameter) is an error that names what replaced it.
-REMOVED_SETTINGS: dict[str, str] = {
-    "esdf_update": "removed: the 3-D grid is updated incrementally (esdf_incremental chooses how) and "
-                   "recomputed in full only where it has no previous grid (the first map, a moved volume, "
-                   "new margins)",
-    "esdf_kernel": "removed: the 3-D field always runs the compiled passes (esdf_kernels); the numpy path "
-                   "is the tests' oracle (tests/oracles/esdf.py)",
-    "esdf_edt": "removed: the distance transforms are always the compiled ones (distance_transform); the "
-                "edt package is the tests' oracle (tests/oracles/esdf.py)",
-}
-
-
 class EsdfParams(BaseModel):
     """The risk-inflated ESDF: clipping, inflation rule, output form and EDT threads."""
 
@@ -210,8 +229,7 @@ class EsdfParams(BaseModel):
     @classmethod
     def _removed(cls, data: object) -> object:
         if isinstance(data, dict):
-            for key in REMOVED_SETTINGS.keys() & data.keys():
-                raise ValueError(f"{key!r} is not a parameter: {REMOVED_SETTINGS[key]}")
+            _refuse_removed(data, _ESDF_REMOVED)
         return data
 
     @model_validator(mode="after")

@@ -1,28 +1,32 @@
-"""Pointmap + pose + confidence → TSDF (the first step of the paper's Algorithm 1).
+"""Pointmap + pose + confidence → TSDF by rays (the first step of the paper's Algorithm 1), for
+frames without intrinsics.
 
-A ``PerceptionFrame`` carries no intrinsics (MASt3R-SLAM runs uncalibrated), so the update
-is *ray-based* rather than projective: each pixel's camera-frame point ``p`` defines the ray
-from the camera centre ``o`` through it, at range ``r = |p|``. For every voxel the ray
-crosses within the truncation band, with ``t_c`` the projection of the voxel centre ``c``
-on the ray,
+A ``PerceptionFrame`` from an uncalibrated source (MASt3R-SLAM) carries no intrinsics, so the
+projective pass (``projective_integrator.py``) cannot map voxels to pixels; the update follows
+rays instead, and is the mapper's path for every frame when ``integration = "merged"``. A pixel's
+camera-frame point ``p`` defines the ray from the camera centre ``o`` through it, at range
+``r = |p|``. For every voxel the ray crosses within the truncation band, with ``t_c`` the
+projection of the voxel centre ``c`` on the ray,
 
     sdf = r − t_c,                   kept if sdf ≥ −τ, clipped to sdf ≤ τ,
     D  ← (W·D + q·sdf) / (W + q),    W ← min(W + q, W_max),
 
-where ``q`` is the pixel's confidence (the SLAM matching confidence is the observation
+where ``q`` is the observation's confidence (the SLAM matching confidence is the observation
 weight, as in the paper), ``τ`` the truncation and ``W_max`` a cap that keeps the map able
 to follow moving people and pets. Pixels with ``q < q_min``, non-positive or tiny range are
-skipped. Every ``pixel_stride``-th pixel updates the surface band, and its ray also carves
-free space from the camera to the band (D → τ) with weight ``carve_weight · q``: free-space
-evidence clears a moved obstacle within a few frames. Points beyond ``max_depth`` only carve
-up to it.
+skipped; every ``pixel_stride``-th pixel in each image direction is used.
 
-``integration = "merged"`` (default, the idea of voxblox's merged integrator): the pixels whose
-points fall into the same voxel are merged into one ray towards their confidence-weighted mean
-point, carrying their summed confidence to the band and their mean confidence (one free-space
-observation) to the carving — at 5 cm, a 512×384 frame has tens of thousands of pixels but
-only a few thousand surface voxels, so this is several times faster. ``integration = "ray"``
-casts every pixel's own ray as described above (carving every ``carve_stride``-th pixel).
+Rays are *merged* (the idea of voxblox's merged integrator): the pixels whose points fall into
+the same voxel become one ray towards their confidence-weighted mean point, carrying their summed
+confidence to the band and their mean confidence (one free-space observation) to the carving.
+At 5 cm a 512×384 frame has tens of thousands of pixels but only a few thousand surface voxels,
+so one ray per voxel is several times cheaper than one per pixel, for (nearly) the same surface
+(``tests/mapping/test_tsdf.py`` compares it with one ray per pixel, the test oracle
+``tests/oracles/tsdf.py``). Each merged ray also carves free space from the camera to its band
+(D → τ) with weight ``carve_weight`` × the mean confidence, raising a voxel's weight only up to
+``max_free_weight``: free-space evidence clears a moved obstacle within a few frames. A point
+beyond ``max_depth`` or outside the volume keeps its own ray (its band may still reach in); beyond
+``max_depth`` it only carves, up to ``max_depth``.
 """
 
 from __future__ import annotations
@@ -41,9 +45,8 @@ from .volume import Volume
 FLOATS = Layout("TsdfFloats", [("R", (3, 3)), ("camera", (3,)), ("origin", (3,)), ("voxel", (1,)),
                                ("free_max", (1,)), ("trunc", (1,)), ("w_max", (1,)), ("q_min", (1,)),
                                ("r_min", (1,)), ("r_max", (1,)), ("carve_scale", (1,))])
-#: ... and an int64 one: the grid's shape, the clock (``TsdfLayer.hit``) and the strides.
-INTS = Layout("TsdfInts", [("shape", (3,)), ("now", (1,)), ("stride", (1,)), ("carve", (1,)),
-                           ("carve_stride", (1,))])
+#: ... and an int64 one: the grid's shape, the clock (``TsdfLayer.hit``), the pixel stride and whether to carve.
+INTS = Layout("TsdfInts", [("shape", (3,)), ("now", (1,)), ("stride", (1,)), ("carve", (1,))])
 _TF, _TI = FLOATS.table(), INTS.table()
 _F, _I = FLOATS.slot, INTS.slot
 
@@ -95,48 +98,6 @@ def _ray(layer: tuple, fl: np.ndarray, it: np.ndarray, geo: np.ndarray, r: float
                     view[i, j, k, a] = np.int8(np.rint(127.0 * dw[a]))
         _update(tsdf, weight, i, j, k, sdf, q, w_max, cap_free)
     return n
-
-
-@jit(error_model="numpy")
-def _integrate(frame: tuple, layer: tuple, fl: np.ndarray, it: np.ndarray) -> int:
-    """Per-pixel rays of ``frame`` = (points, confidence): every ``stride``-th pixel updates its
-    band, every ``carve_stride``-th carves."""
-    points, conf = frame
-    R = view2(fl, _TF, _F.R)
-    vs, trunc = view1(fl, _TF, _F.voxel)[0], view1(fl, _TF, _F.trunc)[0]
-    q_min, r_min, r_max = view1(fl, _TF, _F.q_min)[0], view1(fl, _TF, _F.r_min)[0], view1(fl, _TF, _F.r_max)[0]
-    carve_scale = view1(fl, _TF, _F.carve_scale)[0]
-    stride, carve = view1(it, _TI, _I.stride)[0], view1(it, _TI, _I.carve)[0] != 0
-    carve_stride = view1(it, _TI, _I.carve_stride)[0]
-    h, w = conf.shape
-    buf = np.empty((view1(it, _TI, _I.shape).sum() + 4, 3), dtype=np.int64)
-    geo = np.empty((3, 3))
-    o, dw, di = geo[0], geo[1], geo[2]
-    o[:] = (view1(fl, _TF, _F.camera) - view1(fl, _TF, _F.origin)) / vs  # camera centre in index units
-    used = 0
-    for pass_ in range(2):
-        if pass_ == 1 and not carve:
-            break
-        s = stride if pass_ == 0 else carve_stride
-        for v in range(0, h, s):
-            for u in range(0, w, s):
-                q, r = pixel_ray(points, conf, R, v, u, q_min, r_min, dw)
-                if r < 0.0:
-                    continue
-                for a in range(3):
-                    di[a] = dw[a] / vs
-                if pass_ == 0:
-                    if r > r_max:
-                        continue
-                    n = _ray(layer, fl, it, geo, r, r - trunc, r + trunc, q, buf)
-                else:
-                    t1 = min(r, r_max) - trunc
-                    if t1 <= r_min:
-                        continue
-                    n = _ray(layer, fl, it, geo, r, r_min, t1, q * carve_scale, buf)
-                if n > 0:
-                    used += 1
-    return used
 
 
 @jit(error_model="numpy")
@@ -256,8 +217,7 @@ class TsdfIntegrator:
                             ("r_min", c.min_depth), ("r_max", c.max_depth), ("carve_scale", c.carve_weight)):
             FLOATS.view(fl, _TF, name)[0] = value
         INTS.view(it, _TI, "shape")[:] = layer.tsdf.shape
-        for name, value in (("now", int(now_ms)), ("stride", c.pixel_stride), ("carve", int(c.carve)),
-                            ("carve_stride", c.carve_stride)):
+        for name, value in (("now", int(now_ms)), ("stride", c.pixel_stride), ("carve", int(c.carve))):
             INTS.view(it, _TI, name)[0] = value
         return fl, it
 
@@ -268,6 +228,4 @@ class TsdfIntegrator:
         fl, it = self._numbers(volume, layer, np.asarray(T_WC, dtype=np.float64), now_ms)
         frame = (np.asarray(points, dtype=np.float32), np.asarray(confidence, dtype=np.float32))
         arrays = (layer.tsdf, layer.weight, layer.view, layer.hit)
-        if self.config.integration == "ray":
-            return int(_integrate(frame, arrays, fl, it))
         return int(_integrate_merged(frame, arrays, fl, it, self._buffers(layer.tsdf.size, frame[1].size)))

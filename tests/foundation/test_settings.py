@@ -281,6 +281,42 @@ def test_a_removed_reference_implementation_fails_naming_what_replaced_it(env, t
     assert MappingSettings(esdf_incremental="wave").mapper_config().esdf_incremental == "wave"  # a real option stays
 
 
+def test_the_per_pixel_ray_integration_is_refused_naming_what_replaced_it(env, tmp_path):
+    """``integration = "ray"`` (one ray per pixel) is a test oracle now, and ``carve_stride`` strided
+    only its carving: as a core parameter and as a setting (argument, file, variable), each is refused
+    with the message that names what replaced it; the kept modes stay."""
+    from pydantic import ValidationError
+
+    from riskfield.services.mapping.config import MapperConfig, TsdfParams
+    from riskfield.services.mapping.settings import MappingSettings
+
+    ray = r"integration 'ray' is removed: frames with intrinsics take 'projective'.*'merged'.*tests/oracles/tsdf.py"
+    with pytest.raises(ValidationError, match=ray):
+        TsdfParams(integration="ray")
+    with pytest.raises(ValidationError, match=ray):
+        MapperConfig(integration="ray")
+    with pytest.raises(ValidationError, match=ray):
+        MappingSettings(integration="ray")
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("mapping:\n  integration: ray\n")
+    with pytest.raises(ValidationError, match=ray):
+        MappingSettings(config=cfg)
+    env.setenv("RISKFIELD_INTEGRATION", "ray")
+    with pytest.raises(ValidationError, match=ray):
+        MappingSettings()
+    env.delenv("RISKFIELD_INTEGRATION")
+    with pytest.raises(ValidationError, match=r"'carve_stride' is not a parameter: removed: .*tests/oracles/tsdf.py"):
+        TsdfParams(carve_stride=2)
+    with pytest.raises(ValidationError, match=r"'carve_stride' is not a parameter: removed"):
+        MapperConfig(carve_stride=2)
+    with pytest.raises(UnknownSetting, match=r"'carve_stride' is not a setting of mapping: removed: .*merged"):
+        MappingSettings(carve_stride=2)
+    with pytest.raises(ValidationError, match="literal_error"):
+        TsdfParams(integration="per-pixel")  # any other unknown value: pydantic's own error
+    for mode in ("projective", "merged"):
+        assert MappingSettings(integration=mode).mapper_config().integration == mode
+
+
 def test_the_filters_removed_settings_fail_naming_what_replaced_them(env, tmp_path):
     """``backend`` and ``solver`` chose the numpy step and OSQP, test oracles now: setting either is an
     error that names the compiled step, from keyword, file and environment alike."""

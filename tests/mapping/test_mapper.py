@@ -17,7 +17,7 @@ V = 0.05
 
 
 def build(scene: list, camera: PinholeCamera, output: str = "3d", risk: RiskConfig | None = None, **kw) -> Mapper:
-    m = Mapper(MapperConfig(output=output, pixel_stride=1, carve_stride=2, max_distance=1.5, **kw), risk)
+    m = Mapper(MapperConfig(output=output, pixel_stride=1, max_distance=1.5, **kw), risk)
     m.set_robot_position(np.zeros(3))
     for T in orbit([1.2, 0.0, 0.3], n=5, radius=0.2, height=0.3):
         m.integrate(*render(scene, T, camera), T)

@@ -214,7 +214,7 @@ def test_the_compiled_overlay_equals_its_array_definition() -> None:
 
 
 @pytest.mark.parametrize(("width", "ahead"), [(512, 2.0), (256, 3.0)])
-@pytest.mark.parametrize("integration", ["projective", "ray"])
+@pytest.mark.parametrize("integration", ["projective", "merged"])
 def test_a_person_crossing_in_simulator_truth_frames_stays_in_the_map(integration: str, width: int,
                                                                       ahead: float) -> None:
     """The simulator's ``sim/truth`` (depth + intrinsics at ``truth_stride``, ``CERTAIN_CONFIDENCE``,

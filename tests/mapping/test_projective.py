@@ -1,4 +1,5 @@
-"""Projective TSDF + semantic integration: the same surface as the ray integrator, in one pass."""
+"""Projective TSDF + semantic integration: the same surface as one ray per pixel (the oracle
+``oracles.tsdf.RayTsdf``), in one pass."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.tsdf import RayTsdf
 from riskfield.protocol import PerceptionFrame, RiskConfig, decode, encode
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, render
@@ -17,7 +19,6 @@ from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.occupancy import surface_support
 from riskfield.services.mapping.pointmap import FrameRejected
 from riskfield.services.mapping.projective_integrator import ProjectiveIntegrator
-from riskfield.services.mapping.tsdf_integrator import TsdfIntegrator
 from riskfield.services.mapping.volume import Volume
 
 CAM = PinholeCamera.centred(160, 120, 125.0)
@@ -33,7 +34,7 @@ def fuse(scene: list, poses: list[np.ndarray], cfg: MapperConfig,
         if projective:
             ProjectiveIntegrator(cfg, cfg.surface_band).integrate(vol, layer, sem, pts, conf, lab, T, K)
         else:
-            TsdfIntegrator(cfg).integrate(vol, layer, pts, conf, T)
+            RayTsdf(cfg).integrate(vol, layer, pts, conf, T)
     return vol, layer, sem
 
 
@@ -58,7 +59,7 @@ def test_plane_zero_crossing_within_a_voxel() -> None:
 def test_projective_and_ray_agree_on_the_surface_within_a_voxel() -> None:
     scene = [Plane((1, 0, 0), 1.2, 3), Box((0.6, -0.3, -0.4), (0.8, 0.0, 0.3), 5)]
     poses = orbit([1.0, 0.0, 0.0], n=3, radius=0.2, height=0.0)
-    cfg_r = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1, integration="ray")
+    cfg_r = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1)
     cfg_p = MapperConfig(half_extent=(1.5, 1.0, 1.0))
     proj = supported(*fuse(scene, poses, cfg_p, True)[:2], cfg_p)
     ray = supported(*fuse(scene, poses, cfg_r, False)[:2], cfg_r)
@@ -85,7 +86,7 @@ def test_random_boxes_projective_surface_within_a_voxel_of_the_ray_surface(lo: t
     true box, and most of each have one of the other within a voxel."""
     box = Box(lo, tuple(a + b for a, b in zip(lo, size, strict=True)), 1)
     T = look_at(np.array(eye), np.array([lo[0] + size[0] / 2, lo[1] + size[1] / 2, lo[2] + size[2] / 2]))
-    cfg_r = MapperConfig(half_extent=(1.2, 1.0, 1.0), pixel_stride=1, integration="ray", min_weight=0.5)
+    cfg_r = MapperConfig(half_extent=(1.2, 1.0, 1.0), pixel_stride=1, min_weight=0.5)
     cfg_p = MapperConfig(half_extent=(1.2, 1.0, 1.0), min_weight=0.5)
     vol, lp, _ = fuse([box], [T], cfg_p, True)
     proj = supported(vol, lp, cfg_p)

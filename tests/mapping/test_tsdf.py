@@ -1,10 +1,13 @@
-"""TSDF integration of rendered pointmaps: the fused surface is where the true one is."""
+"""TSDF integration of rendered pointmaps by rays: the fused surface is where the true one is, for the
+merged rays (the mapper's path for frames without intrinsics) and for one ray per pixel (their oracle,
+``oracles.tsdf.RayTsdf``), and the two agree."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from oracles.tsdf import RayTsdf
 from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, render
 from riskfield.services.geometry.transforms import look_at, orbit
@@ -17,16 +20,20 @@ from riskfield.services.mapping.volume import Volume
 CAM = PinholeCamera.centred(160, 120, 125.0)
 
 
-@pytest.fixture(params=["merged", "ray"])
+INTEGRATORS = {"merged": TsdfIntegrator, "ray": RayTsdf}
+
+
+@pytest.fixture(params=list(INTEGRATORS))
 def integration(request: pytest.FixtureRequest) -> str:
-    """Both integrators: merged rays (the default) and one ray per pixel."""
+    """Both integrators: merged rays (production) and one ray per pixel (the oracle)."""
     return request.param
 
 
-def fuse(scene: list, poses: list[np.ndarray], cfg: MapperConfig, offset: float = 0.0) -> tuple[Volume, TsdfLayer]:
+def fuse(scene: list, poses: list[np.ndarray], cfg: MapperConfig, integration: str,
+         offset: float = 0.0) -> tuple[Volume, TsdfLayer]:
     vol = Volume.centred(cfg.voxel_size, cfg.shape, np.array([offset, 0.0, 0.0]))
     layer = TsdfLayer(vol.shape, cfg.truncation)
-    integ = TsdfIntegrator(cfg)
+    integ = INTEGRATORS[integration](cfg)
     for T in poses:
         pts, conf, _ = render(scene, T, CAM)
         integ.integrate(vol, layer, pts, conf, T)
@@ -36,9 +43,9 @@ def fuse(scene: list, poses: list[np.ndarray], cfg: MapperConfig, offset: float 
 @pytest.mark.parametrize("x0", [1.0, 1.013, 1.037])
 def test_plane_zero_crossing_within_a_voxel(x0: float, integration: str) -> None:
     """A wall at x = x0 (off the lattice too): the TSDF's zero crossing along x is within a voxel of it."""
-    cfg = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1, integration=integration)
+    cfg = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1)
     scene = [Plane((1, 0, 0), x0, 0)]
-    vol, layer = fuse(scene, orbit([x0, 0, 0.0], n=3, radius=0.2, height=0.0), cfg)
+    vol, layer = fuse(scene, orbit([x0, 0, 0.0], n=3, radius=0.2, height=0.0), cfg, integration)
     c = vol.centres()
     checked = lines = 0
     for j in range(vol.shape[1]):
@@ -65,10 +72,10 @@ def test_plane_zero_crossing_within_a_voxel(x0: float, integration: str) -> None
 
 def test_box_surface_support_hugs_the_box(integration: str) -> None:
     """Every supported voxel is within a voxel of the box, and the visible faces are covered."""
-    cfg = MapperConfig(half_extent=(1.5, 1.5, 1.0), pixel_stride=1, min_weight=0.5, integration=integration)
+    cfg = MapperConfig(half_extent=(1.5, 1.5, 1.0), pixel_stride=1, min_weight=0.5)
     box = Box((0.6, -0.2, -0.25), (0.9, 0.25, 0.2), 0)
     poses = [look_at(np.array([0.0, y, 0.05]), np.array([0.75, 0.0, 0.0])) for y in (-0.3, 0.0, 0.3)]
-    vol, layer = fuse([box], poses, cfg)
+    vol, layer = fuse([box], poses, cfg, integration)
     occ = surface_support(layer, cfg.min_weight, cfg.surface_band)
     c = vol.centres()
     d = box.distance(c[occ])
@@ -85,13 +92,12 @@ def test_box_surface_support_hugs_the_box(integration: str) -> None:
 
 
 def test_confidence_weights_and_the_weight_cap(integration: str) -> None:
-    cfg = MapperConfig(half_extent=(1.0, 0.5, 0.5), pixel_stride=1, max_weight=3.0, min_confidence=0.2, carve=False,
-                       integration=integration)
+    cfg = MapperConfig(half_extent=(1.0, 0.5, 0.5), pixel_stride=1, max_weight=3.0, min_confidence=0.2, carve=False)
     scene = [Plane((1, 0, 0), 0.8, 0)]
     T = look_at(np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]))
     vol = Volume.centred(cfg.voxel_size, cfg.shape, np.zeros(3))
     layer = TsdfLayer(vol.shape, cfg.truncation)
-    integ = TsdfIntegrator(cfg)
+    integ = INTEGRATORS[integration](cfg)
     pts, _, _ = render(scene, T, CAM)
     low = np.full(pts.shape[:2], 0.1, np.float32)
     integ.integrate(vol, layer, pts, low, T)
@@ -107,13 +113,13 @@ def test_confidence_weights_and_the_weight_cap(integration: str) -> None:
 
 
 def test_merged_rays_agree_with_per_pixel_rays_on_the_surface() -> None:
-    """Both integrators put the fused surface of a scene in (nearly all) the same voxels."""
+    """The merged rays put the fused surface of a scene in (nearly all) the voxels one ray per pixel does."""
     scene = [Plane((1, 0, 0), 1.2, 0), Box((0.6, -0.3, -0.4), (0.8, 0.0, 0.3), 1)]
     poses = orbit([1.0, 0.0, 0.0], n=3, radius=0.2, height=0.0)
     supports = []
+    cfg = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1)
     for mode in ("merged", "ray"):
-        cfg = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1, integration=mode)
-        vol, layer = fuse(scene, poses, cfg)
+        vol, layer = fuse(scene, poses, cfg, mode)
         supports.append(vol.centres()[surface_support(layer, cfg.min_weight, cfg.surface_band)])
     merged, ray = supports
     assert len(merged) > 200 and abs(len(merged) - len(ray)) < 0.2 * len(ray)
@@ -124,14 +130,13 @@ def test_merged_rays_agree_with_per_pixel_rays_on_the_surface() -> None:
 
 
 def test_carving_clears_an_obstacle_that_moved_away(integration: str) -> None:
-    cfg = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1, carve_stride=1, max_weight=5.0,
-                       integration=integration)
+    cfg = MapperConfig(half_extent=(1.5, 1.0, 1.0), pixel_stride=1, max_weight=5.0)
     wall = Plane((1, 0, 0), 1.4, 0)
     person = Box((0.6, -0.2, -0.5), (0.8, 0.2, 0.5), 1)
     T = look_at(np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]))
     vol = Volume.centred(cfg.voxel_size, cfg.shape, np.zeros(3))
     layer = TsdfLayer(vol.shape, cfg.truncation)
-    integ = TsdfIntegrator(cfg)
+    integ = TsdfIntegrator(cfg) if integration == "merged" else RayTsdf(cfg, carve_stride=1)
     for _ in range(3):
         integ.integrate(vol, layer, *render([wall, person], T, CAM)[:2], T)
     i = tuple(vol.to_index(np.array([0.6, 0.0, 0.0])))
