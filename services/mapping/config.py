@@ -182,9 +182,9 @@ class OccupancyParams(BaseModel):
     object seen only end-on is negative all the way through, with the gradient pointing out of the
     shadow (sideways, up, or back to the seen face), never further in. The price: the never-observed
     space behind an obstacle (a doorway's part hidden by its jamb, the floor behind a sofa) reads closed
-    until a camera looks into it; any ray through it reopens it at once. A shallower fill (0.5 m was the
-    previous default) keeps such gaps open beyond that depth but leaves deeper objects positive inside
-    past τ + the depth, with the gradient pointing further in."""
+    until a camera looks into it; any ray through it reopens it at once. A shallower fill (e.g. 0.5 m)
+    keeps such gaps open beyond that depth but leaves deeper objects positive inside past τ + the
+    depth, with the gradient pointing further in."""
     unobserved_below_obstacle: Literal["free", "solid"] = "solid"
     """Never-observed voxels straight below an obstacle (``solid``, with the ``solid`` fill behind
     surfaces): up to ``below_obstacle_depth`` they join it, so an object whose top was seen at a
