@@ -23,9 +23,11 @@ app = typer.Typer(add_completion=False)
 # The echo is a fresh interpreter (spawn model: this process holds a router session).
 ECHO = """
 import sys
+import zenoh
 from riskfield.services.runtime.processes import client_session
 with client_session(sys.argv[1]) as s:
-    pub = s.declare_publisher("bench/pong")
+    # BLOCK: a DROP publisher may shed a megabyte pong under load, and the round trip would never end
+    pub = s.declare_publisher("bench/pong", congestion_control=zenoh.CongestionControl.BLOCK)
     sub = s.declare_subscriber("bench/ping", lambda smp: pub.put(smp.payload))
     print("ready", flush=True)
     sys.stdin.read()
@@ -55,11 +57,14 @@ def _times(fn, repeat: int) -> np.ndarray:
 
 
 def _round_trips(payload: bytes, repeat: int) -> np.ndarray:
-    import threading
+    import queue
 
     import zenoh
 
     from riskfield.services.runtime.processes import EmbeddedRouter, client_session
+
+    def ping(i: int) -> bytes:  # numbered, so a late pong is never taken for the one awaited
+        return i.to_bytes(8, "little") + payload[8:]
 
     with EmbeddedRouter() as router:
         echo = subprocess.Popen([sys.executable, "-c", ECHO, router.endpoint], stdin=subprocess.PIPE,
@@ -67,17 +72,29 @@ def _round_trips(payload: bytes, repeat: int) -> np.ndarray:
         try:
             assert echo.stdout is not None and echo.stdout.readline().strip() == "ready"
             with client_session(router.endpoint) as s:
-                got = threading.Event()
-                sub = s.declare_subscriber("bench/pong", lambda _smp: got.set())
+                pongs: queue.Queue[int] = queue.Queue()
+                sub = s.declare_subscriber(
+                    "bench/pong", lambda smp: pongs.put(int.from_bytes(smp.payload.to_bytes()[:8], "little")))
                 pub = s.declare_publisher("bench/ping", congestion_control=zenoh.CongestionControl.BLOCK)
-                time.sleep(0.3)
+
+                def answered(i: int, timeout_s: float) -> bool:
+                    try:
+                        while pongs.get(timeout=timeout_s) != i:
+                            pass
+                    except queue.Empty:
+                        return False
+                    return True
+
+                # "ready" means the echo declared its subscriber, not that the router routes to it yet:
+                # ping until the first pong, so no timed ping goes to a route not yet there.
+                if not any(pub.put(ping(i)) or answered(i, 0.1) for i in range(100)):
+                    raise TimeoutError("the echo never answered")
                 out = []
-                for _ in range(repeat + 5):
-                    got.clear()
+                for i in range(100, 100 + repeat + 5):
                     t0 = time.perf_counter()
-                    pub.put(payload)
-                    if not got.wait(5):
-                        raise TimeoutError("no echo")
+                    pub.put(ping(i))
+                    if not answered(i, 5):
+                        raise TimeoutError(f"no echo of ping {i} ({len(payload)} B) in 5 s")
                     out.append(time.perf_counter() - t0)
                 sub.undeclare()
         finally:
