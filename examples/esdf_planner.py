@@ -13,7 +13,8 @@ filter's interpolation and in-map rule), so the planner refuses exactly the ends
 would brake at. With ``--send-goal`` the waypoints go to the navigator as a ``NavGoal``.
 
 Needs ``riskfield`` without extras (``riskfield.client`` and ``riskfield.protocol``: numpy,
-pydantic, msgpack and ``eclipse-zenoh``); nothing of the services.
+pydantic, msgpack and ``eclipse-zenoh``); nothing of the services. ``riskfield[client]`` adds numba,
+which compiles the field queries.
 """
 
 from __future__ import annotations

@@ -35,13 +35,23 @@ The risk group of a query is the ``risk_group`` of the nearest voxel (the mapper
 the group of that voxel's nearest obstacle).
 
 ``interpolation`` other than ``trilinear`` (the above) reads the same stencil with a cubic
-kernel instead (:func:`kernel_weights`; the kernels and their trade-offs are described in
+kernel instead (the kernels and their trade-offs are described in
 ``riskfield.services.fields.spline``): distance, gradient and Hessian are then the exact
 derivatives of one piecewise cubic (the safety filter's default is ``bspline_smooth``).
 
-This module is the one home of the grid query: pure numpy, so the safety filter, the mapping
-query service (``riskfield.services.fields``, which adds the scipy prefilter of the
-interpolating ``bspline``) and external clients (``riskfield.client``) read a grid the same way.
+This module is the one home of the grid query, :func:`query_point`: the safety filter's compiled
+step calls it per barrier point, :meth:`EsdfField.query` over an array of points, and so the
+mapping query service (``riskfield.services.fields``, which adds the scipy prefilter of the
+interpolating ``bspline``) and external clients (``riskfield.client``) read a grid exactly as the
+filter does. It is compiled where numba is installed (``protocol.kernels.jit``) and runs
+interpreted, the same code, where it is not (a client without numba: ~150 µs a point instead of
+well under one).
+
+Each axis' stencil weights are polynomials in the cell fraction t, w[o, p](t) = Σ_q P[o, p, q] t^q,
+for the value (o = 0), first (o = 1) and second (o = 2) derivative at stencil position p: the
+trilinear finite-difference weights (:func:`axis_weights`) and the cubic kernels (:data:`_MATRIX`)
+both take this form (:func:`stencil_polynomials`), so one contraction serves all four
+interpolations.
 """
 
 from __future__ import annotations
@@ -52,6 +62,7 @@ from typing import Literal
 
 import numpy as np
 
+from .kernels import Layout, jit, view1, view3
 from .messages import EsdfGrid
 
 
@@ -85,27 +96,8 @@ _BSPLINE = np.array([
 _MATRIX = {"catmull_rom": _CATMULL_ROM, "bspline": _BSPLINE, "bspline_smooth": _BSPLINE}
 
 
-def kernel_weights(t: np.ndarray, h: float, kernel: Kernel, orders: int) -> np.ndarray:
-    """Per-axis stencil weights of the value and its first ``orders - 1`` derivatives.
-
-    ``t`` (N, dims) fractions in the cell; returns (N, dims, orders, 4): row 0 interpolates the
-    value, row 1 the first derivative (1/m), row 2 the second (1/m²) — the layout
-    :class:`EsdfField` contracts with the stencil.
-    """
-    m = _MATRIX[kernel]
-    t = np.asarray(t, np.float64)
-    one, t2 = np.ones_like(t), t * t
-    powers = [np.stack([one, t, t2, t2 * t], axis=-1)]  # d⁰/dt⁰ of (1, t, t², t³)
-    if orders > 1:
-        powers.append(np.stack([0 * t, one, 2 * t, 3 * t2], axis=-1) / h)
-    if orders > 2:
-        powers.append(np.stack([0 * t, 0 * t, 2 * one, 6 * t], axis=-1) / (h * h))
-    return np.stack(powers, axis=-2) @ m.T
-
-
 Interpolation = Literal["trilinear", "catmull_rom", "bspline", "bspline_smooth"]
 
-_OFFS = np.arange(-1, 3)
 _EPS = 1e-9
 
 
@@ -154,20 +146,8 @@ class EsdfField:
         self.max_distance = float(max_distance) if max_distance is not None else float(np.abs(dist).max())
         self.unknown_is_occupied = bool(unknown_is_occupied)
         self.planar = nz == 1
-        self._dims = 2 if self.planar else 3
-        self._shape = np.array(dist.shape[: self._dims])
-        self._upper = (self._shape - 1).astype(np.float64)
-        self._strides = np.array([ny * nz, nz, 1])[: self._dims]
         self._flat = dist.reshape(-1)
-        self._flat_rg = rg.reshape(-1)
-        self._origin_d = self.origin[: self._dims].copy()
-        self._inv_h = 1.0 / self.voxel_size
-        self._upper_eps = self._upper + _EPS
-        self._shape_m1, self._shape_m2, self._shape_m3 = self._shape - 1, self._shape - 2, self._shape - 3
-        self._w0, self._w1 = axis_weights(self.voxel_size)
-        grids = np.meshgrid(*[_OFFS * st for st in self._strides], indexing="ij")
-        self._offsets = sum(grids)[None]  # flat offsets of the 4^dims stencil
-        # Cubic interpolation (kernel_weights): same stencil, over the kernel's coefficients.
+        self._kernel: tuple | None = None  # kernel_view(self), built at the first query
         if interpolation not in ("trilinear", *KERNELS):
             raise ValueError(f"unknown interpolation {interpolation!r}")
         self.interpolation: Interpolation = interpolation
@@ -209,78 +189,19 @@ class EsdfField:
         return self.origin + self.voxel_size * (np.array(self.distance.shape) - 1)
 
     def inside(self, points: np.ndarray) -> np.ndarray:
-        u = np.asarray(points, np.float64).reshape(-1, 3)[:, : self._dims] - self.origin[: self._dims]
-        u /= self.voxel_size
-        return ((u >= -_EPS) & (u <= self._upper + _EPS)).all(axis=1)
+        """The in-map rule (the module's docstring) at each point."""
+        return self.query(points).inside
 
     def query(self, points: np.ndarray, hessian: bool = False) -> FieldSample:
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        n, dims = p.shape[0], self._dims
-        u = (p[:, :dims] - self._origin_d) * self._inv_h
-        inside = ((u >= -_EPS) & (u <= self._upper_eps)).all(axis=1)
-        u = np.minimum(np.maximum(u, 0.0), self._upper)
-        i0 = np.minimum(u.astype(np.int64), self._shape_m2)  # u ≥ 0, so truncation is floor
-        t = u - i0
-        block = self._stencil(i0)  # (N, 4, 4[, 4])
-        # Every output is a linear functional of the stencil: contract it axis by axis with the
-        # 1-D weights of (value, first, second) difference, interpolated at the fraction t.
-        k = 3 if hessian else 2
-        if self.interpolation == "trilinear":
-            w = self._w0[:k] + t[:, :, None, None] * self._w1[:k]  # (N, dims, k, 4)
-        else:
-            w = kernel_weights(t, self.voxel_size, self.interpolation, k)
-        hess = None
-        if dims == 2:
-            r = w[:, 0] @ block @ np.swapaxes(w[:, 1], 1, 2)  # (N, kx, ky)
-            grad = np.zeros((n, 3))
-            grad[:, :2] = r[:, _G2[0], _G2[1]]
-            if hessian:
-                hess = np.zeros((n, 3, 3))
-                hess[:, :2, :2] = r[:, _H2[0], _H2[1]]
-            dist = r[:, 0, 0]
-        else:
-            r = block @ np.swapaxes(w[:, 2], 1, 2)[:, None]  # (N, 4x, 4y, kz)
-            r = w[:, 1][:, None] @ r  # (N, 4x, ky, kz)
-            r = (w[:, 0].reshape(n, k, 4) @ r.reshape(n, 4, k * k)).reshape(n, k, k, k)
-            grad = r[:, _G3[0], _G3[1], _G3[2]]
-            if hessian:
-                hess = r[:, _H3[0], _H3[1], _H3[2]]
-            dist = r[:, 0, 0, 0]
-        nearest = np.minimum((u + 0.5).astype(np.int64), self._shape_m1)
-        rg = self._flat_rg[nearest @ self._strides].astype(np.int64)
-        return FieldSample(dist, grad, hess, rg, inside)
-
-    def _stencil(self, i0: np.ndarray) -> np.ndarray:
-        """The 4^dims voxels around each query's cell as float64, linearly extrapolated past the border."""
-        flat = (i0 @ self._strides).reshape((-1,) + (1,) * self._dims) + self._offsets
-        if (i0 >= 1).all() and (i0 <= self._shape_m3).all():
-            return self._flat[flat].astype(np.float64)
-        # Near the border: clamp the stencil, then replace clamped layers by linear extrapolation.
-        dims = self._dims
-        idx = [np.clip(i0[:, a, None] + _OFFS, 0, self._shape[a] - 1) * self._strides[a] for a in range(dims)]
-        if dims == 2:
-            flat = idx[0][:, :, None] + idx[1][:, None, :]
-        else:
-            flat = idx[0][:, :, None, None] + idx[1][:, None, :, None] + idx[2][:, None, None, :]
-        block = self._flat[flat].astype(np.float64)
-        for a in range(dims):
-            lo = i0[:, a] == 0
-            hi = i0[:, a] + 2 > self._shape[a] - 1
-            b = np.moveaxis(block, a + 1, 1)  # a view: writes go to block
-            b[lo, 0] = 2 * b[lo, 1] - b[lo, 2]
-            b[hi, 3] = 2 * b[hi, 2] - b[hi, 1]
-        return block
-
-
-# Where the partial derivatives sit in the contracted tensor r[x-order, y-order(, z-order)].
-_G2 = np.array([[1, 0], [0, 1]])
-_H2 = np.array([[[2, 1], [1, 0]], [[0, 1], [1, 2]]])
-_G3 = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
-_H3 = np.array([
-    [[2, 1, 1], [1, 0, 0], [1, 0, 0]],
-    [[0, 1, 0], [1, 2, 1], [0, 1, 0]],
-    [[0, 0, 1], [0, 0, 1], [1, 1, 2]],
-])
+        """:func:`query_point` at each of the N points (N × 3): the Hessian only when asked for."""
+        # numba compiles per argument type and a read-only array is another type: a decoded
+        # message's points are copied rather than compiled for.
+        p = np.require(np.asarray(points, dtype=np.float64).reshape(-1, 3), requirements=("C", "W"))
+        n = p.shape[0]
+        out = (np.empty(n), np.empty((n, 3)), np.empty((n, 3, 3)), np.empty(n, np.int64), np.empty(n, np.bool_))
+        query_points(kernel_view(self), 3 if hessian else 2, p, out, np.empty(QUERY_SCRATCH_SIZE))
+        dist, grad, hess, rg, inside = out
+        return FieldSample(dist, grad, hess if hessian else None, rg, inside)
 
 
 def axis_weights(h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -301,6 +222,224 @@ def axis_weights(h: float) -> tuple[np.ndarray, np.ndarray]:
     w0[2] /= h * h
     w1[2] /= h * h
     return w0, w1
+
+
+def stencil_polynomials(interpolation: Interpolation, h: float) -> np.ndarray:
+    """P (3, 4, 4): per-axis weights w[o, p](t) = Σ_q P[o, p, q] t^q of an interpolation on voxels of
+    size h (the module's docstring)."""
+    poly = np.zeros((3, 4, 4))
+    if interpolation == "trilinear":
+        w0, w1 = axis_weights(h)
+        poly[:, :, 0], poly[:, :, 1] = w0, w1
+        return poly
+    m = _MATRIX[interpolation]  # w_p(t) = Σ_k M[p, k] t^k
+    for q in range(4):
+        poly[0, :, q] = m[:, q]
+        if q >= 1:
+            poly[1, :, q - 1] = m[:, q] * q / h
+        if q >= 2:
+            poly[2, :, q - 2] = m[:, q] * q * (q - 1) / (h * h)
+    return poly
+
+
+#: The field's metadata as :func:`query_point` reads it (:func:`kernel_view`).
+FIELD_INTS = Layout("FieldInts", [("dims", (1,)), ("shape", (3,)), ("strides", (3,))])
+FIELD_FLOATS = Layout("FieldFloats", [("origin", (3,)), ("inv_h", (1,)), ("poly", (3, 4, 4))])
+_FI, _FF = FIELD_INTS.table(), FIELD_FLOATS.table()
+_FIS, _FFS = FIELD_INTS.slot, FIELD_FLOATS.slot
+
+
+def kernel_view(field: EsdfField) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(coefficients float64, risk groups uint8, metadata int64 (:data:`FIELD_INTS`), metadata
+    float64 (:data:`FIELD_FLOATS`)): ``field`` as :func:`query_point` reads it, built once per field.
+
+    numba compiles per argument type, so one contiguous, writeable float64 and uint8 array serve
+    every map (a message's float32 or read-only arrays are converted here, once); and a call into
+    numba costs per argument, so the metadata travels as two small tables."""
+    if field._kernel is not None:
+        return field._kernel
+    flat = field._flat
+    if flat.dtype != np.float64 or not flat.flags.writeable or not flat.flags.c_contiguous:
+        flat = np.array(flat, np.float64)
+    rgs = field.risk_groups.reshape(-1)
+    if rgs.dtype != np.uint8 or not rgs.flags.writeable or not rgs.flags.c_contiguous:
+        rgs = np.array(rgs, np.uint8)
+    nx, ny, nz = field.distance.shape
+    dims = 2 if field.planar else 3
+    meta_i = np.zeros(Layout.size(_FI), np.int64)
+    FIELD_INTS.view(meta_i, _FI, "dims")[0] = dims
+    FIELD_INTS.view(meta_i, _FI, "shape")[:] = (nx, ny, nz)
+    FIELD_INTS.view(meta_i, _FI, "strides")[:] = (ny * nz, nz, 1)
+    meta_f = np.zeros(Layout.size(_FF))
+    FIELD_FLOATS.view(meta_f, _FF, "origin")[:] = field.origin
+    FIELD_FLOATS.view(meta_f, _FF, "inv_h")[0] = 1.0 / field.voxel_size
+    FIELD_FLOATS.view(meta_f, _FF, "poly")[:] = stencil_polynomials(field.interpolation, field.voxel_size)
+    field._kernel = (flat, rgs, meta_i, meta_f)
+    return field._kernel
+
+
+#: The scratch of one :func:`query_point`: the stencil's values, its per-axis weights and the
+#: partial contractions.
+QUERY_SCRATCH = Layout("QueryScratch", [("block", (4, 4, 4)), ("w", (3, 3, 4)), ("r1", (4, 4, 3)),
+                                        ("r2", (4, 3, 3)), ("r3", (3, 3, 3))])
+_QS = QUERY_SCRATCH.table()
+_QSS = QUERY_SCRATCH.slot
+#: Floats a caller keeps for :func:`query_point`'s ``scratch``.
+QUERY_SCRATCH_SIZE = Layout.size(_QS)
+
+
+@jit
+def query_point(field, k, p, i, out, scratch):
+    """The field at one point p, into row i of ``out`` = (distance, gradient, Hessian when k = 3,
+    risk group, inside). ``field`` is the tuple :func:`kernel_view` gives; ``scratch`` holds
+    :data:`QUERY_SCRATCH_SIZE` floats."""
+    flat, rgs, meta_i, meta_f = field
+    dist, grad, hess, rg_out, inside = out
+    dims, shape, strides = view1(meta_i, _FI, _FIS.dims)[0], view1(meta_i, _FI, _FIS.shape), \
+        view1(meta_i, _FI, _FIS.strides)
+    origin, inv_h, poly = view1(meta_f, _FF, _FFS.origin), view1(meta_f, _FF, _FFS.inv_h)[0], \
+        view3(meta_f, _FF, _FFS.poly)
+    block, w, r1 = view3(scratch, _QS, _QSS.block), view3(scratch, _QS, _QSS.w), view3(scratch, _QS, _QSS.r1)
+    r2, r3 = view3(scratch, _QS, _QSS.r2), view3(scratch, _QS, _QSS.r3)
+    ins = True
+    ix0 = iy0 = iz0 = 0
+    nx = ny = nz = 0
+    for a in range(dims):
+        u = (p[a] - origin[a]) * inv_h
+        upper = shape[a] - 1.0
+        if not (u >= -_EPS and u <= upper + _EPS):
+            ins = False
+        u = min(max(u, 0.0), upper)
+        c = min(int(u), shape[a] - 2)
+        t = u - c
+        near = min(int(u + 0.5), shape[a] - 1)
+        if a == 0:
+            ix0 = c
+            nx = near
+        elif a == 1:
+            iy0 = c
+            ny = near
+        else:
+            iz0 = c
+            nz = near
+        t2 = t * t
+        t3 = t2 * t
+        for o in range(k):
+            for q in range(4):
+                w[a, o, q] = poly[o, q, 0] + poly[o, q, 1] * t + poly[o, q, 2] * t2 + poly[o, q, 3] * t3
+    inside[i] = ins
+    flat_near = nx * strides[0] + ny * strides[1]
+    if dims == 3:
+        flat_near += nz * strides[2]
+    rg_out[i] = rgs[flat_near]
+    # The 4^dims stencil, clamped to the grid, then clamped layers replaced by linear extrapolation.
+    nzs = 4 if dims == 3 else 1
+    for a in range(4):
+        xa = min(max(ix0 - 1 + a, 0), shape[0] - 1) * strides[0]
+        for b in range(4):
+            yb = min(max(iy0 - 1 + b, 0), shape[1] - 1) * strides[1]
+            if dims == 3:
+                for c in range(4):
+                    zc = min(max(iz0 - 1 + c, 0), shape[2] - 1) * strides[2]
+                    block[a, b, c] = flat[xa + yb + zc]
+            else:
+                block[a, b, 0] = flat[xa + yb]
+    starts = (ix0, iy0, iz0)
+    for ax in range(dims):
+        lo = starts[ax] == 0
+        hi = starts[ax] + 2 > shape[ax] - 1
+        if not (lo or hi):
+            continue
+        for e in range(4):
+            for f in range(nzs if ax != 2 else 4):
+                if ax == 0:
+                    if lo:
+                        block[0, e, f] = 2 * block[1, e, f] - block[2, e, f]
+                    if hi:
+                        block[3, e, f] = 2 * block[2, e, f] - block[1, e, f]
+                elif ax == 1:
+                    if lo:
+                        block[e, 0, f] = 2 * block[e, 1, f] - block[e, 2, f]
+                    if hi:
+                        block[e, 3, f] = 2 * block[e, 2, f] - block[e, 1, f]
+                else:
+                    if lo:
+                        block[e, f, 0] = 2 * block[e, f, 1] - block[e, f, 2]
+                    if hi:
+                        block[e, f, 3] = 2 * block[e, f, 2] - block[e, f, 1]
+    for a in range(3):
+        grad[i, a] = 0.0
+        for b in range(3):
+            hess[i, a, b] = 0.0
+    if dims == 2:
+        # r[ox, oy] = Σ_ab wx[ox, a] block[a, b] wy[oy, b]
+        for a in range(4):
+            for oy in range(k):
+                s = 0.0
+                for b in range(4):
+                    s += block[a, b, 0] * w[1, oy, b]
+                r1[a, oy, 0] = s
+        for ox in range(k):
+            for oy in range(k):
+                s = 0.0
+                for a in range(4):
+                    s += w[0, ox, a] * r1[a, oy, 0]
+                r3[ox, oy, 0] = s
+        dist[i] = r3[0, 0, 0]
+        grad[i, 0] = r3[1, 0, 0]
+        grad[i, 1] = r3[0, 1, 0]
+        if k == 3:
+            hess[i, 0, 0] = r3[2, 0, 0]
+            hess[i, 0, 1] = r3[1, 1, 0]
+            hess[i, 1, 0] = r3[1, 1, 0]
+            hess[i, 1, 1] = r3[0, 2, 0]
+        return
+    # Contract z, then y, then x.
+    for a in range(4):
+        for b in range(4):
+            for oz in range(k):
+                s = 0.0
+                for c in range(4):
+                    s += block[a, b, c] * w[2, oz, c]
+                r1[a, b, oz] = s
+    for a in range(4):
+        for oy in range(k):
+            for oz in range(k):
+                s = 0.0
+                for b in range(4):
+                    s += w[1, oy, b] * r1[a, b, oz]
+                r2[a, oy, oz] = s
+    for ox in range(k):
+        for oy in range(k):
+            for oz in range(k):
+                s = 0.0
+                for a in range(4):
+                    s += w[0, ox, a] * r2[a, oy, oz]
+                r3[ox, oy, oz] = s
+    dist[i] = r3[0, 0, 0]
+    grad[i, 0] = r3[1, 0, 0]
+    grad[i, 1] = r3[0, 1, 0]
+    grad[i, 2] = r3[0, 0, 1]
+    if k == 3:
+        hess[i, 0, 0] = r3[2, 0, 0]
+        hess[i, 1, 1] = r3[0, 2, 0]
+        hess[i, 2, 2] = r3[0, 0, 2]
+        hess[i, 0, 1] = hess[i, 1, 0] = r3[1, 1, 0]
+        hess[i, 0, 2] = hess[i, 2, 0] = r3[1, 0, 1]
+        hess[i, 1, 2] = hess[i, 2, 1] = r3[0, 1, 1]
+
+
+@jit
+def query_points(field, k, points, out, scratch):
+    """:func:`query_point` at every row of ``points`` (N × 3), into the rows of ``out``."""
+    for i in range(points.shape[0]):
+        query_point(field, k, points[i], i, out, scratch)
+
+
+def warm_up() -> None:
+    """Compile :func:`query_points` (or load it from numba's on-disk cache) with the argument types
+    of every :meth:`EsdfField.query`, so that no first query compiles in a service's loop."""
+    EsdfField(np.ones((2, 2, 1), np.float32), (0.0, 0.0, 0.0), 1.0).query(np.zeros((1, 3)))
 
 
 def unknown_sample(n: int, max_distance: float, unknown_is_occupied: bool) -> FieldSample:
@@ -326,5 +465,6 @@ def answer_query(field: EsdfField, points: np.ndarray) -> FieldSample:
     return out
 
 
-__all__ = ["KERNELS", "EsdfField", "FieldSample", "Interpolation", "Kernel", "answer_query", "axis_weights",
-           "kernel_weights", "unknown_sample"]
+__all__ = ["FIELD_FLOATS", "FIELD_INTS", "KERNELS", "QUERY_SCRATCH", "QUERY_SCRATCH_SIZE", "EsdfField",
+           "FieldSample", "Interpolation", "Kernel", "answer_query", "axis_weights", "kernel_view", "query_point",
+           "query_points", "stencil_polynomials", "unknown_sample", "warm_up"]

@@ -1,7 +1,8 @@
 """The ESDF for an external planner: distance, gradient and "is this segment clear" queries on the live map.
 
 Light: numpy, ``eclipse-zenoh`` and ``riskfield.protocol`` (numpy, pydantic, msgpack), nothing of
-the services — a planner on another machine installs ``riskfield`` without extras::
+the services — a planner on another machine installs ``riskfield``, and ``riskfield[client]`` (numba)
+to run the grid query compiled (well under a microsecond a point, against ~150 µs interpreted)::
 
     from riskfield.client import EsdfClient
 

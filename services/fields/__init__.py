@@ -6,9 +6,9 @@ experiments and the benchmarks use.
                 (what ``map/esdf/query`` answers)
     analytic    AnalyticField: unions of closed-form shapes (``geometry.shapes``); to_esdf
     pointcloud  PointCloudField: the nearest-point baseline over a KD-tree (scipy, imported lazily)
-    compiled    the grid query for one point in numba, for compiled callers (imported by them only)
 
-numpy only at import time: a robot-level install (and the planner example) can use it.
+numpy only at import time (numba where installed, for the grid query): a robot-level install (and the
+planner example) can use it.
 """
 
 from .analytic import AnalyticField, to_esdf, to_grid_message

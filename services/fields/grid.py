@@ -3,9 +3,9 @@ queries and the benchmarks: distance, gradient, Hessian and risk group.
 
 The query itself (the stencil, trilinear finite differences or a cubic kernel, the linear
 extrapolation past the border, the nearest-voxel risk group) and **the in-map rule** live in
-:mod:`riskfield.protocol.field`, pure numpy, so that external clients (``riskfield.client``) read a
-grid exactly as the filter does. This :class:`EsdfField` adds the interpolating ``bspline``, whose
-global prefilter needs scipy (``fields.spline``).
+:mod:`riskfield.protocol.field` (compiled where numba is installed), so that external clients
+(``riskfield.client``) read a grid exactly as the filter does. This :class:`EsdfField` adds the
+interpolating ``bspline``, whose global prefilter needs scipy (``fields.spline``).
 """
 
 from __future__ import annotations

@@ -39,10 +39,9 @@ import numpy as np
 
 # The kernels' weights are part of the grid query (riskfield.protocol.field, shared with external
 # clients); only the prefilter, which needs scipy, lives here.
-from riskfield.protocol.field import _MATRIX, KERNELS, Kernel
-from riskfield.protocol.field import kernel_weights as axis_weights
+from riskfield.protocol.field import KERNELS, Kernel
 
-__all__ = ["KERNELS", "_MATRIX", "Kernel", "axis_weights", "prefilter"]
+__all__ = ["KERNELS", "Kernel", "prefilter"]
 
 
 def prefilter(distance: np.ndarray, kernel: Kernel, planar: bool) -> np.ndarray:

@@ -48,8 +48,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from riskfield.protocol.kernels import Layout, view1, view2
+
 from ..runtime.jit import jit
-from ..runtime.kernels import Layout, view1, view2
 
 #: The wave's workspace, one flat buffer per element type: the two maps (site, key and the cells'
 #: linked lists), the group map ``state``, the field, the wave's queue and dirty list, the key

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig, ade20k
+from riskfield.protocol import field as field_query
 
 from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import FloorParams, MapperConfig
@@ -464,6 +465,7 @@ class Mapper:
         semantic_occupancy(tsdf, sem, self.label_to_group,
                            OccupancyRule(c.min_weight, c.surface_band, 1, interior="solid", fill_steps=1))
         self.esdf_integrator.warm_up()
+        field_query.warm_up()  # the query service's and the object tracker's
 
     # -- outputs --------------------------------------------------------------------------------
     def occupancy(self) -> np.ndarray:

@@ -53,8 +53,9 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
+from riskfield.protocol.kernels import Layout, view1, view2
+
 from ..runtime.jit import jit, threads
-from ..runtime.kernels import Layout, view1, view2
 from .config import TsdfParams
 from .layers import SemanticLayer, TsdfLayer
 from .pointmap import FrameRejected

@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from riskfield.protocol.kernels import Layout, view1, view2
+
 from ..runtime.jit import jit
-from ..runtime.kernels import Layout, view1, view2
 from .config import TsdfParams
 from .layers import TsdfLayer
 from .raycast import pixel_ray, ray_voxels

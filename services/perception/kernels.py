@@ -6,7 +6,7 @@ are their test oracles, in the same dtypes and operation order, and the publishe
 byte-identical (tests/perception/test_kernels.py).
 
 A kernel takes its arrays grouped by role in tuples (keyframe, truth, frame, matches, out), not
-one argument each; the groups are not a flat :class:`~..runtime.kernels.Layout` workspace because
+one argument each; the groups are not a flat :class:`riskfield.protocol.kernels.Layout` workspace because
 their arrays differ in dtype, come from the frame's message or the keyframe, and the outputs
 leave in the next message, so there is nothing a workspace could keep from one call to the next.
 """

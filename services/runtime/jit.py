@@ -1,21 +1,13 @@
-"""numba where it is installed: the one optional import behind the compiled kernels, the one
-decorator every kernel has (:func:`jit`), and what a node says while numba compiles.
+"""What a node does about its compiled kernels: says while numba compiles (:func:`watch_compiles`),
+runs their parallel loops on a thread count (:func:`threads`), and stops with the install hint where
+a kernel that runs only compiled meets an install without numba (:func:`require_numba`). numba's
+optional import and the kernels' decorator are ``protocol.kernels`` (:func:`jit`).
 
 The simulated camera path (``perception.kernels``, ``simulator.kernels``) and the filter's
 compiled step (``safety_filter.compiled``) run only compiled: where their kernels are built
 without numba, a ``ModuleNotFoundError`` for ``numba`` (:func:`require_numba`) stops the node at
 start with the runtime's one-line install hint (``service.missing_extra``). The extras that run
 them (``robot``, ``mapping``, ``sim``) install it.
-
-Every kernel is ``cache=True``: numba keeps its machine code on disk and a later process loads it
-instead of compiling. Where (numba/core/caching.py, ``CacheImpl._locator_classes``, first that
-fits): ``$NUMBA_CACHE_DIR/<folder>_<sha1 of the folder path>/`` when that variable is set
-(``UserProvidedCacheLocator``), else ``__pycache__`` next to the source when it is writable
-(``InTreeCacheLocator``: the checkout itself for ``pip install -e``), else the user's cache folder
-(``UserWideCacheLocator``, ``~/.cache/numba``). An entry is used only for the same source file
-(``_SourceFileBackedLocatorMixin.get_source_stamp``: a hash of the file), argument types, numba
-version and CPU (``Cache._index_key``, ``CPUCodegen.magic_tuple``). ``riskfield warmup``
-(``warmup.py``) fills it once at set-up; :func:`watch_compiles` makes a cold start say so.
 """
 
 from __future__ import annotations
@@ -28,27 +20,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-numba: Any
-try:
-    import numba
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - exercised on installs without numba
-    numba = None
-    HAVE_NUMBA = False
+from riskfield.protocol.kernels import HAVE_NUMBA, jit, numba
 
 __all__ = ["HAVE_NUMBA", "CompileWatch", "jit", "kernels", "numba", "require_numba", "threads", "watch_compiles"]
-
-
-def jit(fn=None, **options):
-    """``numba.njit`` with the on-disk cache (compiled once per install) and without the GIL, plus
-    numba's ``options`` (``parallel``, ``inline``, ``error_model``): the one decorator of every
-    kernel. Without numba, ``fn`` itself. ``@jit`` and ``@jit(**options)`` both work."""
-
-    def wrap(f):
-        return numba.njit(cache=True, nogil=True, **options)(f) if HAVE_NUMBA else f
-
-    return wrap if fn is None else wrap(fn)
 
 
 def require_numba(what: str) -> None:
@@ -60,6 +34,7 @@ def require_numba(what: str) -> None:
 #: The logger (and log-line name) of compile progress; ``COMPILING`` starts each such line, which
 #: is what a launcher reading a node's output looks for (``processes.Child.compiling``).
 LOGGER = "kernels"
+_VIEWS = "riskfield.protocol.kernels"
 COMPILING = "compiling kernel"
 
 
@@ -150,8 +125,10 @@ class CompileWatch:
         if first:
             self.log.info("numba's cache has no %s for this process: compiling (once; `riskfield warmup` "
                           "does it ahead of start)", name)
-        # Of the kernels loaded now: those compiled plus those not called yet (more modules may load).
-        pending = sum(1 for d in kernels() if not d.overloads and kernel_name(d) not in self._names)
+        # Of the kernels loaded now: those compiled plus those not called yet (more modules may load),
+        # but for the workspace views, which compile only inside the kernels that carve with them.
+        pending = sum(1 for d in kernels() if not d.overloads and kernel_name(d) not in self._names
+                      and d.py_func.__module__ != _VIEWS)
         self.log.info("%s %s (%d of %d, %.1f s so far)", COMPILING, name, n, n + pending, now - self._first)
 
     def _end(self) -> None:

@@ -2,7 +2,7 @@
 
 :class:`CompiledStep` is the step of :class:`SafetyFilter <.filter.SafetyFilter>`: the barrier
 points now and one period ahead, the query of an :class:`~riskfield.services.fields.grid.EsdfField`
-(``fields.compiled.query_point``: stencil, border extrapolation, trilinear or cubic kernel), the
+(``protocol.field.query_point``: stencil, border extrapolation, trilinear or cubic kernel), the
 CBF rows per model, the dropping of rows that hold on the whole box, the dual active-set QP, the
 soft predictive rows and the slack relaxation, in one ``numba.njit`` call over preallocated
 buffers, so a step allocates nothing in Python but its result. Any other ``DistanceField`` (an
@@ -30,7 +30,7 @@ neither by a primal step nor by releasing an active row. A single row is solved 
 along its breakpoints (:func:`_one_row`). Numerical trouble (a singular system, the iteration
 limit) is reported as ``solver_failed`` and the step brakes.
 
-The buffers are laid out once (:data:`FLOATS`, :data:`INTS`: ``runtime.kernels.Layout``), and
+The buffers are laid out once (:data:`FLOATS`, :data:`INTS`: ``protocol.kernels.Layout``), and
 each phase of the step carves the views it needs by slot name. The kernels are compiled (or
 loaded from numba's on-disk cache) when the filter is built, in the node's setup, never in the
 control loop.
@@ -42,10 +42,11 @@ import math
 
 import numpy as np
 
-from ..fields.compiled import QUERY_SCRATCH_SIZE, kernel_view, query_point
+from riskfield.protocol.field import QUERY_SCRATCH_SIZE, kernel_view, query_point
+from riskfield.protocol.kernels import Layout, view1, view2, view3
+
 from ..fields.grid import EsdfField
 from ..runtime.jit import HAVE_NUMBA, jit
-from ..runtime.kernels import Layout, view1, view2, view3
 from . import model as mdl
 from .model import GAIN_COLUMNS, OBJECT_COLUMNS, YIELD, DescInts
 from .state import FilterState
@@ -724,7 +725,7 @@ def _relax(wf, wi, lf, li, dl, m, n, nlive):
 def step_kernel(wf, wi, lf, li, dl, field, table):
     """One filter step (SafetyFilter.filter) over the workspaces ``wf``, ``wi`` (laid out by the
     tables ``lf``, ``li`` of :data:`FLOATS`, :data:`INTS`; ``dl`` the description's
-    ``model.DESC`` table), the field as ``fields.compiled.kernel_view`` gives it and the gains per
+    ``model.DESC`` table), the field as ``protocol.field.kernel_view`` gives it and the gains per
     risk group (``table``). Outcome in INTS "out" = [code, risk group, rows, intervening,
     yielding, object rows], FLOATS "out" = [h at the critical point, the barrier there] and "u"."""
     out_i, out_f = view1(wi, li, I.out), view1(wf, lf, F.out)
@@ -847,7 +848,7 @@ class CompiledStep:
         return INTS.view(self.wi, self.li, name)
 
     def prepare(self, field: EsdfField) -> tuple:
-        """The kernel's view of a field (``fields.compiled.kernel_view``), kept per map."""
+        """The kernel's view of a field (``protocol.field.kernel_view``), kept per map."""
         if self._field is not None and self._field[0] is field:
             return self._field[1]
         view = kernel_view(field)

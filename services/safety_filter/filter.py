@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from riskfield.protocol import RiskConfig, ade20k
+from riskfield.protocol import field as field_query
 
 from ..fields import DistanceField, EsdfField, FieldSample
 from . import compiled
@@ -147,6 +148,7 @@ class SafetyFilter:
         self.model.integrate(s, np.zeros(self.model.n), self.config.dt)
         self.model.backup(s, np.array([1.0, 0.0, 0.0]))
         self.model.brake(s)
+        field_query.warm_up()  # the clearance and the evasion read the field outside the step
 
     def field_for(self, field: DistanceField) -> DistanceField:
         """An ``EsdfField`` read with the configured interpolation (the wrap is kept per map)."""

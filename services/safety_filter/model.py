@@ -52,8 +52,9 @@ from enum import IntEnum
 
 import numpy as np
 
+from riskfield.protocol.kernels import Layout, view1, view2
+
 from ..runtime.jit import jit
-from ..runtime.kernels import Layout, view1, view2
 
 # How the body points turn with the robot (ModelSpec.attitude).
 NO_ATTITUDE, YAW, FULL = 0, 1, 2

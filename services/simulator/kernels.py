@@ -6,7 +6,7 @@ rendering in tests/oracles/sim_camera.py is their test oracle (tests/simulator/t
 checks the bytes).
 
 ``shade_kernel``'s arrays come grouped by role in tuples (hits, camera, scene, out), not one argument each; not a
-flat :class:`~..runtime.kernels.Layout` workspace, because they differ in dtype, the hits are
+flat :class:`riskfield.protocol.kernels.Layout` workspace, because they differ in dtype, the hits are
 open3d's and the outputs leave in the frame, so there is nothing a workspace could keep.
 """
 from __future__ import annotations

