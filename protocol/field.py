@@ -328,22 +328,18 @@ def query_point(field, k, p, i, out, scratch):
             for q in range(4):
                 w[a, o, q] = poly[o, q, 0] + poly[o, q, 1] * t + poly[o, q, 2] * t2 + poly[o, q, 3] * t3
     inside[i] = ins
-    flat_near = nx * strides[0] + ny * strides[1]
-    if dims == 3:
-        flat_near += nz * strides[2]
-    rg_out[i] = rgs[flat_near]
+    rg_out[i] = rgs[nx * strides[0] + ny * strides[1] + nz * strides[2]]  # nz = 0 on a slice
     # The 4^dims stencil, clamped to the grid, then clamped layers replaced by linear extrapolation.
-    nzs = 4 if dims == 3 else 1
+    # A slice is one z layer, read with the value's weight 1 alone: it is extruded along z.
+    nzs, kz = (4, k) if dims == 3 else (1, 1)
+    if dims == 2:
+        w[2, 0, 0] = 1.0
     for a in range(4):
         xa = min(max(ix0 - 1 + a, 0), shape[0] - 1) * strides[0]
         for b in range(4):
             yb = min(max(iy0 - 1 + b, 0), shape[1] - 1) * strides[1]
-            if dims == 3:
-                for c in range(4):
-                    zc = min(max(iz0 - 1 + c, 0), shape[2] - 1) * strides[2]
-                    block[a, b, c] = flat[xa + yb + zc]
-            else:
-                block[a, b, 0] = flat[xa + yb]
+            for c in range(nzs):
+                block[a, b, c] = flat[xa + yb + min(max(iz0 - 1 + c, 0), shape[2] - 1) * strides[2]]
     starts = (ix0, iy0, iz0)
     for ax in range(dims):
         lo = starts[ax] == 0
@@ -367,66 +363,45 @@ def query_point(field, k, p, i, out, scratch):
                         block[e, f, 0] = 2 * block[e, f, 1] - block[e, f, 2]
                     if hi:
                         block[e, f, 3] = 2 * block[e, f, 2] - block[e, f, 1]
-    for a in range(3):
-        grad[i, a] = 0.0
-        for b in range(3):
-            hess[i, a, b] = 0.0
-    if dims == 2:
-        # r[ox, oy] = Σ_ab wx[ox, a] block[a, b] wy[oy, b]
-        for a in range(4):
-            for oy in range(k):
-                s = 0.0
-                for b in range(4):
-                    s += block[a, b, 0] * w[1, oy, b]
-                r1[a, oy, 0] = s
-        for ox in range(k):
-            for oy in range(k):
-                s = 0.0
-                for a in range(4):
-                    s += w[0, ox, a] * r1[a, oy, 0]
-                r3[ox, oy, 0] = s
-        dist[i] = r3[0, 0, 0]
-        grad[i, 0] = r3[1, 0, 0]
-        grad[i, 1] = r3[0, 1, 0]
-        if k == 3:
-            hess[i, 0, 0] = r3[2, 0, 0]
-            hess[i, 0, 1] = r3[1, 1, 0]
-            hess[i, 1, 0] = r3[1, 1, 0]
-            hess[i, 1, 1] = r3[0, 2, 0]
-        return
-    # Contract z, then y, then x.
+    # r[ox, oy, oz] = Σ_abc wx[ox, a] wy[oy, b] wz[oz, c] block[a, b, c]: contract z, then y, then x.
     for a in range(4):
         for b in range(4):
-            for oz in range(k):
+            for oz in range(kz):
                 s = 0.0
-                for c in range(4):
+                for c in range(nzs):
                     s += block[a, b, c] * w[2, oz, c]
                 r1[a, b, oz] = s
     for a in range(4):
         for oy in range(k):
-            for oz in range(k):
+            for oz in range(kz):
                 s = 0.0
                 for b in range(4):
                     s += w[1, oy, b] * r1[a, b, oz]
                 r2[a, oy, oz] = s
     for ox in range(k):
         for oy in range(k):
-            for oz in range(k):
+            for oz in range(kz):
                 s = 0.0
                 for a in range(4):
                     s += w[0, ox, a] * r2[a, oy, oz]
                 r3[ox, oy, oz] = s
+    for a in range(3):
+        grad[i, a] = 0.0
+        for b in range(3):
+            hess[i, a, b] = 0.0
     dist[i] = r3[0, 0, 0]
     grad[i, 0] = r3[1, 0, 0]
     grad[i, 1] = r3[0, 1, 0]
-    grad[i, 2] = r3[0, 0, 1]
     if k == 3:
         hess[i, 0, 0] = r3[2, 0, 0]
         hess[i, 1, 1] = r3[0, 2, 0]
-        hess[i, 2, 2] = r3[0, 0, 2]
         hess[i, 0, 1] = hess[i, 1, 0] = r3[1, 1, 0]
-        hess[i, 0, 2] = hess[i, 2, 0] = r3[1, 0, 1]
-        hess[i, 1, 2] = hess[i, 2, 1] = r3[0, 1, 1]
+    if dims == 3:
+        grad[i, 2] = r3[0, 0, 1]
+        if k == 3:
+            hess[i, 2, 2] = r3[0, 0, 2]
+            hess[i, 0, 2] = hess[i, 2, 0] = r3[1, 0, 1]
+            hess[i, 1, 2] = hess[i, 2, 1] = r3[0, 1, 1]
 
 
 @jit

@@ -265,7 +265,7 @@ class DynamicParams(BaseModel):
     against a far wall seen at confidence ≈ 1.8; with 5, 3 frames."""
     dynamic_moving_persist_s: NonNeg = 0.5
     """T_w: how long a person's or animal's voxels outlive the last frame that saw them, where the
-    tracker (``map/objects``) places no one standing and sees no one now (``Mapper.decay``,
+    tracker (``map/objects``) places no one standing and sees no one now (``DynamicDecay``,
     ``ObjectTracker.protected``): a walker who left the view, the place a person stood before
     walking off, the top of a person too close for the camera's view. They are not there any more
     (at 1 m/s, 0.5 m on after 0.5 s: past their own radius and the high-risk margin), and holding

@@ -68,7 +68,7 @@ class SemanticLayer:
 def overlay(base: tuple, top: tuple, out: tuple, min_weight: float, band: float) -> int:
     """Flat (C-order) layers, each (tsdf, weight, view, label, vote): ``out`` = ``top`` where it has
     seen a voxel (weight ≥ ``min_weight``) and ``base`` has not or they disagree on an obstacle
-    (TSDF ≤ ``band``), else ``base`` (``Mapper.layers``); one pass instead of a dozen whole-array
+    (TSDF ≤ ``band``), else ``base`` (``PresentLayer.over``); one pass instead of a dozen whole-array
     operations. Returns the voxels taken from ``top``."""
     base_d, base_w, base_view, base_label, base_vote = base
     top_d, top_w, top_view, top_label, top_vote = top

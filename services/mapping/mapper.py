@@ -6,6 +6,8 @@
     update_esdf()      TSDF surface + solid interior + labels → semantic occupancy (occupancy.py)
                        → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator;
                        the 3-D grid incrementally from the last one while volume and margins stay)
+    decay()            people's and animals' voxels unseen for long enough leave the layers
+                       (DynamicDecay, before each occupancy)
     query(points)      distance, gradient, risk group of the latest field (fields.EsdfField)
 
 The volume follows the robot: ``set_robot_position`` (from ``RobotState``) recentres it
@@ -22,7 +24,7 @@ authors' release integrates every current frame:
 * Frames without ``kind`` are integrated into the TSDF (``tsdf``/``semantic``) as before.
 * Under the keyframe protocol (``keyframes.py``) the keyframes' contributions stay exact and
   removable in ``tsdf``, and every current frame is *also* integrated into the **present layer**
-  (``present``/``present_semantic``): a running mean capped at ``max_weight``, i.e. the last few
+  (``present``, ``present.py``): a running mean capped at ``max_weight``, i.e. the last few
   frames (the keyframes' own sums are uncapped, so they could not follow). Where the two disagree
   on whether a voxel is an obstacle (a person who came or left), or only the present layer has
   seen it, the occupancy reads the present layer; elsewhere the keyframes' exact, re-posable map.
@@ -55,18 +57,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig, ade20k
+from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig
 from riskfield.protocol import field as field_query
 
 from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
 from .config import FloorParams, MapperConfig
+from .decay import DecayLayers, DynamicDecay
 from .esdf_integrator import EsdfIntegrator
 from .free_floor import FreeFloorIntegrator, FreeFloorLayer
 from .keyframes import NEW, UPDATE, KeyframeData, KeyframeMap
-from .layers import NEVER, NO_LABEL, SemanticLayer, TsdfLayer, overlay
+from .layers import NEVER, SemanticLayer, TsdfLayer
 from .objects import MapReading
 from .occupancy import OccupancyRule, semantic_occupancy
 from .pointmap import FrameRejected, check_pointmap, check_pose
+from .present import PresentLayer
 from .projective_integrator import ProjectiveIntegrator
 from .semantic_integrator import SemanticIntegrator
 from .tsdf_integrator import TsdfIntegrator
@@ -132,25 +136,15 @@ class Mapper:
         self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
         self.keyframes = KeyframeMap.of(self.config)  # the keyframe map-update protocol (keyframes.py)
-        # The present layer (module doc): made on the first current frame of the keyframe protocol.
-        self.present: TsdfLayer | None = None
-        self.present_semantic: SemanticLayer | None = None
-        self._composite: tuple[TsdfLayer, SemanticLayer] | None = None
+        #: the keyframe protocol's present layer (present.py)
+        self.present = PresentLayer(self.shape, c.truncation, c.min_weight, c.surface_band)
         self.read: tuple[TsdfLayer, SemanticLayer] = (self.tsdf, self.semantic)  # what the last occupancy read
-        self.overlaid = 0  # voxels the present layer decided in the last occupancy
-        self.present_clears = 0
         # Frame time on the layers' ``hit`` clock: ms since the first frame (int32 spans 24 days).
         self.epoch_ns: int | None = None
         self.now_ms = 0
-        self._decayed_ms = NEVER
-        self.decayed_voxels = 0
-        self.forgotten_voxels = 0  # walkers' voxels cleared by ``forget``
         self._groups: tuple[np.ndarray, np.ndarray] | None = None  # the last occupancy, at its origin index
-        #: where the tracker keeps people for T (``ObjectTracker.protected``; ``decay``); None: no tracker
-        self.protected: list[tuple[np.ndarray, float]] | None = None
-        self._dynamic = np.zeros(NO_LABEL + 1, bool)
-        for name in c.dynamic_labels:
-            self._dynamic[ade20k.index(name)] = True
+        #: people's and animals' voxels fade (decay.py); the node sets its ``protected`` from the tracker
+        self.dynamic = DynamicDecay(c.dynamic, c.surface_band, c.object_gate)
 
     # -- inputs ---------------------------------------------------------------------------------
     def set_risk_config(self, risk: RiskConfig) -> None:
@@ -188,9 +182,7 @@ class Mapper:
             return False
         self.tsdf.shift(delta)
         self.semantic.shift(delta)
-        if self.present is not None and self.present_semantic is not None:
-            self.present.shift(delta)
-            self.present_semantic.shift(delta)
+        self.present.shift(delta)
         self.esdf_integrator.shift(delta)
         self.free_floor.shift(delta)
         self.shifts += 1
@@ -273,135 +265,35 @@ class Mapper:
         """A current frame under the keyframe protocol → the present layer (module doc); ``points``:
         its pointmap when already rebuilt (``PerceptionFrame.pointmap``)."""
         assert self.volume is not None
-        if self.present is None or self.present_semantic is None:
-            self.present = TsdfLayer(self.shape, self.config.truncation)
-            self.present_semantic = SemanticLayer(self.shape)
+        tsdf, semantic = self.present.layers()
         stamp = int(frame.header.stamp_ns) or time.time_ns()
         pts = frame.pointmap() if points is None else points
-        return self._integrate_into(self.present, self.present_semantic, self._integrators(), pts,
-                                    frame.confidence, frame.labels, frame.T_WC, frame.intrinsics, self.clock(stamp))
+        return self._integrate_into(tsdf, semantic, self._integrators(), pts, frame.confidence, frame.labels,
+                                    frame.T_WC, frame.intrinsics, self.clock(stamp))
 
     def clear_present(self) -> None:
         """The keyframes were re-posed: the present layer was built in the old frame of reference."""
-        if self.present is not None and self.present_semantic is not None:
-            self.present.clear()
-            self.present_semantic.clear()
-            self.present_clears += 1
+        if self.present.clear():
             self.dirty = True
 
     def decay(self) -> int:
-        """Clear people's and animals' voxels no current frame has seen at a surface for
-        ``dynamic_persist_s`` (module doc), or for ``dynamic_moving_persist_s`` outside the
-        vertical cylinders ``protected`` (set by the node from ``ObjectTracker.protected``: where
-        people stand or are seen now; None: no tracker, T everywhere); cap the weight of the rest
-        at ``dynamic_max_weight``. At most every 0.1 s of frame time. Returns the count."""
-        if self.now_ms - self._decayed_ms < 100:
-            return 0
-        self._decayed_ms = self.now_ms
-        c = self.config
-        oldest = self.now_ms - round(c.dynamic_persist_s * 1e3)
-        gone = self.now_ms - round(c.dynamic_moving_persist_s * 1e3) if self.protected is not None else None
-        n, forgotten = self._forget(oldest, gone, self.protected, c.dynamic_max_weight)
-        self.decayed_voxels += n
-        self.forgotten_voxels += forgotten
-        return n
-
-    def _forget(self, oldest: int, gone: int | None, protected: list[tuple[np.ndarray, float]] | None,
-                cap: float | None = None) -> tuple[int, int]:
-        """Clear people's and animals' obstacle voxels last hit before ``oldest`` (ms), or before
-        ``gone`` outside the ``protected`` cylinders, in both layers; cap the others' weight at
-        ``cap``. Free space is kept. Returns (voxels cleared, of which for ``gone``)."""
-        n = forgotten = 0
-        layers = [(self.tsdf, self.semantic)]
-        if self.present is not None and self.present_semantic is not None:
-            layers.append((self.present, self.present_semantic))
-        keep = None
-        if gone is not None and protected:
-            vol = self.volume
-            assert vol is not None
-            nx, ny, _ = vol.shape
-            xy = vol.to_world(np.stack(np.meshgrid(np.arange(nx), np.arange(ny), [0], indexing="ij"), -1))[..., 0, :2]
-            inside = np.zeros((nx, ny), bool)
-            for centre, radius in protected:
-                # The footprint grown by the association gate: the map shows a person a frame or
-                # two late, so their leading edge not yet in the occupancy lies around it.
-                r = radius + self.config.object_gate
-                inside |= np.hypot(xy[..., 0] - centre[0], xy[..., 1] - centre[1]) <= r
-            keep = inside
-        for tsdf, sem in layers:
-            # Obstacle voxels first (a few % of the volume), then their labels and times: only
-            # what makes an obstacle is cleared, free space is kept.
-            flat_t, flat_w = tsdf.tsdf.reshape(-1), tsdf.weight.reshape(-1)
-            cand = np.flatnonzero((flat_t <= self.config.surface_band) & (flat_w > 0))
-            # A person's or animal's voxels: their labelled surface, and the unlabelled inside to
-            # which the last occupancy gave their group (it is out of view when they stand close:
-            # above the camera's view, it would outlive them, kept by a surface still in view).
-            labels = sem.label.reshape(-1)[cand]
-            body = self._dynamic[labels]
-            groups = self._groups
-            if groups is not None and self.volume is not None and (groups[1] == self.volume.origin_index).all():
-                moving = np.zeros(256, bool)
-                moving[self.label_to_group[np.flatnonzero(self._dynamic)]] = True
-                moving[0] = False
-                body |= (labels == NO_LABEL) & moving[groups[0].reshape(-1)[cand]]
-            cand = cand[body]
-            if cap is not None and (tsdf is self.present or not len(self.keyframes)):
-                # running means only: the keyframes' sums must stay exactly removable
-                flat_w[cand] = np.minimum(flat_w[cand], np.float32(cap))
-            hit = tsdf.hit.reshape(-1)[cand]
-            if gone is None:
-                cand = cand[hit < oldest]
-            else:
-                away = hit < gone
-                if keep is not None:
-                    away &= ~keep.reshape(-1)[cand // tsdf.tsdf.shape[2]]
-                forgotten += int((away & (hit >= oldest)).sum())
-                cand = cand[(hit < oldest) | away]
-            stale = np.unravel_index(cand, tsdf.tsdf.shape)
-            k = int(cand.size)
-            if k:
-                tsdf.tsdf[stale] = tsdf.truncation
-                tsdf.weight[stale] = 0.0
-                tsdf.view[stale] = 0
-                tsdf.hit[stale] = NEVER
-                sem.label[stale] = NO_LABEL
-                sem.vote[stale] = 0.0
-                n += k
+        """People's and animals' voxels unseen for long enough leave the layers (``decay.py``);
+        at most every 0.1 s of frame time. Returns the count."""
+        layers = [DecayLayers(self.tsdf, self.semantic, running_mean=not len(self.keyframes))]
+        if self.present.tsdf is not None and self.present.semantic is not None:
+            layers.append(DecayLayers(self.present.tsdf, self.present.semantic, running_mean=True))
+        groups = self._groups
+        at_origin = groups is not None and self.volume is not None and (groups[1] == self.volume.origin_index).all()
+        n = self.dynamic.decay(self.now_ms, layers, self.volume, groups[0] if at_origin else None,
+                               self.label_to_group)
         if n:
             self.dirty = True
-        return n, forgotten
+        return n
 
     def layers(self) -> tuple[TsdfLayer, SemanticLayer]:
         """What the occupancy reads: the keyframes' TSDF, overlaid by the present layer where the
-        two disagree (module doc)."""
-        p, ps = self.present, self.present_semantic
-        if p is None or ps is None:
-            return self.tsdf, self.semantic
-        if self._composite is None or self._composite[0].tsdf.shape != self.tsdf.tsdf.shape:
-            self._composite = (TsdfLayer(self.shape, self.config.truncation), SemanticLayer(self.shape))
-        ct, cs = self._composite
-        t, sem, c = self.tsdf, self.semantic, self.config
-        n = t.tsdf.size
-
-        def flat(d: TsdfLayer, s: SemanticLayer) -> tuple[np.ndarray, ...]:
-            return d.tsdf.reshape(n), d.weight.reshape(n), d.view.reshape(n, 3), s.label.reshape(n), s.vote.reshape(n)
-
-        self.overlaid = overlay(flat(t, sem), flat(p, ps), flat(ct, cs), max(c.min_weight, 1e-12), c.surface_band)
-        return ct, cs
-
-    def overlay_mask(self) -> np.ndarray:
-        """Voxels where the present layer's verdict replaces the keyframes': it has observed the
-        voxel (weight ≥ ``min_weight``) and the keyframes have not, or they disagree on whether it
-        is an obstacle (surface band or behind it). Where both agree the keyframes' exact,
-        re-posable map stands, so a correction's result does not depend on the last few frames."""
-        assert self.present is not None
-        c, p, t = self.config, self.present, self.tsdf
-        mw = max(c.min_weight, 1e-12)
-        seen_p = p.weight >= mw
-        seen_t = t.weight >= mw
-        occ_p = seen_p & (p.tsdf <= c.surface_band)
-        occ_t = seen_t & (t.tsdf <= c.surface_band)
-        return seen_p & (~seen_t | (occ_p != occ_t))
+        two disagree (``PresentLayer.over``)."""
+        return self.present.over(self.tsdf, self.semantic)
 
     def integrate_frame(self, frame: PerceptionFrame, latest_ns: int | None = None) -> FrameResult:
         """Fuse a frame; with ``latest_ns`` (the receiver's wall clock plus its tolerance), a frame
@@ -490,7 +382,7 @@ class Mapper:
         return MapReading(
             occupancy=occupancy, band=(k_lo, k_hi), origin=self.volume.origin, voxel_size=self.volume.voxel_size,
             label=semantic.label, tsdf=tsdf.tsdf, weight=tsdf.weight, min_weight=self.config.min_weight,
-            hit=self.tsdf.hit, present_hit=None if self.present is None else self.present.hit,
+            hit=self.tsdf.hit, present_hit=None if self.present.tsdf is None else self.present.tsdf.hit,
             label_to_group=self.label_to_group, stamp_ns=self.stamp_ns, now_ms=self.now_ms)
 
     def band_indices(self) -> tuple[int, int, float]:

@@ -133,9 +133,9 @@ class MappingNode:
         if frame.kind is not None:  # the keyframe protocol's counters (keyframes.py)
             kf = self.mapper.keyframes
             st.update({f"kf_{k}": v for k, v in kf.counts.items()}, kf_bytes=kf.nbytes,
-                      present_clears=self.mapper.present_clears)
-        st["decayed_voxels"] = self.mapper.decayed_voxels  # people and animals unseen for dynamic_persist_s
-        st["forgotten_voxels"] = self.mapper.forgotten_voxels  # walkers out of view (dynamic_moving_persist_s)
+                      present_clears=self.mapper.present.clears)
+        st["decayed_voxels"] = self.mapper.dynamic.decayed_voxels  # people and animals unseen for dynamic_persist_s
+        st["forgotten_voxels"] = self.mapper.dynamic.forgotten_voxels  # walkers out of view (dynamic_moving_persist_s)
         self.publish_esdf()  # right away when the rate allows: no waiting for the timer's phase
 
     def on_state(self, state: RobotState) -> None:
@@ -208,7 +208,7 @@ class MappingNode:
             return
         t0 = time.perf_counter()
         objects = self.tracker.update_map(self.mapper.reading(update.occupancy))
-        self.mapper.protected = self.tracker.protected()  # the next decay forgets the rest (T_w)
+        self.mapper.dynamic.protected = self.tracker.protected()  # the next decay forgets the rest (T_w)
         self.node.publish(self.node.keys.objects, TrackedObjects(header=update.primary.header.model_copy(),
                                                                  objects=objects))
         self.node.stats.update(objects=len(objects), objects_ms=(time.perf_counter() - t0) * 1e3)

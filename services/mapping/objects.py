@@ -416,7 +416,7 @@ class ObjectTracker:
 
     def protected(self) -> list[tuple[np.ndarray, float]]:
         """Footprints (position, radius ≤ ``object_body_radius``) the map must keep people and animals in for
-        ``dynamic_persist_s`` (``Mapper.decay`` forgets their voxels elsewhere after
+        ``dynamic_persist_s`` (``DynamicDecay`` forgets their voxels elsewhere after
         ``dynamic_moving_persist_s``): where each was last seen standing (a track too new for a
         velocity counts as standing), and where each track seen within ``dynamic_moving_persist_s``
         is. A walker who left the view, and the place a person stood before walking off, are not."""

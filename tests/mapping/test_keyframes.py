@@ -61,7 +61,7 @@ def test_a_correction_reaches_the_esdf_within_one_voxel(room: list, small_camera
     m.integrate_frame(frame(room, small_camera, Ts[2], Ts[2], 2, "keyframe_update"))
     # The re-pose cleared the present layer (built in the drifted frame of reference): the map is
     # the keyframes' until the next frames, so the reference is too.
-    assert m.present_clears == 1
+    assert m.present.clears == 1
     ref.clear_present()
     d_ref = ref.update_esdf().grid3d.distance  # type: ignore[union-attr]
     d_fixed = m.update_esdf().grid3d.distance  # type: ignore[union-attr]
@@ -122,15 +122,15 @@ def test_tracked_frames_reach_the_present_layer_and_only_new_data_stamps(room: l
     w = m.tsdf.weight.copy()
     m.update_esdf()
     assert not m.dirty and m.stamp_ns == 10
-    assert m.present is not None
-    p = m.present.weight.copy()
+    assert m.present.tsdf is not None
+    p = m.present.tsdf.weight.copy()
     m.integrate_frame(frame(room, small_camera, poses()[1], poses()[1], 0, "tracking", stamp=20))
     np.testing.assert_array_equal(m.tsdf.weight, w)  # no keyframe's contribution changed
-    assert (m.present.weight != p).any()
+    assert (m.present.tsdf.weight != p).any()
     assert m.dirty and m.stamp_ns == 20 and m.keyframes.counts["tracking"] == 1
     m.update_esdf()
     m.integrate_frame(frame(room, small_camera, T, T, 0, "keyframe_update", stamp=30))  # re-sent: no new data
-    assert m.stamp_ns == 20 and m.present_clears == 0
+    assert m.stamp_ns == 20 and m.present.clears == 0
     blind = frame(room, small_camera, T, T, 0, "tracking", stamp=40)
     blind = blind.model_copy(update={"confidence": np.zeros_like(blind.confidence)})
     m.update_esdf()

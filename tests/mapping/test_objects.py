@@ -91,7 +91,7 @@ def only(objs: list[TrackedObject]) -> TrackedObject:
 def test_a_walker_is_tracked_where_the_newest_frame_sees_them_not_along_the_trail_the_map_keeps(heading, speed,
                                                                                                  turn):
     """The map holds a walker's trail, back to where they stood, a while after each frame saw it
-    (``Mapper.decay``, ``ObjectTracker.protected``): the trail and the walker are one footprint, whose
+    (``DynamicDecay``, ``ObjectTracker.protected``): the trail and the walker are one footprint, whose
     whole centre moves at half their speed. The tracked centre is the newest sighting's, so the
     position is the walker's and the velocity within 0.15 m/s of theirs after 6 maps."""
     vel = speed * np.array([math.cos(heading), math.sin(heading)])
@@ -405,7 +405,7 @@ def test_a_standing_person_in_a_real_map_seen_from_a_moving_camera_stays_at_zero
 
 
 def test_protected_keeps_where_people_stand_and_who_is_seen_not_where_walkers_were() -> None:
-    """``ObjectTracker.protected`` (what ``Mapper.forget`` keeps): a person last seen standing stays
+    """``ObjectTracker.protected`` (what the decay stage, ``DynamicDecay``, keeps): a person last seen standing stays
     protected for ``dynamic_persist_s`` after their track expired; a walker who stopped being seen
     is not, after ``dynamic_moving_persist_s``; where someone stood before walking off is not."""
     tracker = ObjectTracker()

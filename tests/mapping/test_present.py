@@ -13,8 +13,10 @@ from riskfield.services.geometry.camera import PinholeCamera
 from riskfield.services.geometry.shapes import Box, Plane, render
 from riskfield.services.geometry.transforms import look_at
 from riskfield.services.mapping.config import MapperConfig
+from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
 from riskfield.services.mapping.mapper import Mapper
 from riskfield.services.mapping.objects import ObjectTracker
+from riskfield.services.mapping.present import PresentLayer
 
 CAM = PinholeCamera.centred(160, 120, 125.0)
 K = (CAM.fx, CAM.fy, CAM.cx, CAM.cy)
@@ -50,7 +52,7 @@ class Feed:
         update = self.m.update_esdf()
         if self.tracker is not None and update is not None and update.occupancy is not None:
             self.tracker.update_map(self.m.reading(update.occupancy))
-            self.m.protected = self.tracker.protected()
+            self.m.dynamic.protected = self.tracker.protected()
 
     def at(self, x: float, y: float = 0.0) -> tuple[float, int]:
         s = self.m.query(np.array([[x, y, 0.3]]))
@@ -186,31 +188,49 @@ def test_a_standing_person_out_of_view_is_not_forgotten_early() -> None:
         feed.frame([*ROOM, person()])
     for _ in range(round(feed.m.config.dynamic_persist_s / 0.1) - 2):
         feed.frame(ROOM, AWAY)
-    assert feed.shows_person() and feed.m.forgotten_voxels == 0
+    assert feed.shows_person() and feed.m.dynamic.forgotten_voxels == 0
+
+
+def overlay_mask(present: PresentLayer, tsdf: TsdfLayer) -> np.ndarray:
+    """``PresentLayer.over``'s rule by array operations: where the present layer has observed a voxel
+    and the keyframes have not, or they disagree on whether it is an obstacle."""
+    p, mw, band = present.tsdf, present.min_weight, present.surface_band
+    assert p is not None
+    seen_p, seen_t = p.weight >= mw, tsdf.weight >= mw
+    return seen_p & (~seen_t | ((seen_p & (p.tsdf <= band)) != (seen_t & (tsdf.tsdf <= band))))
 
 
 def test_the_compiled_overlay_equals_its_array_definition() -> None:
-    """``Mapper.layers`` (one compiled pass) against ``Mapper.overlay_mask`` (array operations)."""
-    from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
-
+    """``PresentLayer.over`` (one compiled pass) against its rule by array operations."""
     rng = np.random.default_rng(3)
-    m = Mapper(MapperConfig(half_extent=(0.5, 0.5, 0.5)))
-    m.set_robot_position(np.zeros(3))
-    m.present, m.present_semantic = TsdfLayer(m.shape, 0.15), SemanticLayer(m.shape)
-    for t, s in ((m.tsdf, m.semantic), (m.present, m.present_semantic)):
-        t.tsdf[...] = rng.uniform(-0.15, 0.15, m.shape)
-        t.weight[...] = rng.choice([0.0, 0.3, 1.0, 20.0], m.shape)
-        t.view[...] = rng.integers(-127, 128, (*m.shape, 3))
-        s.label[...] = rng.integers(0, 150, m.shape)
-        s.vote[...] = rng.uniform(0, 5, m.shape)
-    use = m.overlay_mask()
-    ct, cs = m.layers()
-    assert 0 < m.overlaid == use.sum() < use.size
-    for out, base, top in ((ct.tsdf, m.tsdf.tsdf, m.present.tsdf), (ct.weight, m.tsdf.weight, m.present.weight),
-                           (cs.label, m.semantic.label, m.present_semantic.label),
-                           (cs.vote, m.semantic.vote, m.present_semantic.vote)):
-        np.testing.assert_array_equal(out, np.where(use, top, base))
-    np.testing.assert_array_equal(ct.view, np.where(use[..., None], m.present.view, m.tsdf.view))
+    shape = (10, 10, 10)
+    base, base_sem = TsdfLayer(shape, 0.15), SemanticLayer(shape)
+    present = PresentLayer(shape, 0.15, min_weight=0.5, surface_band=0.0375)
+    top, top_sem = present.layers()
+    for t, s in ((base, base_sem), (top, top_sem)):
+        t.tsdf[...] = rng.uniform(-0.15, 0.15, shape)
+        t.weight[...] = rng.choice([0.0, 0.3, 1.0, 20.0], shape)
+        t.view[...] = rng.integers(-127, 128, (*shape, 3))
+        s.label[...] = rng.integers(0, 150, shape)
+        s.vote[...] = rng.uniform(0, 5, shape)
+    use = overlay_mask(present, base)
+    ct, cs = present.over(base, base_sem)
+    assert 0 < present.overlaid == use.sum() < use.size
+    for out, b, t in ((ct.tsdf, base.tsdf, top.tsdf), (ct.weight, base.weight, top.weight),
+                      (cs.label, base_sem.label, top_sem.label), (cs.vote, base_sem.vote, top_sem.vote)):
+        np.testing.assert_array_equal(out, np.where(use, t, b))
+    np.testing.assert_array_equal(ct.view, np.where(use[..., None], top.view, base.view))
+
+
+def test_without_a_present_layer_the_keyframes_are_read_and_a_clear_is_nothing() -> None:
+    shape = (4, 4, 4)
+    base, base_sem = TsdfLayer(shape, 0.15), SemanticLayer(shape)
+    present = PresentLayer(shape, 0.15, min_weight=0.5, surface_band=0.0375)
+    assert present.over(base, base_sem) == (base, base_sem)
+    assert not present.clear() and present.clears == 0
+    top, _ = present.layers()
+    top.weight[...] = 1.0
+    assert present.clear() and present.clears == 1 and not top.weight.any()
 
 
 @pytest.mark.parametrize(("width", "ahead"), [(512, 2.0), (256, 3.0)])

@@ -175,7 +175,7 @@ def test_drift_and_correction_reach_the_esdf(tmp_path: Path) -> None:
     observed = ref.tsdf.weight > 0
     # The loop closure re-posed the world: the mapper's present layer (the last frames, in the
     # drifted frame of reference) was cleared, so the map is the keyframes' until the next frames.
-    assert m.present_clears >= 1 and m.present is not None and not (m.present.weight > 0).any()
+    assert m.present.clears >= 1 and m.present.tsdf is not None and not (m.present.tsdf.weight > 0).any()
     ref.clear_present()
     d = m.update_esdf().grid3d.distance  # type: ignore[union-attr]
     d_ref = ref.update_esdf().grid3d.distance  # type: ignore[union-attr]
