@@ -46,7 +46,11 @@ def test_relay_process_survives_1000_hostile_payloads_then_serves(router_endpoin
         assert wait_until(lambda: status.items and status.items[-1].received.get("map/in", 0) == 1001, 20), (
             status.items[-1:], relay.output[-2000:])
         last = status.items[-1]
-        assert last.invalid["map/in"] == 1000 and last.published["map/out"] == 1 and last.errors == 0
+        # Each hostile payload is decoded and refused, or, when a loaded machine lets the 1001 puts
+        # outrun the loop, dropped unread by the inbox's bound (fifo, 1000: oldest first, counted).
+        refused, dropped = last.invalid.get("map/in", 0), last.dropped.get("map/in", 0)
+        assert refused + dropped == 1000 and refused > 0, (refused, dropped)
+        assert last.published["map/out"] == 1 and last.errors == 0
         assert relay.alive()
         assert relay.stop(signal.SIGTERM) == 0
         log = relay.output
