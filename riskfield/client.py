@@ -2,7 +2,7 @@
 
 Light: numpy, ``eclipse-zenoh`` and ``riskfield.protocol`` (numpy, pydantic, msgpack), nothing of
 the services — a planner on another machine installs ``riskfield``, and ``riskfield[client]`` (numba)
-to run the grid query compiled (well under a microsecond a point, against ~150 µs interpreted)::
+to run the grid query compiled (well under a microsecond a point, against ~0.1-0.2 ms interpreted)::
 
     from riskfield.client import EsdfClient
 

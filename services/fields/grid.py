@@ -20,11 +20,8 @@ from .base import DistanceField, FieldSample
 
 
 class EsdfField(_field.EsdfField):
-    """A read-only view of one ESDF grid with vectorised interpolated queries (every interpolation).
-
-    ``distance`` (nx, ny, nz) must be finite with nx, ny ≥ 2 (nz = 1 is a 2-D slice);
-    ``risk_group`` has the same shape (defaults to all zeros). Arrays are not copied.
-    """
+    """The protocol's ``EsdfField`` with every interpolation: it adds the interpolating B-spline's
+    prefilter (scipy)."""
 
     def _coefficients(self, distance: np.ndarray, interpolation: Interpolation) -> np.ndarray:
         return field_spline.prefilter(distance, interpolation, self.planar)
