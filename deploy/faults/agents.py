@@ -9,8 +9,9 @@
 perception (a pointmap of a wall 3 m ahead, which the real mapping service turns into an
 ESDF), ``robot-inputs`` for the robot bridge and the joystick (state at 50 Hz, a forward
 reference at 30 Hz), and ``probe`` records what the robot side hears: the arrival time
-(CLOCK_MONOTONIC, shared by every namespace of the machine) of each ESDF, each ``cmd/safe``
-with its velocities, each ``safety/status`` with its fallback, one JSON object per line.
+(CLOCK_MONOTONIC, shared by every namespace of the machine) of each ESDF with its content stamp,
+each ``cmd/safe`` with its velocities and the wall clock it was computed at (its stamp), each
+``safety/status`` with its fallback, one JSON object per line.
 
 They use the wire contract (``riskfield.protocol``) and a plain Zenoh client session (built by
 the runtime's ``endpoint_config``); each
@@ -154,7 +155,8 @@ def probe(args: argparse.Namespace) -> None:
     def on_cmd(sample: zenoh.Sample) -> None:
         t = time.monotonic()
         cmd = decode(sample.payload.to_bytes(), VelocityCommand)
-        write({"t": t, "k": "cmd", "linear": list(cmd.linear), "angular": list(cmd.angular)})
+        write({"t": t, "k": "cmd", "linear": list(cmd.linear), "angular": list(cmd.angular),
+               "stamp_ns": cmd.header.stamp_ns})
 
     def on_status(sample: zenoh.Sample) -> None:
         t = time.monotonic()

@@ -205,7 +205,9 @@ class FilterSupervisor:
 
     def tick(self, now: float, wall_ns: int | None = None) -> tuple[VelocityCommand, SafetyStatus]:
         """The safe command for ``now`` and the status explaining it. With ``wall_ns`` (the local
-        wall clock) the map's content age is checked too and reported as ``esdf_age_ms``."""
+        wall clock) the map's content age is checked too and reported as ``esdf_age_ms``, and both
+        messages are stamped with it: the stamp is the clock the step judged freshness by, so a
+        receiver can check the content-age rule against the map stamps exactly."""
         self._wall_ns = wall_ns
         problem = self._problem("map", now) or self._problem("state", now) or self._problem("ref", now)
         field = self._slots["map"].value
@@ -217,7 +219,7 @@ class FilterSupervisor:
                 h, rg, inside = self.filter.barrier(state, field)  # type: ignore[arg-type]
                 if not inside or not math.isfinite(h):
                     h, rg = 0.0, 0
-            return self._brake(problem, now, h, rg)
+            return self._brake(problem, now, h, rg, wall_ns=wall_ns)
         assert isinstance(ref, VelocityCommand) and isinstance(state, FilterState)
         model = self.filter.model
         lin, ang = np.asarray(ref.linear, np.float64), np.asarray(ref.angular, np.float64)
@@ -228,7 +230,7 @@ class FilterSupervisor:
         res = self.filter.filter(state, u_ref, field, ang, objects)  # type: ignore[arg-type]
         self.last = res
         if res.fallback is not None and res.fallback != "slack":
-            return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us)
+            return self._brake(res.fallback, now, res.h, res.risk_group, res.solve_us, wall_ns)
         out_lin, out_ang = model.command(res.u, ang, state)
         if not (lin.any() or ang.any()):
             # A zero reference (the stick centred, the dead-man released) is a zero command: the
@@ -251,17 +253,18 @@ class FilterSupervisor:
                 out_ang = out_ang.copy()
                 out_ang[2] = w_driven
                 if not self._passes(state, out_lin, out_ang, field, objects):  # type: ignore[arg-type]
-                    return self._brake(UNSTEERABLE, now, res.h, res.risk_group, res.solve_us)
+                    return self._brake(UNSTEERABLE, now, res.h, res.risk_group, res.solve_us, wall_ns)
                 steered = True
                 self._count("steering_limited")
         if not (np.isfinite(out_lin).all() and np.isfinite(out_ang).all()):
-            return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us)
+            return self._brake("non_finite", now, res.h, res.risk_group, res.solve_us, wall_ns)
         if cap is not None:  # the QP may trade speed for safety, never exceed the cap
             out_lin, out_ang, _ = self.guard.cap(out_lin, out_ang, now)
         self._count(res.fallback)
-        cmd = VelocityCommand(header=Header(frame_id="base_link"), linear=tuple(out_lin.tolist()),
+        cmd = VelocityCommand(header=_header(wall_ns), linear=tuple(out_lin.tolist()),
                               angular=tuple(out_ang.tolist()), source=f"{SOURCE}/{ref.source}")
-        status = SafetyStatus(h=res.h, risk_group=res.risk_group, intervening=res.intervening, fallback=res.fallback,
+        status = SafetyStatus(header=_header(wall_ns, "map"), h=res.h, risk_group=res.risk_group,
+                              intervening=res.intervening, fallback=res.fallback,
                               solve_us=res.solve_us, esdf_age_ms=self.map_age_ms(now), yielding=res.yielding,
                               object_rows=res.object_rows, evading=retreat is not None,
                               scale_uncertain=self.guard.uncertain(now),
@@ -285,11 +288,12 @@ class FilterSupervisor:
         like the others."""
         return self._brake(reason, now, 0.0, 0)
 
-    def _brake(self, reason: str, now: float, h: float, rg: int, solve_us: float = 0.0) -> tuple[
-            VelocityCommand, SafetyStatus]:
+    def _brake(self, reason: str, now: float, h: float, rg: int, solve_us: float = 0.0,
+               wall_ns: int | None = None) -> tuple[VelocityCommand, SafetyStatus]:
         self._count(reason)
-        cmd = VelocityCommand.zero(SOURCE, header=Header(frame_id="base_link"))
-        status = SafetyStatus(h=h if math.isfinite(h) else 0.0, risk_group=max(int(rg), 0), intervening=True,
+        cmd = VelocityCommand.zero(SOURCE, header=_header(wall_ns))
+        status = SafetyStatus(header=_header(wall_ns, "map"), h=h if math.isfinite(h) else 0.0,
+                              risk_group=max(int(rg), 0), intervening=True,
                               fallback=reason, solve_us=solve_us if math.isfinite(solve_us) else 0.0,
                               esdf_age_ms=self.map_age_ms(now))
         return cmd, status
@@ -297,3 +301,8 @@ class FilterSupervisor:
     def _count(self, reason: str | None) -> None:
         key = reason or "ok"
         self.counts[key] = self.counts.get(key, 0) + 1
+
+
+def _header(wall_ns: int | None, frame_id: str = "base_link") -> Header:
+    """A step's messages are stamped with the step's wall clock, when it has one."""
+    return Header(frame_id=frame_id) if wall_ns is None else Header(frame_id=frame_id, stamp_ns=wall_ns)

@@ -211,18 +211,27 @@ class Violation:
     command: dict
 
 
-def stale_commands_not_braking(events: list[dict], t0: float, t1: float, timeout_s: float,
-                               slack_s: float) -> tuple[int, list[Violation]]:
-    """The fail-safe invariant on [t0, t1]: every cmd/safe heard while the newest ESDF heard is
-    older than ``timeout_s + slack_s`` must be a brake. Returns (commands checked, violations)."""
-    maps = esdf_times(events)
+def stale_commands_not_braking(events: list[dict], t0: float, t1: float, limit_s: float,
+                               heard_slack_s: float) -> tuple[int, list[Violation]]:
+    """The fail-safe invariant for the commands heard on [t0, t1]: every command made from map
+    content older than ``limit_s`` (the filter's timeout plus its clock tolerance) is a brake.
+    Returns (commands checked, violations).
+
+    Judged on stamps, not on when the probe heard things: a command's stamp is the wall clock its
+    filter step judged freshness by, an ESDF's the time of its content, so no scheduling delay of
+    the probe's enters the age. (By arrival times, CI once failed on a command heard 0.50 s after
+    the probe's last map: under loss an ESDF and a command made from it reach the probe in either
+    order.) The content the step can have had is the newest ESDF stamped no later than the step
+    that the probe heard no later than ``heard_slack_s`` after the command: a map the link held back
+    and delivered long after the step cannot have been used by it."""
+    maps = [(e["t"], e["stamp_ns"]) for e in events if e["k"] == "esdf"]
     checked, bad = 0, []
     for e in events:
         if e["k"] != "cmd" or not t0 <= e["t"] <= t1:
             continue
-        last = last_before(maps, e["t"])
-        age = float("inf") if last is None else e["t"] - last
-        if age > timeout_s + slack_s:
+        usable = [stamp for heard, stamp in maps if stamp <= e["stamp_ns"] and heard <= e["t"] + heard_slack_s]
+        age = (e["stamp_ns"] - max(usable)) * 1e-9 if usable else float("inf")
+        if age > limit_s:
             checked += 1
             if not is_brake(e):
                 bad.append(Violation(e["t"], age, e))

@@ -101,3 +101,24 @@ def test_without_a_wall_clock_the_supervisor_keeps_its_arrival_checks():
     sup.on_ref(ref(), 0.0)
     _, st = sup.tick(0.01)
     assert st.fallback is None and st.esdf_age_ms == pytest.approx(10.0)
+
+
+def test_a_steps_command_and_status_carry_the_wall_clock_it_judged_freshness_by():
+    """So a receiver can check the content-age rule on stamps alone: a moving command's stamp is
+    within timeout + tolerance of the newest map stamp, a brake's is past it."""
+    sup = make()
+    g = stamped(WALL)
+    assert sup.admit_map(g, 0.0, WALL, "mapper") is None
+    sup.on_map(g, 0.0)
+    sup.on_state(state(), 0.0)
+    sup.on_ref(ref(), 0.0)
+    moving_at = WALL + int(0.1 * S)
+    cmd, st = sup.tick(0.1, moving_at)
+    assert st.fallback is None and any(cmd.linear)
+    assert cmd.header.stamp_ns == st.header.stamp_ns == moving_at
+    sup.on_state(state(), 0.25)
+    sup.on_ref(ref(), 0.25)
+    braking_at = WALL + int(0.55 * S)  # content 0.55 s old: past 0.3 + 0.2, while it arrived 0.25 s ago
+    cmd, st = sup.tick(0.25, braking_at)
+    assert st.fallback == "stale_map" and not any(cmd.linear)
+    assert cmd.header.stamp_ns == st.header.stamp_ns == braking_at
