@@ -71,14 +71,22 @@ class Live:
             time.sleep(0.05)  # the sensors' 20 Hz (scenario), not a synchronisation
 
     def hold(self, maps: bool = False, states: bool = False) -> None:
-        """Stop putting maps and/or states; once this returns none follows, so a test's own put stays
-        the newest: a latest-value inbox drops its older sample first, and under load a live one
-        arriving behind the test's would drop it unjudged."""
+        """Stop putting maps and/or states: once this returns, none is put until ``resume``."""
         with self._lock:
             if maps:
                 self.maps.clear()
             if states:
                 self.states.clear()
+
+    def hold_and_put(self, key: str, payload: bytes, source_info: zenoh.SourceInfo | None = None) -> None:
+        """Hold the live maps (``key`` is the map key) or states (any other) and put the test's own
+        sample from this session. Held alone, a live sample put just before the hold may still reach
+        the filter after a sample from another session (the router keeps order per link, not across
+        links), and the latest-value inbox drops the test's unjudged (CI: a future-stamped state never
+        judged). From the live session's own link, the test's sample follows every live one."""
+        self.hold(maps=key == self.keys.esdf, states=key != self.keys.esdf)
+        with self._lock:
+            self.session.put(key, payload, encoding=zenoh.Encoding(ENCODING), source_info=source_info)
 
     def resume(self) -> None:
         with self._lock:
@@ -115,8 +123,7 @@ def test_a_state_jump_is_refused_unless_announced_and_a_future_state_is_refused(
         # One sample 1.9 m away, 50 ms after the last: the look-ahead point would leave the map.
         # (While the robot's states hold, the filter may brake for a stale state, never otherwise.)
         n = len(status.items)
-        live.hold(states=True)
-        put(s, keys.state, robot_state(1.9))
+        live.hold_and_put(keys.state, encode(robot_state(1.9)))
         node.wait(lambda st: extra(st, "state_refused_state_jump") >= 1)
         live.resume()
         later = len(status.items)
@@ -124,8 +131,7 @@ def test_a_state_jump_is_refused_unless_announced_and_a_future_state_is_refused(
         taken = [st.fallback for st in status.items[n:] if st.fallback not in (None, "stale_state")]
         assert not taken, taken
         # Stamped 10 s ahead of this clock: refused too.
-        live.hold(states=True)
-        put(s, keys.state, robot_state(0.0, stamp_ns=time.time_ns() + 10_000_000_000))
+        live.hold_and_put(keys.state, encode(robot_state(0.0, stamp_ns=time.time_ns() + 10_000_000_000)))
         node.wait(lambda st: extra(st, "state_refused_future_state") >= 1)
         live.resume()
         # Announced, the same jump is taken: the robot is where the map ends.
@@ -147,12 +153,11 @@ def test_a_forged_map_with_the_live_mappers_id_and_a_huge_seq_does_not_lock_it_o
         node = StatusWatch(s, keys.status("safety-filter"))
         assert wait_until(lambda: status.items and status.items[-1].fallback is None, 20), proc.output
         h_near = status.items[-1].h
-        # The forger's own session, the live mapper's source id, the largest seq, a stamp 1 h ahead.
-        live.hold(maps=True)
+        # The live mapper's source id, the largest seq, a stamp 1 h ahead (the filter tells a
+        # publisher by its source id alone, so the forger's link is immaterial).
         forged = sphere(1.6)
         forged.header = Header(stamp_ns=time.time_ns() + 3600 * 1_000_000_000, seq=2**64 - 1)
-        s.put(keys.esdf, encode(forged), encoding=zenoh.Encoding(ENCODING),
-              source_info=zenoh.SourceInfo(live.map_pub.id, 0))
+        live.hold_and_put(keys.esdf, encode(forged), zenoh.SourceInfo(live.map_pub.id, 0))
         node.wait(lambda st: extra(st, "map_refused_future_map") >= 1)
         # The live mapper goes on (its seq grows from where it was) with a new map: it is taken.
         live.grid = sphere(1.6)
