@@ -4,11 +4,12 @@
                        labels + confidence          → semantic layer  (SemanticIntegrator, vote rule)
                        with the frame's intrinsics: both in one projective pass (ProjectiveIntegrator)
     update_esdf()      TSDF surface + solid interior + labels → semantic occupancy (occupancy.py)
-                       → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfIntegrator;
-                       the 3-D grid incrementally from the last one while volume and margins stay)
+                       → semantically inflated signed ESDF, 3-D and/or the 2-D slice (EsdfOutput,
+                       esdf_output.py: the 3-D grid incrementally from the last one while volume and
+                       margins stay)
     decay()            people's and animals' voxels unseen for long enough leave the layers
                        (DynamicDecay, before each occupancy)
-    query(points)      distance, gradient, risk group of the latest field (fields.EsdfField)
+    query(points)      distance, gradient, risk group of the latest field (EsdfOutput.query)
 
 The volume follows the robot: ``set_robot_position`` (from ``RobotState``) recentres it
 once the robot is ``recentre_distance`` from its centre, keeping the overlapping voxels.
@@ -51,19 +52,19 @@ data the tracked frames already stamped) or an ignored update never advances it.
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
-from riskfield.protocol import EsdfGrid, Header, PerceptionFrame, RiskConfig
+from riskfield.protocol import Header, PerceptionFrame, RiskConfig
 from riskfield.protocol import field as field_query
 
-from ..fields import EsdfField, FieldSample, answer_query, unknown_sample
+from ..fields import FieldSample
 from .config import FloorParams, MapperConfig
 from .decay import DecayLayers, DynamicDecay
-from .esdf_integrator import EsdfIntegrator
+from .esdf_output import EsdfOutput, MapUpdate
 from .free_floor import FreeFloorIntegrator, FreeFloorLayer
 from .keyframes import NEW, UPDATE, KeyframeData, KeyframeMap
 from .layers import NEVER, SemanticLayer, TsdfLayer
@@ -85,24 +86,6 @@ class FrameResult:
     ms: float
 
 
-@dataclass
-class MapUpdate:
-    """The grids of one ESDF update: the 2-D slice and/or the 3-D grid, per ``output``."""
-
-    slice2d: EsdfGrid | None = None
-    grid3d: EsdfGrid | None = None
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    occupancy: np.ndarray | None = None
-    """The semantic occupancy the grids were built from (per-voxel risk group; the tracker's input)."""
-
-    @property
-    def primary(self) -> EsdfGrid:
-        """What goes on ``map/esdf``: the slice when one is built, else the 3-D grid."""
-        grid = self.slice2d if self.slice2d is not None else self.grid3d
-        assert grid is not None
-        return grid
-
-
 class FutureFrame(FrameRejected):
     """A frame stamped later than the receiver's clock allows (``integrate_frame``)."""
 
@@ -121,19 +104,18 @@ class Mapper:
         self.tsdf_integrator = TsdfIntegrator(c.tsdf)
         self.semantic_integrator = SemanticIntegrator(c.tsdf, c.surface_band)
         self.projective_integrator = ProjectiveIntegrator(c.tsdf, c.surface_band)
-        self.esdf_integrator = EsdfIntegrator.of(c)
+        #: occupancy → the published grids and the queried field (esdf_output.py)
+        self.output = EsdfOutput(c.esdf, c.voxel_size, c.unknown_is_occupied)
         #: the floor seen free (free_floor.py): what an evading robot may retreat into
         self.free_floor = FreeFloorLayer(self.shape)
         self.free_floor_integrator = FreeFloorIntegrator(c.part(FloorParams), c.truncation, c.min_confidence,
                                                          c.min_depth, c.max_depth)
         self.robot_position: np.ndarray | None = None
-        self.field: EsdfField | None = None
         self.frames = 0
         self.shifts = 0
         self.dirty = False
         self.stamp_ns = 0
         self.frame_id = "map"
-        self._last3d: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # groups, distance, risk group
         self.set_risk_config(risk or RiskConfig())
         self.keyframes = KeyframeMap.of(self.config)  # the keyframe map-update protocol (keyframes.py)
         #: the keyframe protocol's present layer (present.py)
@@ -158,7 +140,7 @@ class Mapper:
         self.margins = risk.margins()
         self.unknown_group_id = risk.group_id(unknown)
         self.dirty = True
-        self._last3d = None
+        self.output.forget()
 
     def set_robot_position(self, position: np.ndarray) -> bool:
         """The robot base position (world); recentres the volume if needed. True if it shifted."""
@@ -183,10 +165,9 @@ class Mapper:
         self.tsdf.shift(delta)
         self.semantic.shift(delta)
         self.present.shift(delta)
-        self.esdf_integrator.shift(delta)
+        self.output.shift(delta)
         self.free_floor.shift(delta)
         self.shifts += 1
-        self._last3d = None
         self.dirty = True
         return True
 
@@ -237,7 +218,7 @@ class Mapper:
         """A current frame's rays → the floor seen free (``free_floor``); the cells marked."""
         if self.volume is None or self.config.observed_free_s == 0:
             return 0
-        base = float(self.robot_position[2]) if self.robot_position is not None else 0.0
+        base = self._base_z()
         return self.free_floor_integrator.integrate(self.volume, self.free_floor, points, confidence, T_WC, base,
                                                     base + self.config.band[1], now_ms)
 
@@ -356,7 +337,7 @@ class Mapper:
         c = self.config
         semantic_occupancy(tsdf, sem, self.label_to_group,
                            OccupancyRule(c.min_weight, c.surface_band, 1, interior="solid", fill_steps=1))
-        self.esdf_integrator.warm_up()
+        self.output.integrator.warm_up()
         field_query.warm_up()  # the query service's and the object tracker's
 
     # -- outputs --------------------------------------------------------------------------------
@@ -385,72 +366,35 @@ class Mapper:
             hit=self.tsdf.hit, present_hit=None if self.present.tsdf is None else self.present.tsdf.hit,
             label_to_group=self.label_to_group, stamp_ns=self.stamp_ns, now_ms=self.now_ms)
 
+    def _base_z(self) -> float:
+        """The robot base's height, which the slice's band and the floor are measured from (0 before any state)."""
+        return float(self.robot_position[2]) if self.robot_position is not None else 0.0
+
     def band_indices(self) -> tuple[int, int, float]:
         """z-voxel range [k_lo, k_hi) whose centres lie in the height band, and the slice's z."""
         assert self.volume is not None
-        base = float(self.robot_position[2]) if self.robot_position is not None else 0.0
-        lo, hi = base + self.config.band[0], base + self.config.band[1]
-        z0, v = float(self.volume.origin[2]), self.volume.voxel_size
-        k_lo = math.ceil((lo - z0) / v - 1e-9)
-        k_hi = math.floor((hi - z0) / v + 1e-9) + 1
-        return k_lo, k_hi, 0.5 * (lo + hi)
+        return self.output.band_indices(self.volume, self._base_z())
 
     def update_esdf(self) -> MapUpdate | None:
         """Rebuild the field(s) from the current layers; None before the volume exists."""
         if self.volume is None:
             return None
         c = self.config
-        out = MapUpdate()
         t0 = time.perf_counter()
         groups = self.occupancy()
-        t1 = time.perf_counter()
-        out.timings_ms["occupancy"] = (t1 - t0) * 1e3
-        out.occupancy = groups
+        occupancy_ms = (time.perf_counter() - t0) * 1e3
         header = Header(stamp_ns=self.stamp_ns, frame_id=self.frame_id)  # 0: no data integrated yet
-        common = dict(voxel_size=self.volume.voxel_size, groups=self.risk.group_names, max_distance=c.max_distance,
-                      unknown_is_occupied=c.unknown_is_occupied)
-        if c.output in ("2d", "both"):
-            k_lo, k_hi, z = self.band_indices()
-            dist, grp = self.esdf_integrator.compute_slice(groups, k_lo, k_hi, self.margins)
-            origin = self.volume.origin.copy()
-            origin[2] = z
-            free = None
-            if c.observed_free_s > 0:
-                band_obstacle = (groups[:, :, max(k_lo, 0):max(k_hi, 0)] > 0).any(axis=2)
-                free = self.free_floor.observed_free(self.now_ms, c.observed_free_s, band_obstacle)
-            out.slice2d = EsdfGrid(header=header.model_copy(), origin=tuple(origin.tolist()), distance=dist,
-                                   risk_group=grp, observed_free=free, **common)
-            t2 = time.perf_counter()
-            out.timings_ms["esdf2d"] = (t2 - t1) * 1e3
-            t1 = t2
-        if c.output in ("3d", "both"):
-            dist, grp = self._esdf3d(groups)
-            out.grid3d = EsdfGrid(header=header.model_copy(), origin=tuple(self.volume.origin.tolist()),
-                                  distance=dist, risk_group=grp, **common)
-            out.timings_ms["esdf3d"] = (time.perf_counter() - t1) * 1e3
-        g = out.primary
-        self.field = EsdfField.from_grid(g)
+        free = partial(self.free_floor.observed_free, self.now_ms, c.observed_free_s) if c.observed_free_s else None
+        out = self.output.build(groups, self.volume, header, self.margins, self.risk.group_names, self._base_z(),
+                                free)
+        out.timings_ms = {"occupancy": occupancy_ms, **out.timings_ms,
+                          "total": (time.perf_counter() - t0) * 1e3}
         self.dirty = False
-        out.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
         return out
 
-    def _esdf3d(self, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The 3-D field, incrementally from the last one when the volume and margins are unchanged."""
-        last = self._last3d
-        if last is not None and last[0].shape == groups.shape:
-            dist, grp, _ = self.esdf_integrator.update(groups, self.margins, last[0], (last[1], last[2]))
-        else:
-            dist, grp = self.esdf_integrator.compute(groups, self.margins)
-        self._last3d = (groups, dist, grp)
-        return dist, grp
-
     def query(self, points: np.ndarray) -> FieldSample:
-        """Distance, gradient, risk group (and in-map flag, ``inside``) of the latest field at world
-        points: the filter's field and in-map rule (``fields.answer_query``)."""
-        if self.field is None:
-            n = np.asarray(points, dtype=np.float64).reshape(-1, 3).shape[0]
-            return unknown_sample(n, self.config.max_distance, self.config.unknown_is_occupied)
-        return answer_query(self.field, points)
+        """Distance, gradient, risk group (and in-map flag) of the latest field at world points."""
+        return self.output.query(points)
 
 
 __all__ = ["FrameRejected", "FrameResult", "MapUpdate", "Mapper"]

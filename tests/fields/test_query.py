@@ -86,7 +86,7 @@ def test_the_query_service_and_the_filter_agree_near_the_border(shape: tuple[int
     brakes with ``outside_map`` — for points within a voxel of the border, on both sides."""
     grid = _grid(shape)
     mapper = Mapper(MapperConfig(voxel_size=V, max_distance=2.0))
-    mapper.field = EsdfField.from_grid(grid)  # what update_esdf leaves for the query service
+    mapper.output.field = EsdfField.from_grid(grid)  # what update_esdf leaves for the query service
     filt = SafetyFilter(FilterConfig(model="single3d"))
     field = EsdfField.from_grid(grid)  # what the filter node builds from the published grid
     rng = np.random.default_rng(seed)

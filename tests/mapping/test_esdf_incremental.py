@@ -82,7 +82,7 @@ def test_mapper_incremental_equals_full_over_a_sweep_of_frames(room: list, sweep
     every frame is the full recompute's."""
     cfg = MapperConfig(output="3d", half_extent=(1.5, 1.5, 1.0), max_distance=0.5)
     mappers = [Mapper(cfg, RiskConfig()) for _ in range(2)]
-    mappers[1].esdf_integrator = FullEsdf.of(cfg)
+    mappers[1].output.integrator = FullEsdf.of(cfg)
     for m in mappers:
         m.set_robot_position(np.zeros(3))
     scene = [*room, Plane((0, 1, 0), -1.2, room[0].label)]

@@ -122,7 +122,7 @@ def compare(rendered: list, poses: list[np.ndarray], camera: PinholeCamera,
     m = Mapper(MapperConfig(pixel_stride=1, threads=threads, output="3d", **CUBE), RiskConfig())
     m.set_robot_position(np.zeros(3))
     m.warm_up()
-    esdf = m.esdf_integrator
+    esdf = m.output.integrator
     wave = EsdfIntegrator.of(MapperConfig(threads=threads, esdf_incremental="wave", **CUBE))
     wave.warm_up()
     wave_ms: list[float] = []
@@ -292,7 +292,7 @@ def heap_policy(rendered: list, poses: list[np.ndarray], camera: PinholeCamera, 
             keep_freed_heap(MappingSettings.model_fields["heap_keep_mb"].default)
         for _ in range(repeat):
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-            walls[policy].extend(_time(lambda: m.esdf_integrator.compute(groups, m.margins), 1)[0])
+            walls[policy].extend(_time(lambda: m.output.integrator.compute(groups, m.margins), 1)[0])
             faults[policy].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
     out = _ratio(walls)
     out.update(faults_previous=float(np.median(faults["previous"])), faults_now=float(np.median(faults["now"])))
@@ -383,7 +383,7 @@ def main(
     fields = {}
     for inflation in ("exact", "dilate"):
         m = Mapper(MapperConfig(inflation=inflation, **base), RiskConfig())
-        esdf = m.esdf_integrator
+        esdf = m.output.integrator
         margins = m.margins
         results[f"esdf3d_{inflation}"] = _stats(_time(lambda e=esdf, w=margins: e.compute(groups, w), repeat))
         results[f"esdf2d_{inflation}"] = _stats(
