@@ -160,9 +160,12 @@ def test_the_body_never_touches_an_obstacle(model_name, seed, near):
 
 @pytest.mark.parametrize("model_name", MODELS)
 def test_the_same_rollouts_without_the_filter_collide(model_name):
-    """Otherwise the property above would prove nothing."""
+    """Otherwise the property above would prove nothing: of 30 near starts at least 8 collide
+    unfiltered and the filter acts on at least 15 (the seeds stop once both are shown)."""
     hits = touched = 0
     for seed in range(30):
+        if hits >= 8 and touched >= 15:
+            break
         rng = np.random.default_rng(seed)
         filt = SafetyFilter(FilterConfig(model=model_name))
         field = layout(rng, planar=model_name in ("unicycle", "single2d"))
