@@ -313,7 +313,7 @@ class Braking:
     kind: str = "braking"
     fraction: float = 0.7
     rate_length: float = math.inf
-    speed_floor: float | None = 1e-3
+    speed_floor: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("braking", "hocbf") or not 0 < self.fraction <= 1:

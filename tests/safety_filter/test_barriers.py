@@ -30,7 +30,8 @@ MODELS = [
     UnicycleLookahead(0.3, 0.1, extra_points=[(-0.2, 0.1, 0.0)]),
     SingleIntegrator(2, 0.1, points=[(0.0, 0.0, 0.0), (0.3, -0.1, 0.0)]),
     SingleIntegrator(3, 0.1, points=[(0.0, 0.0, 0.0), (0.2, 0.1, -0.1)]),
-    DoubleIntegrator(0.1, points=[(0.0, 0.0, 0.0), (0.1, 0.0, 0.0)]),
+    # A speed floor far below every speed drawn: the braking barrier is the parabola h - s₊²/(2 a_b).
+    DoubleIntegrator(0.1, points=[(0.0, 0.0, 0.0), (0.1, 0.0, 0.0)], barrier=Braking(speed_floor=1e-3)),
 ]
 IDS = ["unicycle", "single2d", "single3d", "double3d"]
 

@@ -44,7 +44,8 @@ def ridge_state(hb: float) -> tuple[FilterState, FieldSample]:
 @pytest.mark.parametrize(("ell", "feasible"), [(math.inf, False), (0.02, True)])
 def test_braking_row_at_a_ridge_far_from_the_obstacle(ell: float, feasible: bool) -> None:
     s, sample = ridge_state(0.155)
-    m = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(rate_length=ell))
+    # On the parabola (a floor below the 0.152 m/s approach), where the ridge's curvature bites.
+    m = DoubleIntegrator(0.15, a_max=A_MAX, dt=0.05, barrier=Braking(rate_length=ell, speed_floor=1e-3))
     a, b = m.rows(s, sample, np.array([0.155]), GAINS, np.zeros(3))
     assert (b[0] <= A_MAX * np.abs(a[0]).sum()) == feasible
 
