@@ -108,10 +108,10 @@ def record(n: int, camera_hz: float = 10.0, turn_rad_s: float = 0.4, fmt: str = 
     pixel_stride = int(PerceptionSettings.model_fields["pixel_stride"].default)
     world = World(load_scenario(scenario()))
     cam = world.camera
-    new, old = SimBackend(SimBackendConfig(seed=seed)), SimBackend(SimBackendConfig(seed=seed))
+    compact_backend, full_backend = SimBackend(SimBackendConfig(seed=seed)), SimBackend(SimBackendConfig(seed=seed))
     rec = Recording([], [])
     errors = []
-    mappers = {k: _mapper() for k in ("today", "today_compact", "compact_pipeline")} if compare else {}
+    mappers = {k: _mapper() for k in ("full", "full_compacted", "compact_pipeline")} if compare else {}
     lo, hi = ERROR_RANGE_M
     for i in range(n):
         world.command(np.zeros(3), np.array([0.0, 0.0, turn_rad_s]))
@@ -123,7 +123,7 @@ def record(n: int, camera_hz: float = 10.0, turn_rad_s: float = 0.4, fmt: str = 
         have = frame_stride((cam.height, cam.width), truth.pixels) or 1
         t0 = time.perf_counter()
         made = [compact(f, fmt, max(1, pixel_stride // have))  # type: ignore[arg-type]
-                for f in new.process(None, truth, stamp)]
+                for f in compact_backend.process(None, truth, stamp)]
         rec.frames += made
         rec.process_ms["compact"].append((time.perf_counter() - t0) * 1e3)
         for m in mappers.values():
@@ -142,9 +142,9 @@ def record(n: int, camera_hz: float = 10.0, turn_rad_s: float = 0.4, fmt: str = 
         if i == 0:
             rec.truth_bytes = (len(encode(full_truth)), len(encode(truth)))
         t0 = time.perf_counter()
-        todays = old.process(None, full_truth, stamp)
+        full_frames = full_backend.process(None, full_truth, stamp)
         rec.process_ms["full"].append((time.perf_counter() - t0) * 1e3)
-        for f in todays:
+        for f in full_frames:
             t0 = time.perf_counter()
             payload = encode(f)
             decode(payload, PerceptionFrame)
@@ -158,8 +158,8 @@ def record(n: int, camera_hz: float = 10.0, turn_rad_s: float = 0.4, fmt: str = 
             rec.codec_ms["full"].append((t1 - t0) * 1e3)
             rec.codec_ms["compact"].append((time.perf_counter() - t2) * 1e3)
             rec.compact_bytes.append(len(payload))
-            mappers["today"].integrate_frame(f)
-            mappers["today_compact"].integrate_frame(small)
+            mappers["full"].integrate_frame(f)
+            mappers["full_compacted"].integrate_frame(small)
             want = np.asarray(f.points)[::pixel_stride, ::pixel_stride]
             rng = np.linalg.norm(want, axis=-1)
             use = (np.asarray(small.confidence) > 0) & (rng >= lo) & (rng <= hi)
@@ -167,7 +167,7 @@ def record(n: int, camera_hz: float = 10.0, turn_rad_s: float = 0.4, fmt: str = 
     rec.errors_m = np.concatenate(errors) if errors else np.zeros(0)
     if mappers:
         grids = {k: m.update_esdf() for k, m in mappers.items()}
-        base = grids.pop("today")
+        base = grids.pop("full")
         rec.maps = {k: map_agreement(base.primary, g.primary) for k, g in grids.items() if base and g}
     return rec
 

@@ -13,7 +13,7 @@ intrinsics scaled by 1/n: ``PinholeCamera.strided``). The receiver rebuilds the 
 * the pixels between the stride's, which the mapping does not integrate (``pixel_stride``).
 
 ``tests/perception/test_compact.py`` bounds the first two; ``riskfield bench latency --path replay``
-measures them against today's frames of the ``sim`` backend (``experiments.replay.record``).
+measures them against the full-size frames of the ``sim`` backend (``experiments.replay.record``).
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ def test_each_frame_meets_the_first_step_on_a_map_that_contains_it():
     assert out["node_ms"]["mapping integrate"]["n"] == 2 and out["node_ms"]["mapping ESDF update"] is None
 
 
-def test_the_recording_is_compact_and_close_to_todays_frames():
+def test_the_recording_is_compact_and_close_to_the_full_size_frames():
     rec = record(4)
     s = rec.summary()
     assert len(rec.frames) == len(rec.states) == 4
@@ -41,7 +41,7 @@ def test_the_recording_is_compact_and_close_to_todays_frames():
     # the maps built from the full frames and from their compact form: a point error under a voxel moves
     # a surface by at most one voxel along each axis, so a distance by one diagonal step (√2 × 5 cm; a
     # wall near a voxel boundary 2.5–3 m away does, over a few % of the cells)
-    m = s["map_agreement"]["today_compact"]
+    m = s["map_agreement"]["full_compacted"]
     step = float(np.float32(0.05)) * np.sqrt(2)
     assert m["comparable"] and m["abs_diff_m_p99"] <= step + 1e-6 and m["obstacle_iou"] > 0.9
 

@@ -70,13 +70,13 @@ def test_a_point_off_its_ray_comes_back_on_it_at_the_same_depth(cam, seed):
     assert (err <= bound + 1e-5).all()
 
 
-def test_the_compact_frame_is_a_ninth_of_todays():
+def test_the_compact_frame_is_a_ninth_of_the_full_size_one():
     """The default 512×384 camera: the full frame 3.54 MB; depth float16 at stride 2 under 0.4 MB."""
     cam = PinholeCamera()
     full = _frame(cam, np.full((cam.height, cam.width), 2.0))
-    today = len(encode(full))
+    full_size = len(encode(full))
     small = len(encode(compact(full, "float16", 2)))
-    assert today > 3.5e6 and small < 0.4e6, (today, small)
+    assert full_size > 3.5e6 and small < 0.4e6, (full_size, small)
     assert len(encode(compact(full, "float32", 2))) < 0.5e6
 
 
