@@ -10,8 +10,8 @@
 #    validation and the container tests);
 # 2. a virtualenv in .venv;
 # 3. riskfield and its extras into it: `demo` pip install -e ".[all]", `test` ".[all,dev]";
-# 4. the nodes' compiled kernels (numba) into the cache the nodes load them from (`riskfield
-#    warmup`), so that no node compiles at its first start.
+# 4. riskfield's bytecode, and the nodes' compiled kernels (numba) into the cache the nodes load
+#    them from (`riskfield warmup`), so that no node compiles at its first start.
 #
 # Every step says what it does; pip and apt-get print their own progress (minutes on a fresh
 # machine). Re-running is cheap: the install is stamped per command (and redone when pyproject.toml
@@ -70,5 +70,8 @@ fi
 
 # Tens of seconds to minutes the first time (once per checkout, and again for the kernels whose
 # sources changed); a second or two when done. NUMBA_CACHE_DIR, if set, must be the nodes' too.
-step "[4/4] compiling the nodes' kernels (riskfield warmup; a second when done)"
+# The sources' bytecode too: compileall writes it even where PYTHONDONTWRITEBYTECODE is set (as on
+# this kind of machine), and every process then reads it instead of compiling the sources again.
+step "[4/4] compiling riskfield's bytecode and the nodes' kernels (riskfield warmup; a second when done)"
+.venv/bin/python -m compileall -q protocol services edge riskfield
 .venv/bin/riskfield warmup
