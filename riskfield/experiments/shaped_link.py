@@ -132,12 +132,18 @@ class _Pipe:
                 for i in range(0, len(data), self.link.shape.burst_bytes):
                     piece = data[i:i + self.link.shape.burst_bytes]
                     self._take(len(piece))
-                    self.dst.sendall(piece)
+                    # Counted before it is written: a reader that has the bytes finds them counted (counted
+                    # after, the last piece's count raced the receiver's read: CI saw a map stream's bytes short).
+                    self.stats.bytes += len(piece)
+                    try:
+                        self.dst.sendall(piece)
+                    except OSError:
+                        self.stats.bytes -= len(piece)
+                        raise
                 with self.cond:
                     self.queue.popleft()
                     self.queued -= len(data)
                     self.cond.notify_all()
-                self.stats.bytes += len(data)
                 self.stats.delays_ms.append((time.monotonic() - read_at) * 1e3)
         except OSError:
             pass
