@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from oracles.occupancy import whole_volume_occupancy
+from oracles.occupancy import close_pinholes_by_voxel, whole_volume_occupancy
 from riskfield.protocol import RiskConfig, ade20k
 from riskfield.services.mapping.config import MapperConfig
 from riskfield.services.mapping.layers import SemanticLayer, TsdfLayer
-from riskfield.services.mapping.occupancy import OccupancyRule, semantic_occupancy
+from riskfield.services.mapping.occupancy import _FREE, OccupancyRule, _close_pinholes, semantic_occupancy
 
 V = 0.05
 BED, FLOOR = ade20k.index("bed"), ade20k.index("floor")
@@ -76,13 +78,14 @@ def test_the_policy_and_depth_come_from_the_config(policy: str, steps: int) -> N
     assert MapperConfig(unobserved_behind_surface="free").support_steps == 0  # needs the solid fill
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_the_sparse_scans_equal_the_whole_volume_scans(seed: int) -> None:
+@pytest.mark.parametrize(("seed", "height"), [*((s, (4, 18)) for s in range(6)), (6, (65, 70)), (7, (120, 140))])
+def test_the_sparse_scans_equal_the_whole_volume_scans(seed: int, height: tuple[int, int]) -> None:
     """The production passes skip columns without an observed obstacle and voxels the wavefront
-    never reached; on random layers (blobs of labelled surface, interior, never-observed space,
-    grazing and steep viewing directions) they give the whole-volume scans' result (the oracle)."""
+    never reached, and close pinholes on bit planes of 64 voxels a word; on random layers (blobs of
+    labelled surface, interior, never-observed space, grazing and steep viewing directions) they
+    give the whole-volume scans' result (the oracle), also in columns of two and three words."""
     rng = np.random.default_rng(seed)
-    shape = tuple(int(n) for n in rng.integers(4, 18, 3))
+    shape = (*(int(n) for n in rng.integers(4, 18 if height[1] < 64 else 9, 2)), int(rng.integers(*height)))
     tsdf, sem = TsdfLayer(shape, 0.15), SemanticLayer(shape)
     observed = rng.random(shape) < 0.6
     tsdf.weight[observed] = rng.uniform(0.0, 10.0, int(observed.sum()))
@@ -98,3 +101,33 @@ def test_the_sparse_scans_equal_the_whole_volume_scans(seed: int) -> None:
             full = whole_volume_occupancy(tsdf, sem, lut, rule)
             np.testing.assert_array_equal(semantic_occupancy(tsdf, sem, lut, rule), full)
     assert full.any()
+
+
+@settings(max_examples=150, deadline=None)
+@given(nx=st.integers(1, 4), ny=st.integers(1, 4), nz=st.integers(1, 140), seed=st.integers(0, 2**32 - 1),
+       p_filled=st.floats(0.0, 0.6))
+def test_the_pinholes_close_on_bit_planes_as_voxel_by_voxel(nx: int, ny: int, nz: int, seed: int,
+                                                            p_filled: float) -> None:
+    """The bit planes (``_close_pinholes``, 64 voxels of a column to a word, bits carried across
+    words along k) close the same voxels with the same groups as the six-neighbour scan, for any
+    column height: words end at k = 63, 127."""
+    rng = np.random.default_rng(seed)
+    shape = np.array([nx, ny, nz], np.int64)
+    n = nx * ny * nz
+    state = rng.choice(np.array([0, 1, 2, 3], np.uint8), n, p=[0.1, 0.05, 0.6, 0.25])
+    g = np.where(state == 3, rng.choice(np.array([0, 1, 2, 3, _FREE], np.uint8), n), 0).astype(np.uint8)
+    filled = (state == 2) & (rng.random(n) < p_filled)
+    g[filled] = rng.integers(1, 4, int(filled.sum()))
+    marked = np.flatnonzero(filled)
+    results = []
+    for close in (_close_pinholes, close_pinholes_by_voxel):
+        st_, g_, filled_ = state.copy(), g.copy(), filled.copy()
+        cand = np.zeros(n, np.int64)
+        cand[:marked.size] = marked
+        n_filled = close(st_, filled_, g_, cand, marked.size, shape)
+        np.testing.assert_array_equal(st_, state)  # both leave the caller's state as it was
+        results.append((g_, filled_, np.sort(cand[marked.size:n_filled])))
+    (g_bits, filled_bits, closed_bits), (g_ref, filled_ref, closed_ref) = results
+    np.testing.assert_array_equal(closed_bits, closed_ref)
+    np.testing.assert_array_equal(filled_bits, filled_ref)
+    np.testing.assert_array_equal(g_bits, g_ref)

@@ -1,9 +1,10 @@
 """Semantic occupancy by whole-volume scans, as a test oracle of the mapper's sparse passes
 (``services/mapping/occupancy.py``, ``_solid``): after the wavefront, the production kernel visits
-only the columns with an observed obstacle voxel (the fill below obstacles), the neighbours of the
-voxels the first pinhole pass closed (the second) and the voxels the wavefront reached (the free
-mark's clearing, without ``unknown_group``); this oracle runs the same passes over every column,
-every filled voxel and every voxel, which must give the same groups
+only the columns with an observed obstacle voxel (the fill below obstacles), closes the pinholes on
+bit planes, 64 voxels of a column to a word, the second pass only beside the voxels the first one
+closed, and visits the voxels the wavefront reached (the free mark's clearing, without
+``unknown_group``); this oracle runs the same passes over every column, voxel by voxel around every
+filled voxel, and over every voxel, which must give the same groups
 (tests/mapping/test_support_fill.py). Plain Python: the tests' grids are a few thousand voxels.
 """
 
@@ -12,8 +13,13 @@ from __future__ import annotations
 import numpy as np
 
 from riskfield.services.mapping.layers import NO_LABEL, SemanticLayer, TsdfLayer
-from riskfield.services.mapping.occupancy import _FREE, OccupancyRule, _enqueue_by_priority, _solid_at
+from riskfield.services.mapping.occupancy import _FREE, OccupancyRule, _enqueue_by_priority
 from riskfield.services.mapping.raycast import ray_voxels
+
+
+def _solid_at(f: int, state: np.ndarray, filled: np.ndarray, g: np.ndarray) -> bool:
+    """Voxel ``f`` is part of an obstacle: filled, or observed interior / surface of an obstacle group."""
+    return bool(filled[f] or (state[f] == 3 and g[f] != _FREE and g[f] != 0))
 
 
 def whole_volume_occupancy(tsdf: TsdfLayer, semantic: SemanticLayer, label_to_group: np.ndarray,
@@ -170,42 +176,8 @@ def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> N
                             run -= 1
                         elif state[f] != 2:
                             run = 0
-        # Close the pinholes the diverging marches leave: twice, a never-observed voxel between
-        # two obstacle voxels (filled or observed interior) along an axis; both passes look
-        # around every filled voxel (the production's second pass only around those the first
-        # one closed).
-        n_filled = n_marked
-        first = 0
-        for _ in range(2):
-            n_old = n_filled
-            for m in range(first, n_old):
-                f0 = cand[m]
-                k0 = f0 % nz
-                j0 = (f0 // nz) % ny
-                i0 = f0 // sx
-                for a in range(6):  # +i, -i, +j, -j, +k, -k
-                    i = i0 + (1 if a == 0 else -1 if a == 1 else 0)
-                    j = j0 + (1 if a == 2 else -1 if a == 3 else 0)
-                    k = k0 + (1 if a == 4 else -1 if a == 5 else 0)
-                    if i < 0 or i >= nx or j < 0 or j >= ny or k < 0 or k >= nz:
-                        continue
-                    f = (i * ny + j) * nz + k
-                    if state[f] != 2 or filled[f]:
-                        continue
-                    if 0 < i < nx - 1 and _solid_at(f - sx, state, filled, g) and _solid_at(f + sx, state, filled, g):
-                        g[f] = g[f - sx]
-                    elif 0 < j < ny - 1 and _solid_at(f - sy, state, filled, g) and _solid_at(f + sy, state, filled, g):
-                        g[f] = g[f - sy]
-                    elif 0 < k < nz - 1 and _solid_at(f - 1, state, filled, g) and _solid_at(f + 1, state, filled, g):
-                        g[f] = g[f - 1]
-                    else:
-                        continue
-                    state[f] = 4  # closed in this pass: counted as solid from the next pass on
-                    cand[n_filled] = f
-                    n_filled += 1
-            for m in range(n_old, n_filled):
-                filled[cand[m]] = True
-                state[cand[m]] = 2
+        # Close the pinholes the diverging marches leave, voxel by voxel.
+        n_filled = close_pinholes_by_voxel(state, filled, g, cand, n_marked, shape)
         for m in range(n_filled):
             state[cand[m]] = 3
     for f in range(n):  # every voxel (the production's only those the wavefront reached, without unknown_group)
@@ -213,3 +185,43 @@ def _solid(layers: tuple, lut: np.ndarray, rule: tuple, groups: np.ndarray) -> N
             g[f] = 0
         elif unknown_group > 0 and state[f] == 2 and w[f] <= 0.0:
             g[f] = unknown_group
+
+
+def close_pinholes_by_voxel(state: np.ndarray, filled: np.ndarray, g: np.ndarray, cand: np.ndarray, n_marked: int,
+                            shape: np.ndarray) -> int:
+    """The production's ``_close_pinholes`` voxel by voxel: both passes look around every filled
+    voxel (``cand[:n_marked]`` and what the first pass closed), each voxel's six neighbours."""
+    nx, ny, nz = (int(x) for x in shape)
+    sy, sx = nz, ny * nz
+    n_filled = n_marked
+    for _ in range(2):
+        n_old = n_filled
+        for m in range(n_old):
+            f0 = cand[m]
+            k0 = f0 % nz
+            j0 = (f0 // nz) % ny
+            i0 = f0 // sx
+            for a in range(6):  # +i, -i, +j, -j, +k, -k
+                i = i0 + (1 if a == 0 else -1 if a == 1 else 0)
+                j = j0 + (1 if a == 2 else -1 if a == 3 else 0)
+                k = k0 + (1 if a == 4 else -1 if a == 5 else 0)
+                if i < 0 or i >= nx or j < 0 or j >= ny or k < 0 or k >= nz:
+                    continue
+                f = (i * ny + j) * nz + k
+                if state[f] != 2 or filled[f]:
+                    continue
+                if 0 < i < nx - 1 and _solid_at(f - sx, state, filled, g) and _solid_at(f + sx, state, filled, g):
+                    g[f] = g[f - sx]
+                elif 0 < j < ny - 1 and _solid_at(f - sy, state, filled, g) and _solid_at(f + sy, state, filled, g):
+                    g[f] = g[f - sy]
+                elif 0 < k < nz - 1 and _solid_at(f - 1, state, filled, g) and _solid_at(f + 1, state, filled, g):
+                    g[f] = g[f - 1]
+                else:
+                    continue
+                state[f] = 4  # closed in this pass: counted as solid from the next pass on
+                cand[n_filled] = f
+                n_filled += 1
+        for m in range(n_old, n_filled):
+            filled[cand[m]] = True
+            state[cand[m]] = 2
+    return n_filled
