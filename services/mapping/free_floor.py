@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..runtime.jit import jit
 from .config import FloorParams
 from .layers import NEVER
 from .volume import Volume, shift_array
@@ -54,27 +55,52 @@ class FreeFloorIntegrator:
         """Mark the cells the frame's rays crossed between ``floor_z`` and ``top_z`` (world z);
         ``points`` (H, W, 3) in the camera frame. Returns the cells marked."""
         s = self.params.observed_free_stride
-        pts = np.asarray(points, np.float64)[::s, ::s].reshape(-1, 3)
-        conf = np.asarray(confidence)[::s, ::s].reshape(-1)
-        rng = np.linalg.norm(pts, axis=1)
-        ok = np.isfinite(rng) & (conf >= self.min_confidence) & (rng >= self.min_depth) & (rng <= self.max_depth)
-        if not ok.any():
-            return 0
         T = np.asarray(T_WC, np.float64)
-        centre = T[:3, 3]
-        ends = pts[ok] @ T[:3, :3].T + centre
-        free_len = rng[ok] - self.truncation
-        h = volume.voxel_size * 0.5
-        steps = np.arange(0.0, float(free_len.max()) + h, h) if free_len.max() > 0 else np.zeros(0)
-        if not steps.size:
-            return 0
-        dirs = (ends - centre) / rng[ok][:, None]
-        keep = steps[None, :] <= free_len[:, None]  # (rays, samples)
-        samples = centre + dirs[:, None, :] * steps[None, :, None]
-        keep &= (samples[..., 2] >= floor_z) & (samples[..., 2] <= top_z)
-        ij = volume.to_index(samples[keep])[:, :2]
-        nx, ny = layer.seen_ms.shape[:2]
-        inside = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
-        ij = ij[inside]
-        layer.seen_ms[ij[:, 0], ij[:, 1], 0] = now_ms
-        return len(np.unique(ij[:, 0] * ny + ij[:, 1]))
+        limits = np.array([self.min_confidence, self.min_depth, self.max_depth, self.truncation, floor_z, top_z])
+        # copies: C-ordered and writable whatever the frame's arrays are, so one compiled signature serves
+        return _mark_free(np.array(points[::s, ::s]), np.array(confidence[::s, ::s]),
+                          np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), limits,
+                          volume.voxel_size, volume.origin_index[:2].copy(), layer.seen_ms, now_ms)
+
+
+@jit(error_model="numpy")
+def _mark_free(points: np.ndarray, confidence: np.ndarray, R: np.ndarray, centre: np.ndarray, limits: np.ndarray,
+               voxel_size: float, origin_index: np.ndarray, seen_ms: np.ndarray, now_ms: int) -> int:
+    """Each ray of ``points`` (camera frame) whose confidence and range pass ``limits`` = (min
+    confidence, min and max depth, truncation, floor z, top z) is sampled every half voxel from the
+    camera up to ``truncation`` short of its point; a sample between floor z and top z marks its
+    cell. Returns the cells marked.
+
+    Compiled, sample by sample: the same sampling as whole arrays (rays × samples × 3, every sample
+    of the longest ray for every ray) took 6.4 ms a frame in the mapping node, twice the TSDF and
+    semantic integration together."""
+    min_conf, min_depth, max_depth, truncation, floor_z, top_z = limits
+    h = voxel_size * 0.5
+    nx, ny = seen_ms.shape[0], seen_ms.shape[1]
+    marked = np.zeros((nx, ny), np.bool_)
+    n = 0
+    for v in range(points.shape[0]):
+        for u in range(points.shape[1]):
+            px, py, pz = np.float64(points[v, u, 0]), np.float64(points[v, u, 1]), np.float64(points[v, u, 2])
+            r = np.sqrt(px * px + py * py + pz * pz)
+            if not (np.isfinite(r) and confidence[v, u] >= min_conf and min_depth <= r <= max_depth):
+                continue
+            free_len = r - truncation
+            dx = (R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz) / r
+            dy = (R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz) / r
+            dz = (R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz) / r
+            m = 0
+            while m * h <= free_len:
+                t = m * h
+                m += 1
+                z = centre[2] + dz * t
+                if z < floor_z or z > top_z:
+                    continue
+                i = np.int64(np.floor((centre[0] + dx * t) / voxel_size + 0.5)) - origin_index[0]
+                j = np.int64(np.floor((centre[1] + dy * t) / voxel_size + 0.5)) - origin_index[1]
+                if 0 <= i < nx and 0 <= j < ny:
+                    seen_ms[i, j, 0] = now_ms
+                    if not marked[i, j]:
+                        marked[i, j] = True
+                        n += 1
+    return n

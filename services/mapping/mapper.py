@@ -319,7 +319,7 @@ class Mapper:
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel before serving, on a scratch volume,
-        for writable and read-only (decoded, zero-copy) arrays alike, and the occupancy's."""
+        for writable and read-only (decoded, zero-copy) arrays alike, the floor seen free's and the occupancy's."""
         scratch = Volume(self.config.voxel_size, (3, 3, 3))
         tsdf, sem = TsdfLayer(scratch.shape, self.config.truncation), SemanticLayer(scratch.shape)
         pts = np.zeros((2, 2, 3), np.float32)
@@ -334,6 +334,7 @@ class Mapper:
             self.semantic_integrator.integrate(scratch, sem, arrays[0], arrays[1], arrays[2], arrays[3])
             self.projective_integrator.integrate(scratch, tsdf, sem, arrays[0], arrays[1], arrays[2], arrays[3],
                                                  (2.0, 2.0, 0.5, 0.5))
+        self.free_floor_integrator.integrate(scratch, FreeFloorLayer(scratch.shape), pts, conf, T, 0.0, 1.0, 0)
         c = self.config
         semantic_occupancy(tsdf, sem, self.label_to_group,
                            OccupancyRule(c.min_weight, c.surface_band, 1, interior="solid", fill_steps=1))

@@ -4,9 +4,14 @@ never an obstacle, forgotten after ``observed_free_s``, kept in place when the v
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from oracles.free_floor import mark_free_by_arrays
 from riskfield.protocol import ade20k
+from riskfield.services.geometry.transforms import quat_to_matrix
 from riskfield.services.mapping.config import MapperConfig
+from riskfield.services.mapping.free_floor import _mark_free
 from riskfield.services.mapping.mapper import Mapper
 
 #: OpenCV camera (x right, y down, z forward) looking along world +x
@@ -73,3 +78,26 @@ def test_the_layer_can_be_left_out():
     m = mapper(observed_free_s=0.0)
     integrate(m, 1.0)
     assert m.update_esdf().slice2d.observed_free is None
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), rows=st.integers(1, 24), cols=st.integers(1, 32), stride=st.integers(1, 3),
+       voxel=st.sampled_from([0.05, 0.1]), top=st.floats(0.1, 1.0))
+def test_the_compiled_rays_mark_the_cells_the_array_sampling_marks(seed: int, rows: int, cols: int, stride: int,
+                                                                   voxel: float, top: float) -> None:
+    """``_mark_free`` sample by sample equals the same sampling done on whole arrays (the oracle),
+    for any pose, bad pixels (NaN, low confidence, too near or far) included."""
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(0.0, 2.0, (rows, cols, 3)).astype(np.float32)
+    pts[rng.random(pts.shape[:2]) < 0.05] = np.nan
+    conf = rng.uniform(0.0, 2.0, pts.shape[:2]).astype(np.float32)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = quat_to_matrix(rng.normal(size=4) + 1e-3), rng.uniform(-1.0, 1.0, 3) * (1.0, 1.0, 0.3)
+    limits = np.array([0.5, rng.uniform(0.0, 1.5), rng.uniform(1.5, 5.0), rng.uniform(0.0, 0.3),
+                       rng.uniform(-0.3, 0.0), top])
+    origin = rng.integers(-30, -10, 2)
+    seen = [np.full((40, 40, 1), -7, np.int32) for _ in range(2)]
+    p, c = pts[::stride, ::stride], conf[::stride, ::stride]
+    n = _mark_free(p, c, np.ascontiguousarray(T[:3, :3]), T[:3, 3].copy(), limits, voxel, origin, seen[0], 1234)
+    assert n == mark_free_by_arrays(p, c, T, limits, voxel, origin, seen[1], 1234)
+    np.testing.assert_array_equal(seen[0], seen[1])
